@@ -87,6 +87,11 @@ class Grid:
         _, ny, nz = self.shape
         return (ijk[..., 0] * ny + ijk[..., 1]) * nz + ijk[..., 2]
 
+    def flat_of(self, i: np.ndarray, j: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Flat C-order index of in-grid voxel index columns i, j, k."""
+        _, ny, nz = self.shape
+        return (i * ny + j) * nz + k
+
     def unflat(self, flat: np.ndarray) -> np.ndarray:
         """Voxel indices (…, 3) of flat indices."""
         return np.stack(np.unravel_index(np.asarray(flat, dtype=np.int64), self.shape), axis=-1)

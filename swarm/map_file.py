@@ -1,0 +1,68 @@
+"""``map.npz``: the file form of a coverage map (DESIGN.md section 6).
+
+Keys: ``mu``, ``sigma``, ``entropy``, ``expected_coverage`` (float32, nx x ny x nz),
+``origin``, ``voxel_size``; and ``sensor`` ([sigma_min, zeta, tau, max_range]) so the
+prior can be rebuilt when the map is loaded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import default_table, expected_coverage
+from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
+
+REQUIRED_KEYS = ("mu", "sigma", "entropy", "expected_coverage", "origin", "voxel_size")
+
+
+class MapFileError(ValueError):
+    """A map file that cannot be read, with the file and key named."""
+
+
+def save_map(path: str | Path, cmap: CoverageMap) -> None:
+    """Write ``cmap`` to ``path`` (compressed npz)."""
+    shape = cmap.grid.shape
+    mu = cmap.mean().astype(np.float32)
+    sigma = cmap.sigma().astype(np.float32)
+    s = cmap.sensor
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        mu=mu.reshape(shape),
+        sigma=sigma.reshape(shape),
+        entropy=default_table()(mu, sigma).astype(np.float32).reshape(shape),
+        expected_coverage=expected_coverage(mu, sigma).astype(np.float32).reshape(shape),
+        origin=np.asarray(cmap.grid.origin, dtype=np.float64),
+        voxel_size=np.float64(cmap.grid.voxel),
+        sensor=np.array([s.sigma_min, s.zeta, s.tau, s.max_range], dtype=np.float64),
+    )
+
+
+def load_map(path: str | Path) -> CoverageMap:
+    """Read a map written by :func:`save_map` (or any npz with the DESIGN.md keys)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in REQUIRED_KEYS if k not in data.files]
+            if missing:
+                raise MapFileError(f"{path}: missing keys {missing}")
+            mu = data["mu"].astype(np.float64)
+            sigma = data["sigma"].astype(np.float64)
+            origin = data["origin"]
+            voxel = float(data["voxel_size"])
+            sensor = SensorModel(*data["sensor"].tolist()) if "sensor" in data.files else None
+    except MapFileError:
+        raise
+    except (OSError, ValueError, KeyError) as exc:
+        raise MapFileError(f"{path}: cannot read map: {exc}") from exc
+    if mu.ndim != 3 or mu.shape != sigma.shape:
+        raise MapFileError(f"{path}: mu and sigma must be equal 3-D arrays, got {mu.shape}, {sigma.shape}")
+    if not (np.all(np.isfinite(mu)) and np.all(sigma > 0)):
+        raise MapFileError(f"{path}: mu must be finite and sigma > 0")
+    grid = Grid(tuple(origin.tolist()), voxel, mu.shape)
+    lam = 1.0 / sigma**2
+    return CoverageMap(grid, sensor, lam.astype(np.float32), (mu * lam).astype(np.float32))

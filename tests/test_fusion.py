@@ -1,0 +1,142 @@
+"""Fusion of batches: against an independent per-ray computation, and order invariance."""
+
+import numpy as np
+import pytest
+
+from swarm.map.coverage_map import CoverageMap, prior_information
+from swarm.map.delta import Delta, merge_deltas
+from swarm.map.fusion import batch_information
+from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
+from tests.test_traversal import reference
+
+GRID = Grid((-3.0, -3.0, -1.0), 0.1, (60, 60, 30))
+SENSOR = SensorModel(max_range=2.3)
+
+
+def random_batch(rng, n=200):
+    origin = rng.uniform(-0.5, 0.5, 3) * [1, 1, 0.4]
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    points = origin + direction * rng.uniform(0.3, 2.2, (n, 1)) * [1, 1, 0.3]
+    return origin, points
+
+
+def test_batch_equals_independent_per_ray_sum():
+    """Each ray's voxels (exact reference traversal) get lam = 1/sigma^2, eta = mu/sigma^2 (eq. 14)."""
+    rng = np.random.default_rng(0)
+    origin, points = random_batch(rng, 40)
+    flat = np.array([[1.0, 0.2, 0.05], [-0.3, 1.0, 0.1], [-1, -1, 0], [0.2, -1, -0.1], [1, 1, 0.2]])
+    points[:5] = origin + 4.0 * flat / np.linalg.norm(flat, axis=1, keepdims=True)  # beyond max range
+    lam, eta = {}, {}
+    for p in points:
+        dist = float(np.linalg.norm(p - origin))
+        returned = dist <= SENSOR.max_range
+        end = p if returned else origin + (p - origin) * SENSOR.max_range / dist
+        voxels, _, _ = reference(GRID, origin, end, hit=returned)
+        for v in voxels:
+            if not GRID.contains_index(np.array(v)):
+                continue
+            d_l = float(np.linalg.norm(GRID.centre(np.array(v)) - origin))
+            mu = SENSOR.mean(dist, d_l, GRID.voxel)
+            sigma = SENSOR.sigma(dist, d_l, GRID.voxel)
+            key = int(GRID.flat(np.array(v)))
+            lam[key] = lam.get(key, 0.0) + 1 / sigma**2
+            eta[key] = eta.get(key, 0.0) + mu / sigma**2
+    result = batch_information(GRID, SENSOR, origin, points)
+    assert result.truncated == 5
+    assert sorted(lam) == result.delta.idx.tolist()
+    keys = result.delta.idx.tolist()
+    np.testing.assert_allclose(result.delta.dlam, [lam[k] for k in keys], rtol=2e-5)
+    np.testing.assert_allclose(result.delta.deta, [eta[k] for k in keys], rtol=2e-5, atol=1e-3)
+
+
+def test_order_of_batches_and_deltas_does_not_matter():
+    rng = np.random.default_rng(1)
+    batches = [random_batch(rng) for _ in range(6)]
+    deltas = [batch_information(GRID, SENSOR, o, p).delta for o, p in batches]
+
+    in_order = CoverageMap(GRID, SENSOR)
+    for o, p in batches:
+        in_order.integrate(o, p)
+
+    reversed_map = CoverageMap(GRID, SENSOR)
+    for o, p in reversed(batches):
+        reversed_map.integrate(o, p)
+
+    shuffled = CoverageMap(GRID, SENSOR)
+    for i in rng.permutation(len(deltas)):
+        shuffled.apply(deltas[i])
+
+    merged = CoverageMap(GRID, SENSOR)
+    merged.apply(merge_deltas([deltas[i] for i in (5, 1, 3)], GRID.size))
+    merged.apply(merge_deltas([deltas[i] for i in (0, 4, 2)], GRID.size))
+
+    for other in (reversed_map, shuffled, merged):
+        np.testing.assert_allclose(other.lam, in_order.lam, rtol=1e-5)
+        np.testing.assert_allclose(other.eta, in_order.eta, rtol=1e-5, atol=1e-4)
+
+
+def test_prior_counted_once_and_delta_from_prior_rebuilds_the_map():
+    rng = np.random.default_rng(2)
+    cmap = CoverageMap(GRID, SENSOR)
+    for _ in range(3):
+        cmap.integrate(*random_batch(rng))
+    rebuilt = CoverageMap(GRID, SENSOR)
+    rebuilt.apply(cmap.delta_from_prior())
+    np.testing.assert_allclose(rebuilt.lam, cmap.lam, rtol=1e-5)
+    lam0, eta0 = prior_information(SENSOR)
+    untouched = ~cmap.known_mask()
+    assert untouched.any()
+    assert np.all(cmap.lam[untouched] == np.float32(lam0))
+    assert np.all(cmap.eta[untouched] == np.float32(eta0))
+
+
+def test_fused_map_marks_hits_covered_and_free_space_free():
+    origin = np.array([0.05, 0.05, 0.05])
+    wall = np.array([[1.05, y, z] for y in np.arange(-0.45, 0.5, 0.1) for z in np.arange(-0.15, 0.2, 0.1)])
+    cmap = CoverageMap(GRID, SENSOR)
+    for _ in range(3):
+        cmap.integrate(origin, wall)
+    mu = cmap.mean().reshape(GRID.shape)
+    i_wall = GRID.index_of(np.array([1.05, 0.05, 0.05]))
+    i_free = GRID.index_of(np.array([0.55, 0.05, 0.05]))
+    assert mu[tuple(i_wall)] > 0.4
+    assert mu[tuple(i_free)] < 0.05
+
+
+def test_nonfinite_degenerate_and_outside_points_are_counted_and_the_rest_fused():
+    origin = np.zeros(3)
+    points = np.array(
+        [
+            [1.0, 0.2, 0.1],
+            [np.nan, 0, 0],
+            [np.inf, 1, 1],
+            [0, 0, 0],
+            [50.0, 0.0, 0.0],
+            [0.5, -0.5, 0.0],
+        ]
+    )
+    result = batch_information(GRID, SensorModel(max_range=100), origin, points)
+    assert (result.skipped_nonfinite, result.skipped_degenerate, result.skipped_outside) == (
+        2,
+        1,
+        1,
+    )
+    assert result.rays == 2 and len(result.delta) > 10
+
+
+def test_bad_deltas_are_rejected_whole():
+    cmap = CoverageMap(GRID, SENSOR)
+    before = cmap.lam.copy()
+    with pytest.raises(ValueError, match="out of grid"):
+        cmap.apply(Delta(np.array([0, GRID.size], np.uint32), np.ones(2, np.float32), np.ones(2, np.float32)))
+    with pytest.raises(ValueError, match="NaN"):
+        cmap.apply(
+            Delta(
+                np.array([0, 1], np.uint32),
+                np.array([1, np.nan], np.float32),
+                np.ones(2, np.float32),
+            )
+        )
+    np.testing.assert_array_equal(cmap.lam, before)

@@ -1,0 +1,101 @@
+"""`swarm ingest` and `swarm map info` end to end, through the CLI entry point."""
+
+import bz2
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.cli import main
+from swarm.map_file import load_map
+from swarm.point_cloud_file import write_ply_points
+
+BUNDLED_SCAN = Path(__file__).resolve().parent.parent / "data" / "octomap" / "scan.dat.bz2"
+
+
+def wall_cloud() -> np.ndarray:
+    """A wall 2 m ahead of the origin, 1.6 m wide and 1 m high."""
+    y, z = np.meshgrid(np.linspace(-0.8, 0.8, 33), np.linspace(-0.5, 0.5, 21))
+    return np.column_stack([np.full(y.size, 2.0), y.ravel(), z.ravel()])
+
+
+def run_json(capsys, *args) -> dict:
+    assert main(["ingest", *map(str, args), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_nonfinite_and_out_of_box_points_are_reported_and_the_rest_fused(tmp_path, capsys):
+    good = wall_cloud()
+    bad = np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [-np.inf, 0, 0], [9.0, 0.0, 0.0], [0.5, 5.0, 0.0]])
+    cloud = tmp_path / "cloud.npy"
+    np.save(cloud, np.vstack([good, bad]))
+    out = tmp_path / "map.npz"
+    report = run_json(capsys, cloud, "--out", out, "--bounds", -1, -2, -1, 3, 2, 1, "--max-range", 20)
+    assert report["skipped_nonfinite"] == 3
+    assert report["skipped_outside"] == 2
+    assert report["rays"] == len(good)
+    assert report["voxel_updates"] > len(good) * 20
+    assert report["final_entropy_bits"] < report["initial_entropy_bits"]
+    assert report["initial_entropy_bits"] == pytest.approx(7 * report["voxels"], rel=0.01)
+
+    with np.load(out) as data:
+        for key in ("mu", "sigma", "entropy", "expected_coverage"):
+            assert data[key].shape == tuple(report["shape"]) and data[key].dtype == np.float32
+        assert data["voxel_size"] == pytest.approx(0.1)
+        np.testing.assert_allclose(data["origin"], [-1, -2, -1])
+        # the wall is covered, the space in front of it free
+        cov = data["expected_coverage"]
+        i_wall = np.floor((np.array([2.05, 0.05, 0.05]) - [-1, -2, -1]) / 0.1).astype(int)
+        i_free = np.floor((np.array([1.0, 0.05, 0.05]) - [-1, -2, -1]) / 0.1).astype(int)
+        assert cov[tuple(i_wall)] > 0.5 > 0.1 > cov[tuple(i_free)]
+        assert float(data["entropy"].sum()) == pytest.approx(report["final_entropy_bits"], rel=1e-4)
+
+    cmap = load_map(out)
+    assert cmap.grid.shape == tuple(report["shape"])
+
+
+def test_text_bz2_and_ply_read_the_same_cloud(tmp_path, capsys):
+    points = wall_cloud()
+    text = tmp_path / "cloud.txt.bz2"
+    with bz2.open(text, "wt") as f:
+        f.write("# x y z\n")
+        np.savetxt(f, points, fmt="%.6f")
+    ply = tmp_path / "cloud.ply"
+    write_ply_points(ply, points)
+    a = run_json(capsys, text, "--out", tmp_path / "a.npz")
+    b = run_json(capsys, ply, "--out", tmp_path / "b.npz")
+    assert a["rays"] == b["rays"] == len(points)
+    assert a["voxel_updates"] == b["voxel_updates"]
+    assert a["final_entropy_bits"] == pytest.approx(b["final_entropy_bits"], rel=1e-5)
+
+
+@pytest.mark.skipif(not BUNDLED_SCAN.exists(), reason="bundled OctoMap scan missing")
+def test_real_scan_ingests_and_map_info_summarises_it(tmp_path, capsys):
+    out = tmp_path / "scan.npz"
+    report = run_json(capsys, BUNDLED_SCAN, "--out", out)
+    assert report["points"] == 88206
+    assert report["rays"] + report["skipped_nonfinite"] + report["skipped_outside"] == 88206
+    assert report["truncated_at_max_range"] > 30000  # median range is 4.9 m, max range 5 m
+    assert 0 < report["final_entropy_bits"] < 0.9 * report["initial_entropy_bits"]
+
+    assert main(["map", "info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["voxels"] == report["voxels"]
+    assert info["entropy_bits"] == pytest.approx(report["final_entropy_bits"], rel=1e-3)
+    assert 0.05 < info["known_fraction"] < 1
+    assert info["occupied_voxels"] > 1000
+
+
+def test_errors_name_the_problem(tmp_path, capsys):
+    assert main(["ingest", str(tmp_path / "missing.xyz"), "--out", str(tmp_path / "m.npz")]) == 2
+    assert "missing.xyz" in capsys.readouterr().err
+    cloud = tmp_path / "c.npy"
+    np.save(cloud, wall_cloud())
+    assert main(["ingest", str(cloud), "--out", str(tmp_path / "m.npz"), "--voxel", "-0.1"]) == 2
+    assert "--voxel" in capsys.readouterr().err
+    assert main(["ingest", str(cloud), "--out", str(tmp_path / "m.npz"), "--max-range", "0"]) == 2
+    assert "max_range" in capsys.readouterr().err
+    np.save(cloud, np.zeros((4, 2)))
+    assert main(["ingest", str(cloud), "--out", str(tmp_path / "m.npz")]) == 2
+    assert "N x 3" in capsys.readouterr().err
