@@ -56,12 +56,14 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
 
     voxels = traverse(grid, origin, end, hit=returned)
     i, j, k, ray = voxels.i, voxels.j, voxels.k, voxels.ray
-    behind = voxels.behind
-    if behind.any():  # only a voxel behind a hit can fall outside the grid
+    behind = np.flatnonzero(voxels.behind)
+    if len(behind):  # only a voxel behind a hit can fall outside the grid
         nx, ny, nz = grid.shape
-        out = behind & ((i < 0) | (i >= nx) | (j < 0) | (j >= ny) | (k < 0) | (k >= nz))
-        if out.any():
-            keep = ~out
+        bi, bj, bk = i[behind], j[behind], k[behind]
+        out = behind[(bi < 0) | (bi >= nx) | (bj < 0) | (bj >= ny) | (bk < 0) | (bk >= nz)]
+        if len(out):
+            keep = np.ones(len(ray), dtype=bool)
+            keep[out] = False
             i, j, k, ray = i[keep], j[keep], k[keep], ray[keep]
 
     # Distance from the sensor to each influenced voxel's centre, d_l.

@@ -115,11 +115,17 @@ def traverse(grid: Grid, start: np.ndarray, end: np.ndarray, hit: np.ndarray | N
     i1 = np.floor(f).astype(np.int64)
     n = np.abs(i1 - i0)
 
-    rays = [np.arange(n_rays, dtype=np.int64)]
-    cols = [[i0[:, 0]], [i0[:, 1]], [i0[:, 2]]]
+    # Output rows: the start voxel of every ray, then each axis' crossings, then the voxels
+    # behind; written in place (ties with a lower axis are dropped, so the tail is trimmed).
+    capacity = n_rays + int(n.sum()) + n_rays
+    ray_out = np.empty(capacity, dtype=np.int64)
+    ijk_out = np.empty((3, capacity), dtype=np.int64)
+    ray_out[:n_rays] = np.arange(n_rays)
+    ijk_out[:, :n_rays] = i0.T
+    filled = n_rays
     for a in range(3):
-        ray, k = _events(n[:, a])
         na = n[:, a]
+        ray, k = _events(na)
         up = np.repeat(d[:, a] > 0, na)
         i0a = np.repeat(i0[:, a], na)
         plane = np.where(up, i0a + 1 + k, i0a - k)
@@ -139,9 +145,11 @@ def traverse(grid: Grid, start: np.ndarray, end: np.ndarray, hit: np.ndarray | N
             keep = ~duplicate
             ray = ray[keep]
             index = [c[keep] for c in index]
-        rays.append(ray)
+        stop = filled + len(ray)
+        ray_out[filled:stop] = ray
         for c in range(3):
-            cols[c].append(index[c])
+            ijk_out[c, filled:stop] = index[c]
+        filled = stop
 
     # The voxel behind the hit: leave the hit voxel through its nearest face(s).
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -151,12 +159,12 @@ def traverse(grid: Grid, start: np.ndarray, end: np.ndarray, hit: np.ndarray | N
     step = np.where(t_exit == t_first, np.sign(d), 0).astype(np.int64)
     has_behind = hit & np.isfinite(t_first[:, 0])
     behind = (i1 + step)[has_behind]
-    rays.append(np.flatnonzero(has_behind))
-    for c in range(3):
-        cols[c].append(behind[:, c])
+    stop = filled + len(behind)
+    ray_out[filled:stop] = np.flatnonzero(has_behind)
+    ijk_out[:, filled:stop] = behind.T
 
-    ray = np.concatenate(rays)
-    is_behind = np.zeros(len(ray), dtype=bool)
-    is_behind[len(ray) - len(behind) :] = True
-    i, j, k = (np.concatenate(c) for c in cols)
+    is_behind = np.zeros(stop, dtype=bool)
+    is_behind[filled:] = True
+    i, j, k = ijk_out[:, :stop]
+    ray = ray_out[:stop]
     return RayVoxels(ray=ray, i=i, j=j, k=k, behind=is_behind)
