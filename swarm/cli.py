@@ -204,6 +204,25 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     render.set_defaults(run=run_render)
 
 
+# -- swarm stereo -------------------------------------------------------------------------
+def _add_stereo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "stereo",
+        help="stereo tools for checking a rig",
+        description="Stereo tools for checking a rig on real images.",
+    )
+    ssub = p.add_subparsers(dest="stereo_command", required=True, metavar="COMMAND")
+    depth = ssub.add_parser(
+        "depth",
+        help="depth in metres from a rectified or calibrated stereo pair",
+        description="Match LEFT and RIGHT with OpenCV SGBM and write depth in metres (NaN where "
+        "unknown, same size as the input) to --out, and optionally a colour PNG.",
+    )
+    from robot_agent.stereo_command import add_arguments
+
+    add_arguments(depth)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="swarm",
@@ -217,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_ingest(sub)
     _add_map(sub)
     _add_bench(sub)
+    _add_stereo(sub)
     _add_sim(sub)
     return parser
 

@@ -1,0 +1,192 @@
+"""Shortest paths on a 2-D traversability grid (8-connected, no corner cutting).
+
+Moves go to the 8 neighbours of a cell, orthogonal ones cost 1 cell and diagonal ones
+sqrt(2); a diagonal move needs both orthogonal cells it passes between to be free, so a
+path never cuts the corner of a blocked cell. Only ``free`` cells are ever entered, so a
+path never crosses occupied or unknown space (the grid's inflation keeps the robot's
+disc off it). With that rule, two cells are connected exactly when they are 4-connected,
+which makes ``reachable_mask`` a labelling.
+
+``GridPlanner`` builds the graph of one grid once (scipy.sparse.csgraph) and answers
+several queries: ``plan`` (one path), ``cost_map`` (path length from a start to every
+cell, for scoring many targets). Waypoints are world x-y positions of cell centres; by
+default the path is shortened by dropping waypoints while the straight segment between the
+kept ones stays on navigable cells.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from robot_agent.traversability import TraversabilityGrid
+
+_FOUR = ndimage.generate_binary_structure(2, 1)
+
+
+def _free_of(grid: TraversabilityGrid | np.ndarray) -> np.ndarray:
+    return np.asarray(grid.free if isinstance(grid, TraversabilityGrid) else grid, dtype=bool)
+
+
+def reachable_mask(grid: TraversabilityGrid | np.ndarray, start: tuple[int, int]) -> np.ndarray:
+    """Cells reachable from cell ``start`` (all False when the start is outside or not free)."""
+    free = _free_of(grid)
+    i, j = int(start[0]), int(start[1])
+    if not (0 <= i < free.shape[0] and 0 <= j < free.shape[1]) or not free[i, j]:
+        return np.zeros_like(free)
+    labels, _ = ndimage.label(free, structure=_FOUR)
+    return labels == labels[i, j]
+
+
+def path_cost(waypoints: np.ndarray) -> float:
+    """Length of a polyline (K, 2 or 3) in its own units (metres for world waypoints); 0 for K < 2."""
+    pts = np.asarray(waypoints, dtype=np.float64)
+    if len(pts) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+class GridPlanner:
+    """Dijkstra on the free cells of one traversability grid (or a plain bool ``free`` array)."""
+
+    def __init__(self, grid: TraversabilityGrid | np.ndarray) -> None:
+        self.grid = grid if isinstance(grid, TraversabilityGrid) else None
+        self.free = _free_of(grid)
+        self.resolution = self.grid.resolution if self.grid is not None else 1.0
+        flat_free = self.free.ravel()
+        self._node_of = np.full(flat_free.size, -1, dtype=np.int64)
+        self._cell_of = np.flatnonzero(flat_free)
+        self._node_of[self._cell_of] = np.arange(self._cell_of.size)
+        self._graph = self._build_graph()
+
+    def _build_graph(self):
+        f = self.free
+        nx, ny = f.shape
+        idx = np.arange(nx * ny).reshape(nx, ny)
+        rows, cols, weights = [], [], []
+
+        def add(a: np.ndarray, b: np.ndarray, ok: np.ndarray, w: float) -> None:
+            rows.append(self._node_of[a[ok]])
+            cols.append(self._node_of[b[ok]])
+            weights.append(np.full(int(ok.sum()), w))
+
+        add(idx[:-1, :], idx[1:, :], f[:-1, :] & f[1:, :], 1.0)
+        add(idx[:, :-1], idx[:, 1:], f[:, :-1] & f[:, 1:], 1.0)
+        # Diagonals need both cells they squeeze between: no corner cutting.
+        d = math.sqrt(2.0)
+        add(idx[:-1, :-1], idx[1:, 1:], f[:-1, :-1] & f[1:, 1:] & f[1:, :-1] & f[:-1, 1:], d)
+        add(idx[:-1, 1:], idx[1:, :-1], f[:-1, 1:] & f[1:, :-1] & f[:-1, :-1] & f[1:, 1:], d)
+        n = self._cell_of.size
+        r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+        w = np.concatenate(weights) if weights else np.zeros(0)
+        return coo_matrix((w, (r, c)), shape=(n, n)).tocsr()
+
+    def _node(self, cell: tuple[int, int]) -> int:
+        i, j = int(cell[0]), int(cell[1])
+        if not (0 <= i < self.free.shape[0] and 0 <= j < self.free.shape[1]):
+            return -1
+        return int(self._node_of[i * self.free.shape[1] + j])
+
+    def cost_map(self, start: tuple[int, int]) -> np.ndarray:
+        """Path length (metres; cells for a bare array) from ``start`` to every cell; inf if unreachable."""
+        out = np.full(self.free.shape, np.inf)
+        node = self._node(start)
+        if node < 0:
+            return out
+        dist = dijkstra(self._graph, directed=False, indices=node)
+        out.ravel()[self._cell_of] = dist * self.resolution
+        return out
+
+    def plan_cells(self, start: tuple[int, int], goal: tuple[int, int]) -> np.ndarray | None:
+        """Cells (K, 2) of a shortest path from ``start`` to ``goal`` inclusive, or None if none exists."""
+        s, g = self._node(start), self._node(goal)
+        if s < 0 or g < 0:
+            return None
+        if s == g:
+            return np.array([[int(start[0]), int(start[1])]], dtype=np.int64)
+        dist, pred = dijkstra(self._graph, directed=False, indices=s, return_predecessors=True)
+        if not np.isfinite(dist[g]):
+            return None
+        chain = [g]
+        while chain[-1] != s:
+            chain.append(int(pred[chain[-1]]))
+        flat = self._cell_of[np.array(chain[::-1])]
+        return np.stack(np.unravel_index(flat, self.free.shape), axis=-1).astype(np.int64)
+
+    def plan(self, start_xy: np.ndarray, goal_xy: np.ndarray, shorten: bool = True) -> np.ndarray | None:
+        """World waypoints (K, 2) from the cell of ``start_xy`` to the cell of ``goal_xy``, or None.
+
+        The first waypoint is the start position itself and the last the goal cell's centre.
+        Needs a TraversabilityGrid (for coordinates).
+        """
+        if self.grid is None:
+            raise TypeError("plan() needs a TraversabilityGrid; use plan_cells() on a bare array")
+        start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
+        cells = self.plan_cells(tuple(self.grid.cell_of(start_xy)), tuple(self.grid.cell_of(goal_xy)))
+        if cells is None:
+            return None
+        points = _drop_collinear(cells, self.grid.centre(cells))
+        # Start from the robot's own position, through its cell centre if the direct line is not clear.
+        if len(points) == 1 or self.grid.segment_is_free(start_xy, points[1]):
+            points[0] = start_xy
+        else:
+            points = np.vstack([start_xy, points])
+        return shorten_path(self.grid, points) if shorten else points
+
+
+def plan_path(grid: TraversabilityGrid, start_xy: np.ndarray, goal_xy: np.ndarray) -> np.ndarray | None:
+    """One-off shortest path in world coordinates (see ``GridPlanner.plan``); None when unreachable."""
+    return GridPlanner(grid).plan(start_xy, goal_xy)
+
+
+def nearest_free_cell(
+    grid: TraversabilityGrid | np.ndarray, cell: tuple[int, int], max_cells: int = 10
+) -> tuple[int, int] | None:
+    """The free cell nearest to ``cell`` within ``max_cells`` (e.g. to leave an inflated zone), or None."""
+    free = _free_of(grid)
+    i, j = int(cell[0]), int(cell[1])
+    i0, i1 = max(i - max_cells, 0), min(i + max_cells + 1, free.shape[0])
+    j0, j1 = max(j - max_cells, 0), min(j + max_cells + 1, free.shape[1])
+    if i0 >= i1 or j0 >= j1:
+        return None
+    ii, jj = np.nonzero(free[i0:i1, j0:j1])
+    if ii.size == 0:
+        return None
+    d2 = (ii + i0 - i) ** 2 + (jj + j0 - j) ** 2
+    k = int(np.argmin(d2))
+    if d2[k] > max_cells**2:
+        return None
+    return int(ii[k] + i0), int(jj[k] + j0)
+
+
+def _drop_collinear(cells: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Keep the first, the last and the cells where the step direction changes."""
+    if len(cells) <= 2:
+        return points
+    step = np.diff(cells, axis=0)
+    turn = np.any(step[1:] != step[:-1], axis=1)
+    keep = np.concatenate([[True], turn, [True]])
+    return points[keep]
+
+
+def shorten_path(grid: TraversabilityGrid, points: np.ndarray) -> np.ndarray:
+    """Drop waypoints while the straight segment between kept ones stays on navigable cells."""
+    if len(points) <= 2:
+        return points
+    kept = [0]
+    anchor = 0
+    k = anchor + 2
+    while k < len(points):
+        if grid.segment_is_free(points[anchor], points[k]):
+            k += 1
+            continue
+        anchor = k - 1
+        kept.append(anchor)
+        k = anchor + 2
+    kept.append(len(points) - 1)
+    return points[kept]

@@ -1,0 +1,125 @@
+"""``swarm stereo depth LEFT RIGHT --calib CALIB.yaml --out depth.npy [--png depth.png]``.
+
+Computes a depth image (metres, float32, NaN where unknown, the size of the input) from a
+stereo pair with OpenCV SGBM; a full calibration rectifies the pair first (the depth is
+then in the rectified left camera). ``--png`` writes a colour-mapped view: near is red,
+far is blue, unknown is black.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from robot_agent.calibration import CalibrationError, load_calibration
+from robot_agent.stereo import SGBM_MODES, StereoMatcher
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``stereo depth`` arguments to ``parser`` and set ``run`` as its handler."""
+    parser.add_argument("left", type=Path, help="left (reference) image, PNG/JPEG/..., gray or colour")
+    parser.add_argument("right", type=Path, help="right image, same size as the left")
+    parser.add_argument("--calib", type=Path, required=True, help="stereo calibration YAML (docs/stereo.md)")
+    parser.add_argument("--out", type=Path, required=True, help="depth image to write (.npy, float32 metres)")
+    parser.add_argument("--png", type=Path, help="also write a colour-mapped depth PNG (unknown = black)")
+    parser.add_argument(
+        "--min-depth",
+        type=float,
+        default=0.3,
+        help="nearest depth to search for, in metres; sets the disparity range (default 0.3)",
+    )
+    parser.add_argument(
+        "--max-depth",
+        type=float,
+        default=float("inf"),
+        help="farthest depth to search for (default: infinity); also the far end of the PNG scale",
+    )
+    parser.add_argument("--block-size", type=int, default=5, help="SGBM block size, odd (default 5)")
+    parser.add_argument(
+        "--mode",
+        choices=sorted(SGBM_MODES),
+        default="hh",
+        help="SGBM variant (default hh; sgbm or 3way are faster on large images)",
+    )
+    parser.set_defaults(run=run)
+
+
+def _fail(message: str) -> int:
+    print(f"swarm stereo depth: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _read_image(path: Path, role: str) -> np.ndarray:
+    if not path.exists():
+        raise FileNotFoundError(f"{role} image {path}: no such file")
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError(f"{role} image {path}: not a readable image")
+    if image.dtype == np.uint16:  # 16-bit PNGs: keep the top 8 bits
+        image = (image >> 8).astype(np.uint8)
+    if image.dtype != np.uint8:
+        raise ValueError(f"{role} image {path}: unsupported pixel type {image.dtype}")
+    return image
+
+
+def depth_png(depth: np.ndarray, far: float | None = None) -> np.ndarray:
+    """BGR uint8 colour map of a depth image by inverse depth (near red, far blue), unknown black."""
+    valid = np.isfinite(depth) & (depth > 0)
+    out = np.zeros((*depth.shape, 3), np.uint8)
+    if not valid.any():
+        return out
+    inv = np.zeros(depth.shape, np.float64)
+    inv[valid] = 1.0 / depth[valid]
+    lo = 1.0 / far if far and np.isfinite(far) else float(np.percentile(inv[valid], 2))
+    hi = float(np.percentile(inv[valid], 98))
+    scale = np.clip((inv - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    colours = cv2.applyColorMap((scale * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    out[valid] = colours[valid]
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``swarm stereo depth``; returns the exit status (0 ok, 2 on a user error)."""
+    try:
+        calib = load_calibration(args.calib)
+        left = _read_image(args.left, "left")
+        right = _read_image(args.right, "right")
+    except (CalibrationError, FileNotFoundError, ValueError) as exc:
+        return _fail(str(exc))
+    (hl, wl), (hr, wr) = left.shape[:2], right.shape[:2]
+    if (hl, wl) != (hr, wr):
+        return _fail(
+            f"size mismatch: left image {args.left} is {wl}x{hl}, right image {args.right} is {wr}x{hr}"
+        )
+    try:
+        calib.check_image_size(wl, hl, f"left image {args.left}")
+        matcher = StereoMatcher.for_rig(
+            calib, args.min_depth, args.max_depth, block_size=args.block_size, mode=args.mode
+        )
+        depth = matcher.depth(left, right, calib)
+    except (CalibrationError, ValueError) as exc:
+        return _fail(str(exc))
+    if np.isfinite(args.max_depth):
+        depth[depth > args.max_depth] = np.nan
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        with open(args.out, "wb") as fh:  # np.save(path) would append .npy to other names
+            np.save(fh, depth)
+        if args.png is not None:
+            args.png.parent.mkdir(parents=True, exist_ok=True)
+            if not cv2.imwrite(str(args.png), depth_png(depth, args.max_depth)):
+                return _fail(f"--png {args.png}: cannot write a PNG there")
+    except OSError as exc:
+        return _fail(f"cannot write output: {exc}")
+    valid = np.isfinite(depth)
+    summary = f"{wl}x{hl}, {valid.mean():.0%} valid"
+    if valid.any():
+        summary += (
+            f", depth {np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m (median {np.nanmedian(depth):.2f})"
+        )
+    print(f"wrote {args.out} ({summary})" + (f" and {args.png}" if args.png is not None else ""))
+    return 0

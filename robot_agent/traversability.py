@@ -1,0 +1,207 @@
+"""Where a ground robot may drive: a 2-D traversability grid from the 3-D coverage map.
+
+A column (i, j) of the map is considered over the robot's height band: the voxels whose
+centre z lies in [floor_clearance, robot_height]. The column is
+
+* *occupied* if any voxel of the band is known and its expected coverage E[C] is at least
+  ``free_threshold`` (default 0.2),
+* *unknown* if any voxel of the band carries no information beyond the prior,
+* *free* otherwise (every band voxel known, with E[C] < free_threshold).
+
+Occupied and unknown columns are blocked. The robot is a disc of radius ``robot_radius``:
+a cell is navigable (``free``) only if its centre is farther than radius + voxel/2 from
+the centre of every blocked cell (exact along the axes, up to 0.21 voxel optimistic on
+diagonals; add ``margin`` for more room). Everything outside the map counts as blocked.
+Cell (i, j) has its centre at origin + (i + 0.5, j + 0.5) * resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
+
+
+@dataclass(frozen=True, eq=False)
+class TraversabilityGrid:
+    """A 2-D grid over the map's x-y extent; ``free`` (nx, ny) bool is where the robot's centre may be.
+
+    ``occupied`` and ``unknown`` are the raw column states before inflation.
+    """
+
+    free: np.ndarray
+    occupied: np.ndarray
+    unknown: np.ndarray
+    origin: tuple[float, float]
+    resolution: float
+    robot_radius: float = 0.0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.free.shape
+
+    @property
+    def blocked(self) -> np.ndarray:
+        """Raw blocked columns (occupied or unknown), before inflation."""
+        return self.occupied | self.unknown
+
+    @classmethod
+    def from_blocked(
+        cls,
+        blocked: np.ndarray,
+        origin: tuple[float, float],
+        resolution: float,
+        robot_radius: float,
+        margin: float = 0.0,
+        unknown: np.ndarray | None = None,
+    ) -> TraversabilityGrid:
+        """Inflate a raw 2-D blocked mask by the robot radius (``unknown`` is kept for reference)."""
+        blocked = np.asarray(blocked, dtype=bool)
+        unknown = np.zeros_like(blocked) if unknown is None else np.asarray(unknown, dtype=bool)
+        free = inflate(blocked, resolution, robot_radius + margin)
+        return cls(
+            free, blocked & ~unknown, unknown, (float(origin[0]), float(origin[1])), resolution, robot_radius
+        )
+
+    # -- coordinates -----------------------------------------------------------------------
+    def cell_of(self, xy: np.ndarray) -> np.ndarray:
+        """Cell indices (..., 2) int64 of world points (..., 2); outside points give out-of-range cells."""
+        xy = np.asarray(xy, dtype=np.float64)[..., :2]
+        return np.floor((xy - np.asarray(self.origin)) / self.resolution).astype(np.int64)
+
+    def centre(self, cells: np.ndarray) -> np.ndarray:
+        """World x-y centres (..., 2) of cells (..., 2)."""
+        return np.asarray(self.origin) + (np.asarray(cells, dtype=np.float64) + 0.5) * self.resolution
+
+    def contains(self, cells: np.ndarray) -> np.ndarray:
+        """Boolean mask of cells (..., 2) inside the grid."""
+        cells = np.asarray(cells)
+        return np.all((cells >= 0) & (cells < np.asarray(self.shape)), axis=-1)
+
+    def is_free(self, cells: np.ndarray) -> np.ndarray:
+        """Boolean mask of navigable cells (..., 2); cells outside the grid are not free."""
+        cells = np.asarray(cells, dtype=np.int64)
+        inside = self.contains(cells)
+        out = np.zeros(cells.shape[:-1], dtype=bool)
+        out[inside] = self.free[cells[inside][:, 0], cells[inside][:, 1]]
+        return out
+
+    def segment_cells(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Every cell (K, 2) the straight world segment a -> b passes through (exact supercover).
+
+        Where the segment passes exactly through a cell corner, all four cells around the
+        corner are included, so a segment never slips diagonally between two cells.
+        """
+        a = (np.asarray(a, dtype=np.float64)[:2] - np.asarray(self.origin)) / self.resolution
+        b = (np.asarray(b, dtype=np.float64)[:2] - np.asarray(self.origin)) / self.resolution
+        d = b - a
+        ts = [np.array([0.0, 1.0])]
+        for ax in range(2):
+            if d[ax] != 0:
+                lo, hi = sorted((a[ax], b[ax]))
+                lines = np.arange(np.ceil(lo), np.floor(hi) + 1)
+                ts.append((lines - a[ax]) / d[ax])
+        t = np.unique(np.clip(np.concatenate(ts), 0.0, 1.0))
+        mids = 0.5 * (t[:-1] + t[1:]) if len(t) > 1 else t
+        cells = [np.floor(a + mids[:, None] * d)]
+        eps = 1e-9
+        points = a + t[:, None] * d
+        corners = points[np.all(np.abs(points - np.round(points)) < eps, axis=1)]
+        for step in ((-2 * eps, -2 * eps), (-2 * eps, 2 * eps), (2 * eps, -2 * eps), (2 * eps, 2 * eps)):
+            cells.append(np.floor(corners + np.array(step)))
+        cells.append(np.floor(a)[None])
+        cells.append(np.floor(b)[None])
+        return np.unique(np.concatenate(cells).astype(np.int64), axis=0)
+
+    def segment_is_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """True if every cell the straight world segment a -> b passes through is navigable."""
+        return bool(np.all(self.is_free(self.segment_cells(a, b))))
+
+    def path_is_free(self, waypoints: np.ndarray) -> bool:
+        """True if every segment of a world polyline (K, 2) is navigable."""
+        pts = np.asarray(waypoints, dtype=np.float64)
+        if len(pts) == 0:
+            return True
+        if len(pts) == 1:
+            return bool(self.is_free(self.cell_of(pts[0])))
+        return all(self.segment_is_free(pts[k], pts[k + 1]) for k in range(len(pts) - 1))
+
+
+def inflate(blocked: np.ndarray, resolution: float, radius: float) -> np.ndarray:
+    """Navigable mask: cells whose centre is farther than radius + resolution/2 from every blocked
+    cell centre; the area outside the grid counts as blocked."""
+    blocked = np.asarray(blocked, dtype=bool)
+    padded = np.pad(blocked, 1, constant_values=True)
+    cells = ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
+    return cells > radius / resolution + 0.5 + 1e-9  # ties count as blocked
+
+
+def band_layers(cmap: CoverageMap, floor_clearance: float, robot_height: float) -> np.ndarray:
+    """Indices k of the map layers whose voxel centre z lies in [floor_clearance, robot_height]."""
+    grid = cmap.grid
+    z = grid.lo[2] + (np.arange(grid.shape[2]) + 0.5) * grid.voxel
+    layers = np.flatnonzero((z >= floor_clearance - 1e-9) & (z <= robot_height + 1e-9))
+    if layers.size == 0:
+        raise ValueError(
+            f"no map layer has its centre in the robot band z = [{floor_clearance}, {robot_height}] m "
+            f"(layer centres {z.min():.3f}..{z.max():.3f} m)"
+        )
+    return layers
+
+
+def build_traversability(
+    cmap: CoverageMap,
+    floor_clearance: float = 0.1,
+    robot_height: float = 0.5,
+    robot_radius: float = 0.18,
+    free_threshold: float = 0.2,
+    margin: float = 0.0,
+    swept: np.ndarray | None = None,
+) -> TraversabilityGrid:
+    """The traversability grid of a coverage map for a robot of the given height band and radius.
+
+    ``swept``: optional (M, 2) x-y positions the robot's centre has occupied; the discs of
+    ``robot_radius`` around them are known empty, so their unknown columns count as free
+    (occupied ones stay occupied). Cameras rarely see the floor right around the robot.
+    """
+    if not robot_height > floor_clearance:
+        raise ValueError(f"robot_height {robot_height} must exceed floor_clearance {floor_clearance}")
+    grid = cmap.grid
+    nx, ny, nz = grid.shape
+    layers = band_layers(cmap, floor_clearance, robot_height)
+    lam = cmap.lam.reshape(nx, ny, nz)[:, :, layers]
+    eta = cmap.eta.reshape(nx, ny, nz)[:, :, layers]
+    known = cmap.known_mask().reshape(nx, ny, nz)[:, :, layers]
+    unknown = ~known.all(axis=2)
+    occ = np.zeros(known.shape, dtype=bool)
+    mu = eta[known].astype(np.float64) / lam[known]
+    sigma = 1.0 / np.sqrt(lam[known].astype(np.float64))
+    occ[known] = expected_coverage(mu, sigma) >= free_threshold
+    occupied = occ.any(axis=2)
+    origin = (float(grid.lo[0]), float(grid.lo[1]))
+    if swept is not None and len(swept):
+        unknown &= ~_discs(np.asarray(swept, dtype=np.float64), origin, grid.voxel, (nx, ny), robot_radius)
+    free = inflate(occupied | unknown, grid.voxel, robot_radius + margin)
+    return TraversabilityGrid(free, occupied, unknown, origin, grid.voxel, robot_radius)
+
+
+def _discs(
+    xy: np.ndarray, origin: tuple[float, float], res: float, shape: tuple[int, int], r: float
+) -> np.ndarray:
+    """Cells whose centre lies within r of any of the points xy (M, 2)."""
+    out = np.zeros(shape, dtype=bool)
+    reach = int(np.ceil(r / res)) + 1
+    for px, py in np.unique(xy[:, :2], axis=0):
+        ci, cj = int(np.floor((px - origin[0]) / res)), int(np.floor((py - origin[1]) / res))
+        i0, i1 = max(ci - reach, 0), min(ci + reach + 1, shape[0])
+        j0, j1 = max(cj - reach, 0), min(cj + reach + 1, shape[1])
+        if i0 >= i1 or j0 >= j1:
+            continue
+        cx = origin[0] + (np.arange(i0, i1) + 0.5) * res - px
+        cy = origin[1] + (np.arange(j0, j1) + 0.5) * res - py
+        out[i0:i1, j0:j1] |= cx[:, None] ** 2 + cy[None, :] ** 2 <= r * r
+    return out
