@@ -196,15 +196,21 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
         description="Render robot ROBOT's first view of a mission config (or of a ROS map with "
         "--map) and write left.png, right.png, depth.png and depth.npy to --out.",
     )
-    try:
-        from sim2d.commands import add_render_arguments, run_render
-    except ImportError:  # the simulator is not installed in this checkout
-        return
+    world = ssub.add_parser(
+        "world",
+        help="run the simulated world alone: frames out, commands in, over Zenoh",
+        description="Run the lockstep pymunk world of a mission: publish every robot's frames on "
+        "swarm/<mission>/robot/<rid>/frame and advance when every live agent has answered with a "
+        "cmd. Agents (swarm agent) are started separately and connect to --listen.",
+    )
+    from sim2d.commands import add_render_arguments, add_run_arguments, run_render, run_sim
+
     add_render_arguments(render)
     render.set_defaults(run=run_render)
+    add_run_arguments(world)
+    world.set_defaults(run=run_sim)
 
 
-# -- swarm stereo -------------------------------------------------------------------------
 def _add_stereo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "stereo",

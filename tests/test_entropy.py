@@ -1,6 +1,5 @@
 """Voxel entropy (eq. 16-17), its lookup table, expected coverage and the entropy cache."""
 
-
 import numpy as np
 import pytest
 from scipy import integrate, stats

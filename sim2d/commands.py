@@ -1,0 +1,134 @@
+"""Command-line entry points of sim2d, wired into ``swarm sim ...`` by swarm/cli.py.
+
+``swarm sim render [CONFIG | --map MAP.yaml] --robot r1 --out DIR`` writes a robot's first
+view: left.png, right.png (the rectified pair), depth.npy (float32 optical-z depth in
+metres, NaN = no return; with range noise in range mode) and depth.png (that depth
+coloured, near = blue, far = red, up to the sensor's max range; black = no return).
+
+``swarm sim run CONFIG [--listen EP | --connect EP]`` runs the lockstep simulator.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from swarm.config import ConfigError, Mission, load_mission, mission_from_map
+
+
+def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", nargs="?", help="mission YAML file")
+    parser.add_argument("--map", help="a ROS map_server map.yaml to use instead of a mission")
+    parser.add_argument("--robots", type=int, default=1, help="robots placed on --map (default 1)")
+
+
+def _load(args: argparse.Namespace) -> Mission:
+    if bool(args.config) == bool(args.map):
+        raise ConfigError("give either a mission CONFIG or --map MAP.yaml")
+    if args.map:
+        return mission_from_map(args.map, robots=args.robots)
+    return load_mission(args.config)
+
+
+def add_render_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``swarm sim render``."""
+    _add_mission_arguments(parser)
+    parser.add_argument("--robot", help="robot id (default: the first robot)")
+    parser.add_argument("--out", required=True, type=Path, help="output folder")
+    parser.add_argument("--width", type=int, help="override the rig's image width")
+    parser.add_argument("--height", type=int, help="override the rig's image height")
+
+
+def run_render(args: argparse.Namespace) -> int:
+    """Render a robot's first view to ``args.out``; returns a process exit code."""
+    from sim2d.render import Renderer, camera_pose
+
+    try:
+        mission = _load(args)
+        robot_id = args.robot or mission.robot_ids[0]
+        spec = mission.robot_spec(robot_id)
+    except (ConfigError, KeyError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    rig = mission.rig_for(robot_id)
+    overrides = {k: v for k, v in (("width", args.width), ("height", args.height)) if v}
+    if overrides:
+        rig = rig.model_validate({**rig.model_dump(), **overrides})
+    renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=mission.sim.seed)
+    pose = camera_pose(
+        spec.start.x, spec.start.y, spec.start.yaw, rig.camera_height, math.radians(rig.pitch_deg)
+    )
+    rng = np.random.default_rng(mission.sim.seed)
+    left, right = renderer.stereo_pair(pose, rig.noise_std, rng)
+    noise = rig.range_noise if rig.mode == "range" else 0.0
+    depth = renderer.depth_image(pose, noise, rig.max_range, rng)
+
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out / "left.png"), left)
+    cv2.imwrite(str(out / "right.png"), right)
+    np.save(out / "depth.npy", depth)
+    cv2.imwrite(str(out / "depth.png"), depth_colours(depth, mission.sensor.max_range))
+    seen = np.isfinite(depth)
+    span = f"{np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m" if seen.any() else "none"
+    print(
+        f"robot {robot_id} at ({spec.start.x:g}, {spec.start.y:g}, yaw {spec.start.yaw:g}): "
+        f"{rig.width}x{rig.height}, depth {span}, {seen.mean():.0%} of pixels with a return"
+    )
+    print(f"wrote left.png right.png depth.png depth.npy to {out}")
+    return 0
+
+
+def depth_colours(depth: np.ndarray, max_depth: float) -> np.ndarray:
+    """A BGR picture of a depth image: turbo colours over [0, max_depth], black = no return."""
+    seen = np.isfinite(depth)
+    scaled = np.clip(np.where(seen, depth, 0) / max_depth, 0, 1)
+    picture = cv2.applyColorMap((255 * scaled).astype(np.uint8), cv2.COLORMAP_TURBO)
+    picture[~seen] = 0
+    return picture
+
+
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``swarm sim run``."""
+    _add_mission_arguments(parser)
+    parser.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on")
+    parser.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to")
+    parser.add_argument("--encoding", choices=["raw8", "png"], default="raw8")
+    parser.add_argument("--max-ticks", type=int, help="stop after this many frames")
+    parser.add_argument(
+        "--startup-timeout", type=float, help="seconds to wait for agents (default: agent timeout)"
+    )
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    """Run the lockstep simulator until the mission's stop condition; returns an exit code."""
+    from sim2d.simulator import Simulator
+    from swarm import bus
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    try:
+        mission = _load(args)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    session = bus.open_session(args.listen, args.connect)
+    sim = Simulator(mission, session, encoding=args.encoding)
+    try:
+        summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        sim.close()
+        session.close()
+    print(
+        f"{summary.reason}: {summary.ticks} frames, {summary.sim_time_s:.1f} s simulated in "
+        f"{summary.wall_time_s:.1f} s (x{summary.real_time_factor:.1f}), dead: "
+        f"{', '.join(summary.dead) or 'none'}, rejected commands: {summary.rejected}"
+    )
+    return 0

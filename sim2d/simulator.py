@@ -1,0 +1,241 @@
+"""The simulator role on Zenoh: a lockstep clock over the pymunk world and the renderer.
+
+Each tick the simulator publishes one frame per robot on ``robot/<rid>/frame`` (seq 1, 2,
+3, ... shared by all robots), then waits until every live agent has answered with a
+``robot/<rid>/cmd`` carrying the same seq. Only then does it apply the commands, advance
+the world by ``sim.frame_period_s`` (in ``sim.dt`` physics steps) and publish the true
+poses on ``sim/truth``. So runs are reproducible and as fast as the agents allow.
+
+An agent that has not answered within ``sim.agent_timeout_s`` (wall clock) is declared
+dead: its robot stops and the clock no longer waits for it. Dead robots still get frames;
+a dead agent that answers the current or previous frame is alive again from then on.
+Agents must answer each seq once and ignore a frame seq they have already processed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import zenoh
+
+from sim2d.render import Renderer, camera_pose
+from sim2d.world import World
+from swarm import bus
+from swarm.config import Mission, RigConfig
+from swarm.floor_plan import FloorPlan
+from swarm.wire import Cmd, Frame, TruthPoses, WireError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SimSummary:
+    """What a run did: ticks, sim and wall time, dead agents, distances, rejected messages."""
+
+    ticks: int
+    sim_time_s: float
+    wall_time_s: float
+    reason: str
+    dead: list[str] = field(default_factory=list)
+    distance_m: dict[str, float] = field(default_factory=dict)
+    rejected: int = 0
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+
+class Simulator:
+    """Lockstep simulator of a mission's robots, talking Zenoh through ``session``."""
+
+    def __init__(
+        self,
+        mission: Mission,
+        session: zenoh.Session,
+        *,
+        encoding: str = "raw8",
+        plan: FloorPlan | None = None,
+    ):
+        self.mission = mission
+        self.session = session
+        self.encoding = encoding
+        self.plan = plan if plan is not None else mission.load_floor_plan()
+        if self.plan is None:
+            raise ValueError("the simulator needs a mission with a floor plan")
+        body = mission.robot
+        self.world = World(self.plan, body.radius, body.max_speed, body.max_turn_rate)
+        self.robot_ids = mission.robot_ids
+        for spec in mission.robots:
+            self.world.add_robot(spec.id, spec.start.x, spec.start.y, spec.start.yaw)
+        self.seq = 0
+        self.dead: set[str] = set()
+        self.rejected = 0
+        self._renderers: dict[str, Renderer] = {}
+        self._rngs = {
+            rid: np.random.default_rng([mission.sim.seed, i]) for i, rid in enumerate(self.robot_ids)
+        }
+        self._stop = threading.Event()
+        name = mission.mission
+        self._frame_pubs = {
+            rid: bus.reliable_publisher(session, bus.key(name, "robot", rid, "frame"))
+            for rid in self.robot_ids
+        }
+        self._truth_pub = bus.reliable_publisher(session, bus.key(name, "sim", "truth"))
+        self._cmd_sub, self._inbox = bus.subscribe_queue(session, bus.key_pattern(name, "robot", "*", "cmd"))
+        self._cmd_prefix = bus.key(name, "robot") + "/"
+
+    # -- state ----------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Simulated time (s)."""
+        return self.world.time
+
+    @property
+    def live(self) -> list[str]:
+        return [rid for rid in self.robot_ids if rid not in self.dead]
+
+    def request_stop(self) -> None:
+        """Ask a running loop to stop after the current wait (thread-safe)."""
+        self._stop.set()
+
+    def finished(self) -> str | None:
+        """Why the run is over, or None while it goes on."""
+        if self._stop.is_set():
+            return "stopped"
+        if self.time >= self.mission.stop.max_time_s - 1e-9:
+            return "max_time"
+        if not self.live:
+            return "all_agents_dead"
+        return None
+
+    # -- rendering ----------------------------------------------------------------------
+    def renderer(self, rig: RigConfig) -> Renderer:
+        """The renderer of a rig (one per distinct rig)."""
+        cache_key = rig.model_dump_json()
+        if cache_key not in self._renderers:
+            self._renderers[cache_key] = Renderer(self.plan, rig.camera(), seed=self.mission.sim.seed)
+        return self._renderers[cache_key]
+
+    def make_frame(self, robot_id: str) -> Frame:
+        """Render what a robot's rig sees now, as a wire frame with the current seq."""
+        rig = self.mission.rig_for(robot_id)
+        x, y, yaw = self.world.pose(robot_id)
+        pose = camera_pose(x, y, yaw, rig.camera_height, math.radians(rig.pitch_deg))
+        renderer = self.renderer(rig)
+        rng = self._rngs[robot_id]
+        frame = Frame(robot_id, self.seq, self.time, pose, renderer.camera, self.encoding)
+        if rig.mode == "range":
+            frame.depth = renderer.depth_image(pose, rig.range_noise, rig.max_range, rng)
+        else:
+            frame.left, frame.right = renderer.stereo_pair(pose, rig.noise_std, rng)
+        return frame
+
+    # -- the lockstep loop --------------------------------------------------------------
+    def wait_for_agents(self, timeout: float | None = None) -> list[str]:
+        """Wait until every robot's frame key has a subscriber; return those still missing."""
+        timeout = self.mission.sim.agent_timeout_s if timeout is None else timeout
+        bus.wait_for_subscribers(self._frame_pubs.values(), timeout)
+        return [rid for rid, pub in self._frame_pubs.items() if not bus.has_subscribers(pub)]
+
+    def tick(self) -> bool:
+        """Publish frames, wait for every live agent's command, advance one frame period.
+
+        Returns False once the run is over (stop requested, time limit, all agents dead).
+        """
+        if self.finished():
+            return False
+        self.seq += 1
+        for rid in self.robot_ids:
+            self._frame_pubs[rid].put(self.make_frame(rid).encode())
+        waiting = set(self.live)
+        self._collect(waiting)
+        for rid in sorted(waiting):
+            if self._stop.is_set():
+                break
+            log.warning("agent %s did not answer frame %d in %.1f s: declared dead",
+                        rid, self.seq, self.mission.sim.agent_timeout_s)  # fmt: skip
+            self.dead.add(rid)
+            self.world.command(rid, 0.0, 0.0)
+        if self._stop.is_set():
+            return False
+        sim = self.mission.sim
+        steps = max(1, round(sim.frame_period_s / sim.dt))
+        for _ in range(steps):
+            self.world.step(sim.frame_period_s / steps)
+        truth = TruthPoses(self.time, self.world.poses(), sorted(self.dead))
+        self._truth_pub.put(truth.encode())
+        return self.finished() is None
+
+    def _collect(self, waiting: set[str]) -> None:
+        """Take commands for the current seq until ``waiting`` is empty or the timeout passes."""
+        deadline = time.monotonic() + self.mission.sim.agent_timeout_s
+        while waiting and not self._stop.is_set():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            try:
+                key_expr, payload = self._inbox.get(timeout=min(remaining, 0.1))
+            except queue.Empty:
+                continue
+            cmd = self._accept(key_expr, payload)
+            if cmd is None:
+                continue
+            if cmd.robot in self.dead and cmd.seq >= self.seq - 1:
+                log.info("agent %s answered again: alive", cmd.robot)
+                self.dead.discard(cmd.robot)
+            if cmd.seq == self.seq:
+                self.world.command(cmd.robot, cmd.v, cmd.omega)
+                waiting.discard(cmd.robot)
+
+    def _accept(self, key_expr: str, payload: bytes) -> Cmd | None:
+        """Decode a command and check it against its key; count and log rejects."""
+        try:
+            cmd = Cmd.decode(payload)
+        except WireError as e:
+            self._reject(f"{key_expr}: {e}")
+            return None
+        rid = key_expr.removeprefix(self._cmd_prefix).removesuffix("/cmd")
+        if rid != cmd.robot or rid not in self._frame_pubs:
+            self._reject(f"{key_expr}: command for robot {cmd.robot!r} on this key")
+            return None
+        if cmd.seq > self.seq:
+            self._reject(f"{key_expr}: seq {cmd.seq} is ahead of frame {self.seq}")
+            return None
+        return cmd
+
+    def _reject(self, reason: str) -> None:
+        self.rejected += 1
+        log.warning("rejected command: %s", reason)
+
+    def run(self, max_ticks: int | None = None, startup_timeout: float | None = None) -> SimSummary:
+        """Wait for the agents, then tick until the run is over or ``max_ticks`` ticks."""
+        start = time.monotonic()
+        missing = self.wait_for_agents(startup_timeout)
+        if missing:
+            log.warning("no agent subscribed for %s; starting anyway", ", ".join(missing))
+        ticks = 0
+        while max_ticks is None or ticks < max_ticks:
+            ticks += 1
+            if not self.tick():
+                break
+        return SimSummary(
+            ticks=self.seq,
+            sim_time_s=self.time,
+            wall_time_s=time.monotonic() - start,
+            reason=self.finished() or "max_ticks",
+            dead=sorted(self.dead),
+            distance_m={rid: s.distance for rid, s in self.world.robots.items()},
+            rejected=self.rejected,
+        )
+
+    def close(self) -> None:
+        """Undeclare the simulator's publishers and subscriber (the session stays open)."""
+        self._cmd_sub.undeclare()
+        for pub in [*self._frame_pubs.values(), self._truth_pub]:
+            pub.undeclare()

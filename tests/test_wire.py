@@ -1,0 +1,171 @@
+"""Wire protocol v1: round trips, little-endian raw arrays, and rejection of malformed input."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+
+from swarm.map.grid import Grid
+from swarm.wire import (
+    AssignReply,
+    AssignRequest,
+    Camera,
+    Cmd,
+    DeltaMessage,
+    Frame,
+    Pose,
+    Snapshot,
+    Status,
+    TruthPoses,
+    WireError,
+)
+
+CAMERA = Camera(width=8, height=6, fx=7.0, fy=7.0, cx=3.5, cy=2.5, baseline=0.09)
+POSE = Pose((1.0, 2.0, 0.4), (0.3, 0.0, 0.0))
+
+
+def stereo_frame(encoding: str = "raw8") -> Frame:
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (6, 8), dtype=np.uint8)
+    right = rng.integers(0, 256, (6, 8), dtype=np.uint8)
+    return Frame("r1", 3, 1.5, POSE, CAMERA, encoding, left=left, right=right)
+
+
+def tamper(payload: bytes, **changes) -> bytes:
+    msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    for k, v in changes.items():
+        if v is None:
+            del msg[k]
+        else:
+            msg[k] = v
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+@pytest.mark.parametrize("encoding", ["raw8", "png"])
+def test_stereo_frame_round_trip(encoding):
+    frame = stereo_frame(encoding)
+    back = Frame.decode(frame.encode())
+    assert (back.robot, back.seq, back.t, back.pose, back.camera) == ("r1", 3, 1.5, POSE, CAMERA)
+    assert back.encoding == encoding and not back.is_depth
+    np.testing.assert_array_equal(back.left, frame.left)
+    np.testing.assert_array_equal(back.right, frame.right)
+
+
+def test_raw_arrays_are_little_endian_bytes():
+    frame = stereo_frame()
+    msg = msgpack.unpackb(frame.encode(), raw=False)
+    assert msg["v"] == 1
+    assert msg["left"] == frame.left.tobytes()
+    depth = np.array([[1.5, np.nan]], dtype=">f4")  # big-endian input is converted
+    cam = Camera(2, 1, 1.0, 1.0, 0.5, 0.0, 0.0)
+    msg = msgpack.unpackb(Frame("r", 1, 0.0, POSE, cam, depth=depth).encode(), raw=False)
+    assert msg["encoding"] == "f32"
+    assert msg["depth"][:4] == np.float32(1.5).astype("<f4").tobytes()
+
+
+def test_depth_frame_keeps_nan():
+    depth = np.linspace(0.5, 4.0, 48, dtype=np.float32).reshape(6, 8)
+    depth[0, :3] = np.nan
+    back = Frame.decode(Frame("r2", 1, 0.0, POSE, CAMERA, depth=depth).encode())
+    assert back.is_depth and back.left is None
+    np.testing.assert_array_equal(back.depth, depth)
+
+
+def test_frame_rejects_malformed_input():
+    good = stereo_frame().encode()
+    cases = {
+        "missing field 'seq'": tamper(good, seq=None),
+        "unsupported version 2": tamper(good, v=2),
+        "left has 47 bytes, expected 48": tamper(good, left=b"\0" * 47),
+        "pose.xyz[1] must be finite": tamper(good, pose={"xyz": [0, math.nan, 0], "ypr": [0, 0, 0]}),
+        "unknown encoding 'jpeg'": tamper(good, encoding="jpeg"),
+        "camera needs fx, fy > 0": tamper(good, camera={**CAMERA.to_wire(), "fx": -1.0}),
+        "seq must be an integer": tamper(good, seq="3"),
+    }
+    for reason, payload in cases.items():
+        with pytest.raises(WireError, match=reason.replace("[", r"\[").replace("]", r"\]")):
+            Frame.decode(payload)
+    with pytest.raises(WireError, match="not a msgpack payload"):
+        Frame.decode(b"\xc1garbage")
+    with pytest.raises(WireError, match="payload must be a map"):
+        Frame.decode(msgpack.packb([1, 2]))
+    with pytest.raises(WireError, match="not an 8-bit PNG"):
+        Frame.decode(tamper(stereo_frame("png").encode(), left=b"not a png"))
+    with pytest.raises(WireError, match="camera says"):
+        Frame(
+            "r", 1, 0.0, POSE, CAMERA, left=np.zeros((5, 8), np.uint8), right=np.zeros((5, 8), np.uint8)
+        ).encode()
+
+
+def test_cmd_status_truth_assign_round_trip():
+    cmd = Cmd("r1", 7, 3.5, 0.25, -0.5)
+    assert Cmd.decode(cmd.encode()) == cmd
+    # "v" is the protocol version, so the speed travels as "speed".
+    assert msgpack.unpackb(cmd.encode())["v"] == 1
+    assert msgpack.unpackb(cmd.encode())["speed"] == 0.25
+    with pytest.raises(WireError, match="omega must be finite"):
+        Cmd.decode(tamper(cmd.encode(), omega=math.inf))
+    status = Status("r1", 3.5, POSE, (1.0, 2.0, 0.0), "exploring", 1234)
+    assert Status.decode(status.encode()) == status
+    idle = Status("r1", 3.5, POSE, None, "idle", 0)
+    assert Status.decode(idle.encode()) == idle
+    truth = TruthPoses(2.0, {"r1": (1.0, 2.0, 0.5), "r2": (0.0, 0.0, 0.0)}, ["r2"])
+    assert TruthPoses.decode(truth.encode()) == truth
+    request = AssignRequest("r1", POSE)
+    assert AssignRequest.decode(request.encode()) == request
+    reply = AssignReply((1.0, 2.0, 0.4), (0.0, 1.0, 0.0), 12.5)
+    assert AssignReply.decode(reply.encode()) == reply
+    assert AssignReply.decode(AssignReply(None, None, 0.0).encode()).target is None
+
+
+def test_delta_round_trip_and_checks():
+    grid = Grid((0.0, 0.0, 0.0), 0.1, (4, 3, 2))
+    delta = DeltaMessage(
+        "r1", 1_700_000_000_000_000_000, 1, 0.5, grid,
+        idx=np.array([0, 5, 23], np.uint32),
+        dlam=np.array([1.0, 2.0, 3.0], np.float32),
+        deta=np.array([0.5, -1.0, 3.0], np.float32),
+    )  # fmt: skip
+    back = DeltaMessage.decode(delta.encode())
+    assert (back.robot, back.epoch, back.seq, back.grid) == ("r1", delta.epoch, 1, grid)
+    for name in ("idx", "dlam", "deta"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(delta, name))
+    payload = delta.encode()
+    with pytest.raises(WireError, match="voxel index 24 outside grid of 24"):
+        DeltaMessage.decode(tamper(payload, idx=np.array([0, 5, 24], "<u4").tobytes()))
+    with pytest.raises(WireError, match="dlam has 8 bytes, expected 12"):
+        DeltaMessage.decode(tamper(payload, dlam=np.zeros(2, "<f4").tobytes()))
+    with pytest.raises(WireError, match="information cannot be negative"):
+        DeltaMessage.decode(tamper(payload, dlam=np.array([1, -1, 1], "<f4").tobytes()))
+    with pytest.raises(WireError, match="must be finite"):
+        DeltaMessage.decode(tamper(payload, deta=np.array([1, np.nan, 1], "<f4").tobytes()))
+    with pytest.raises(WireError, match="seq must be >= 1"):
+        DeltaMessage.decode(tamper(payload, seq=0))
+    with pytest.raises(WireError, match="grid.shape"):
+        DeltaMessage.decode(tamper(payload, grid={"origin": [0, 0, 0], "voxel": 0.1, "shape": [4, 3]}))
+
+
+def test_snapshot_round_trip():
+    grid = Grid((0.0, 0.0, 0.0), 0.1, (2, 2, 2))
+    snap = Snapshot(grid, np.full(8, 0.2, np.float32), np.full(8, 0.1, np.float32), {"r1": {17: 4}})
+    back = Snapshot.decode(snap.encode())
+    assert back.acks == {"r1": {17: 4}}
+    np.testing.assert_array_equal(back.lam, snap.lam)
+    with pytest.raises(WireError, match="lam has 28 bytes"):
+        Snapshot.decode(tamper(snap.encode(), lam=np.zeros(7, "<f4").tobytes()))
+
+
+def test_pose_frames():
+    forward = np.array([1.0, 0.0, 0.0])
+    turned = Pose((0, 0, 0), (math.pi / 2, 0.0, 0.0))
+    np.testing.assert_allclose(turned.rotation() @ forward, [0, 1, 0], atol=1e-12)
+    down = Pose((0, 0, 0), (0.0, 0.3, 0.0))
+    assert (down.rotation() @ forward)[2] == pytest.approx(-math.sin(0.3))
+    # The optical z axis is the body's forward axis, optical x its right, optical y its down.
+    r = turned.optical_rotation()
+    np.testing.assert_allclose(r @ [0, 0, 1], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(r @ [1, 0, 0], [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, -1], atol=1e-12)
