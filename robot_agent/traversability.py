@@ -185,7 +185,10 @@ def build_traversability(
     origin = (float(grid.lo[0]), float(grid.lo[1]))
     if swept is not None and len(swept):
         unknown &= ~_discs(np.asarray(swept, dtype=np.float64), origin, grid.voxel, (nx, ny), robot_radius)
-    free = inflate(occupied | unknown, grid.voxel, robot_radius + margin)
+    # Occupied space is inflated by the robot's radius; unknown space is blocked but not
+    # inflated, so a robot may stand next to what it has not seen yet (its camera sees
+    # nothing of the floor right around it) and looks at it before it gets there.
+    free = inflate(occupied, grid.voxel, robot_radius + margin) & ~unknown
     return TraversabilityGrid(free, occupied, unknown, origin, grid.voxel, robot_radius)
 
 

@@ -56,13 +56,32 @@ def open_session(
     connect: Iterable[str] | None = None,
     *,
     multicast_scouting: bool = False,
+    wait_s: float = 30.0,
 ) -> zenoh.Session:
-    """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default."""
+    """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default.
+
+    A session that listens is a Zenoh *router*: it forwards messages between the sessions
+    connected to it (the map server, or the mission runner inside ``swarm sim``). A session
+    that only connects is a *client* of such a router; it tries for ``wait_s`` seconds, so a
+    process may start before its router. A zenohd router between sites fits in unchanged.
+    """
     listen = list(listen or [])
     connect = list(connect or [])
     if not listen and not connect:
         connect = [DEFAULT_ENDPOINT]
-    return zenoh.open(make_config(listen, connect, multicast_scouting=multicast_scouting))
+    if listen:
+        return zenoh.open(make_config(listen, connect, multicast_scouting=multicast_scouting, mode="router"))
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return zenoh.open(make_config([], connect, multicast_scouting=multicast_scouting, mode="client"))
+        except zenoh.ZError as exc:
+            if time.monotonic() >= deadline:
+                raise ConnectionError(
+                    f"no Zenoh router answered at {', '.join(connect)} within {wait_s:g} s "
+                    "(start the map server or the simulator first, or check --connect)"
+                ) from exc
+            time.sleep(0.5)
 
 
 def reliable_publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:

@@ -187,9 +187,34 @@ def _run_bench_entropy(args: argparse.Namespace) -> int:
 
 
 # -- swarm sim ----------------------------------------------------------------------------
+SIM_COMMANDS = {"run", "render", "world", "-h", "--help"}
+DEFAULT_MISSION = "configs/lab.yaml"
+
+
 def _add_sim(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sim", help="the floor-plan simulator", description="The floor-plan simulator.")
+    p = sub.add_parser(
+        "sim",
+        help="simulated missions: run one, render a view, or run the world alone",
+        description="Simulated missions. 'swarm sim [CONFIG]' is short for 'swarm sim run [CONFIG]'.",
+    )
     ssub = p.add_subparsers(dest="sim_command", required=True, metavar="COMMAND")
+    run = ssub.add_parser(
+        "run",
+        help="run a whole mission: the world and one agent per robot, as processes over Zenoh",
+        description="Run a mission on this machine: the simulated world and one agent per robot, "
+        "each a separate process talking Zenoh over loopback. Shows progress, stops at the "
+        "entropy threshold H_th or --max-time, and writes the run folder (metrics.json, map.npz, "
+        f"entropy.png, top_view.png, config.yaml). Default mission: {DEFAULT_MISSION}.",
+    )
+    run.add_argument("config", nargs="?", type=Path, help=f"mission YAML (default {DEFAULT_MISSION})")
+    run.add_argument("--map", type=Path, help="a ROS map_server map.yaml to explore instead of a mission")
+    run.add_argument("--robots", type=int, help="number of robots (default: the mission's, 1 with --map)")
+    run.add_argument("--out", type=Path, help="run folder (default runs/<mission>-<strategy>-s<seed>)")
+    run.add_argument("--strategy", choices=["entropy", "frontier", "random"], default="entropy")
+    run.add_argument("--seed", type=int, default=0, help="random seed of the world and agents (default 0)")
+    run.add_argument("--max-time", type=float, help="simulated seconds at most (default: the mission's)")
+    run.add_argument("--quiet", action="store_true", help="no progress lines")
+    run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(
         "render",
         help="write what a robot sees (left/right images, true depth) as PNGs",
@@ -211,6 +236,76 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     world.set_defaults(run=run_sim)
 
 
+# -- swarm agent --------------------------------------------------------------------------
+def _add_agent(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "agent",
+        help="run one robot's agent: stereo -> map -> exploration, over Zenoh",
+        description="Run one robot's agent: take its frames (robot/<id>/frame), fuse them into a "
+        "local coverage map, share voxel deltas (delta/<id>), choose targets and send velocity "
+        "commands (robot/<id>/cmd). Stops on SIGINT/SIGTERM after flushing its pending deltas.",
+    )
+    p.add_argument("--id", required=True, dest="robot_id", help="robot id, as in the mission config")
+    p.add_argument("--config", required=True, type=Path, help="mission YAML file")
+    p.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447); repeatable",
+    )
+    p.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on as well; repeatable",
+    )
+    p.add_argument(
+        "--strategy",
+        choices=["entropy", "frontier", "random"],
+        default="entropy",
+        help="exploration: entropy gradient (the paper, default), nearest frontier, or random",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+    p.set_defaults(run=_run_agent)
+
+
+def _run_agent(args: argparse.Namespace) -> int:
+    import logging
+    import signal
+
+    from robot_agent.agent import Agent
+    from swarm import bus
+    from swarm.config import ConfigError, load_mission
+
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
+    )
+    try:
+        mission = load_mission(args.config)
+        session = bus.open_session(args.listen, args.connect)
+        agent = Agent(mission, args.robot_id, session, args.strategy, args.seed)
+    except (ConfigError, ValueError, ConnectionError) as exc:
+        return _fail(str(exc))
+    signal.signal(signal.SIGTERM, lambda *_: agent.stop())
+    signal.signal(signal.SIGINT, lambda *_: agent.stop())
+    try:
+        agent.run()
+    finally:
+        stats = agent.outbox.stats
+        print(
+            f"{args.robot_id}: {stats.deltas_sent} deltas, {stats.voxels_sent} voxels, "
+            f"{stats.bytes_sent} bytes sent, {stats.resent} resent; "
+            f"map entropy {agent.explorer.map_entropy:,.0f} bits",
+            flush=True,
+        )
+        session.close()
+    return 0
+
+
+# -- swarm stereo -------------------------------------------------------------------------
 def _add_stereo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "stereo",
@@ -242,12 +337,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_ingest(sub)
     _add_map(sub)
     _add_bench(sub)
+    _add_agent(sub)
     _add_stereo(sub)
     _add_sim(sub)
     return parser
 
 
+def _run_sim_mission(args: argparse.Namespace) -> int:
+    from swarm.mission_cli import run_sim_mission
+
+    return run_sim_mission(args, DEFAULT_MISSION)
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "sim" and (len(argv) == 1 or argv[1] not in SIM_COMMANDS):
+        argv.insert(1, "run")  # 'swarm sim [CONFIG]' means 'swarm sim run [CONFIG]'
     args = build_parser().parse_args(argv)
     return int(args.run(args) or 0)
 

@@ -183,12 +183,15 @@ def test_traversability_inflates_by_the_radius() -> None:
     cmap, cols = coverage_world()
     radius = 0.27
     trav = build_traversability(cmap, 0.1, 0.5, robot_radius=radius)
-    # Brute force: the blocked cells plus a ring of cells outside the map (unknown space).
-    ring = np.pad(trav.blocked, 1, constant_values=True)
+    # Brute force: occupied cells and a ring outside the map are inflated by the radius;
+    # unknown cells are blocked themselves but not inflated.
+    ring = np.pad(trav.occupied, 1, constant_values=True)
     blocked_xy = trav.centre(np.argwhere(ring) - 1)
     centres = trav.centre(np.argwhere(np.ones(trav.shape, bool)))
     nearest = np.min(np.linalg.norm(centres[:, None, :] - blocked_xy[None], axis=-1), axis=1)
-    np.testing.assert_array_equal(trav.free.ravel(), nearest > radius + RES / 2)
+    expected = (nearest > radius + RES / 2) & ~trav.unknown.ravel()
+    np.testing.assert_array_equal(trav.free.ravel(), expected)
+    assert trav.unknown.any() and not trav.free[trav.unknown].any()
     i, j = cols["occupied"]
     assert not trav.free[i + 3, j] and trav.free[i + 4, j]  # 0.3 m blocked, 0.4 m free for r = 0.27
     assert not trav.free[i + 2, j + 2] and trav.free[i + 3, j + 2]  # 0.283 blocked, 0.36 free

@@ -1,0 +1,166 @@
+"""The agent process: a thin Zenoh loop around the Explorer (``swarm agent``).
+
+Takes ``robot/<rid>/frame``, answers every frame with ``robot/<rid>/cmd`` (the simulator's
+lockstep clock waits for it), publishes ``robot/<rid>/status``, and shares voxel deltas
+on ``delta/<rid>`` through the utility-filtered outbox, keeping them until the map
+server's ``map/acks`` says they are durable.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+
+import zenoh
+
+from robot_agent.explorer import Explorer
+from robot_agent.sharing import DeltaOutbox
+from swarm import bus
+from swarm.config import Mission
+from swarm.wire import Cmd, DeltaMessage, Frame, Status, WireError
+
+log = logging.getLogger("swarm.agent")
+
+ACK_POLL_S = 2.0
+RESEND_AFTER_S = 5.0
+STATUS_EVERY = 4  # frames
+
+
+class Agent:
+    """One robot's agent on a Zenoh session."""
+
+    def __init__(
+        self,
+        mission: Mission,
+        robot_id: str,
+        session: zenoh.Session,
+        strategy: str = "entropy",
+        seed: int = 0,
+    ) -> None:
+        if robot_id not in mission.robot_ids:
+            raise ValueError(f"robot {robot_id!r} is not in the mission (robots: {mission.robot_ids})")
+        self.mission = mission
+        self.robot_id = robot_id
+        self.session = session
+        self.explorer = Explorer(mission, robot_id, strategy, seed)
+        self.epoch = time.time_ns()
+        self.outbox = DeltaOutbox(
+            self.explorer.grid.size, mission.sharing.share_min_bits, self.explorer.table
+        )
+        name = mission.mission
+        self._cmd_pub = bus.reliable_publisher(session, bus.key(name, "robot", robot_id, "cmd"))
+        self._delta_pub = bus.reliable_publisher(session, bus.key(name, "delta", robot_id))
+        self._status_pub = session.declare_publisher(bus.key(name, "robot", robot_id, "status"))
+        self._acks_key = bus.key(name, "map", "acks")
+        self._frames: queue.Queue = queue.Queue()
+        self._frame_sub = bus.subscribe(
+            session, bus.key(name, "robot", robot_id, "frame"), lambda _k, p: self._frames.put(p)
+        )
+        self.rejected_frames = 0
+        self.last_t = 0.0
+        self._last_sent: dict[int, float] = {}
+        self._stop = threading.Event()
+        self._acker = threading.Thread(target=self._poll_acks, daemon=True)
+
+    # -- the loop ------------------------------------------------------------------------
+    def run(self, max_frames: int | None = None, idle_timeout: float | None = None) -> None:
+        """Handle frames until stopped (or ``max_frames``, or ``idle_timeout`` s without a frame)."""
+        self._acker.start()
+        handled = 0
+        last_frame = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                try:
+                    payload = self._frames.get(timeout=0.2)
+                except queue.Empty:
+                    if idle_timeout is not None and time.monotonic() - last_frame > idle_timeout:
+                        break
+                    continue
+                last_frame = time.monotonic()
+                self.handle(payload)
+                handled += 1
+                if max_frames is not None and handled >= max_frames:
+                    break
+        finally:
+            self.shutdown()
+
+    def handle(self, payload: bytes) -> Cmd | None:
+        """Fuse one frame, share what is worth it, and answer with a command."""
+        try:
+            frame = Frame.decode(payload)
+        except WireError as exc:
+            self.rejected_frames += 1
+            log.warning("%s: rejected frame: %s", self.robot_id, exc)
+            return None
+        if frame.robot != self.robot_id:
+            self.rejected_frames += 1
+            log.warning("%s: rejected frame addressed to %s", self.robot_id, frame.robot)
+            return None
+        self.last_t = frame.t
+        delta = self.explorer.fuse(frame)
+        self.outbox.add(delta)
+        x, y = frame.pose.xyz[0], frame.pose.xyz[1]
+        decision = self.explorer.decide(x, y, frame.pose.ypr[0])
+        self._share(flush=decision.state == "done")
+        cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega)
+        self._cmd_pub.put(cmd.encode())
+        if frame.seq % STATUS_EVERY == 0 or decision.state == "done":
+            target = None if decision.target is None else (*decision.target, 0.0)
+            status = Status(
+                self.robot_id, frame.t, frame.pose, target, decision.state, self.outbox.stats.bytes_sent
+            )
+            self._status_pub.put(status.encode())
+        return cmd
+
+    def _share(self, flush: bool = False) -> None:
+        taken = self.outbox.take(self.explorer.map.lam, self.explorer.map.eta, flush=flush)
+        if taken is not None:
+            self._publish(*taken)
+
+    def _publish(self, seq: int, delta) -> None:
+        msg = DeltaMessage(
+            self.robot_id, self.epoch, seq, self.last_t, self.explorer.grid, delta.idx, delta.dlam, delta.deta
+        )
+        payload = msg.encode()
+        self._delta_pub.put(payload)
+        self.outbox.stats.bytes_sent += len(payload)
+        self._last_sent[seq] = time.monotonic()
+
+    # -- acknowledgements ----------------------------------------------------------------
+    def _poll_acks(self) -> None:
+        while not self._stop.wait(ACK_POLL_S):
+            acks = self.query_acks(timeout=1.0)
+            if acks is None:
+                continue  # no server yet: keep everything
+            self.outbox.acknowledge(acks)
+            now = time.monotonic()
+            for seq, delta in self.outbox.to_resend():
+                if now - self._last_sent.get(seq, 0.0) > RESEND_AFTER_S:
+                    self.outbox.stats.resent += 1
+                    self._publish(seq, delta)
+
+    def query_acks(self, timeout: float = 1.0) -> int | None:
+        """This agent's last contiguous acked seq per the map server, or None if none answers."""
+        try:
+            replies = self.session.get(self._acks_key, timeout=timeout)
+            for reply in replies:
+                if reply.ok is None:
+                    continue
+                acks = json.loads(reply.ok.payload.to_bytes())
+                return int(acks.get(self.robot_id, {}).get(str(self.epoch), 0))
+        except (zenoh.ZError, ValueError, AttributeError) as exc:
+            log.debug("acks query failed: %s", exc)
+        return None
+
+    # -- shutdown ------------------------------------------------------------------------
+    def stop(self) -> None:
+        self._stop.set()
+
+    def shutdown(self) -> None:
+        """Flush every pending voxel, then stop polling."""
+        self._share(flush=True)
+        self._stop.set()
+        self._frame_sub.undeclare()

@@ -1,0 +1,250 @@
+"""One robot's mind, without I/O: fuse each frame, pick targets, plan, and drive.
+
+The loop is the paper's (section III): fuse the batch of the current view into the local
+coverage map, choose a viewpoint by the entropy gradient (eq. 27-35, or a baseline), drive
+there through known free space, look along the gradient on arrival, and stop when the map
+entropy is below H_th (eq. 36) or nothing reachable is informative. The robot starts by
+turning once on the spot, since a forward camera sees nothing of its sides.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robot_agent.exploration import ExplorationTarget, choose_target
+from robot_agent.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
+from robot_agent.planner import GridPlanner, nearest_free_cell
+from robot_agent.stereo import StereoMatcher, points_from_depth
+from robot_agent.traversability import TraversabilityGrid, build_traversability
+from swarm.config import Mission
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.delta import Delta
+from swarm.map.entropy import EntropyCache, default_table
+from swarm.wire import Frame
+
+STRATEGIES = ("entropy", "frontier", "random")
+GAZE_TOLERANCE = math.radians(12)
+REPLAN_EVERY = 4  # frames between traversability refreshes while driving
+STUCK_FRAMES = 16  # frames without 5 cm of progress before a target is given up
+FAILED_MEMORY = 12  # how many given-up targets to avoid
+MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
+
+
+@dataclass
+class Decision:
+    """What the robot does this frame."""
+
+    v: float
+    omega: float
+    state: str
+    target: tuple[float, float] | None = None
+
+
+@dataclass
+class _Progress:
+    position: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    frames: int = 0
+
+
+class Explorer:
+    """The local map of one robot and the decisions it drives by."""
+
+    def __init__(self, mission: Mission, robot_id: str, strategy: str = "entropy", seed: int = 0) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+        self.mission = mission
+        self.robot_id = robot_id
+        self.strategy = strategy
+        self.rng = np.random.default_rng([seed, sum(robot_id.encode())])
+        self.grid = mission.workspace.grid()
+        self.sensor = mission.sensor.model()
+        self.rig = mission.rig_for(robot_id)
+        self.map = CoverageMap(self.grid, self.sensor)
+        self.table = default_table()
+        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+        self.threshold = mission.threshold_bits()
+        camera = self.rig.camera()
+        self.matcher = StereoMatcher.for_rig(camera) if self.rig.mode == "stereo" else None
+        body = mission.robot
+        self.follower = PathFollower(
+            FollowerLimits(max_speed=body.max_speed, max_turn_rate=body.max_turn_rate)
+        )
+        self.robot_height = max(self.rig.camera_height + 0.1, 0.3)
+        self.state = "look_around"
+        self.turned = 0.0
+        self.last_yaw: float | None = None
+        self.target: ExplorationTarget | None = None
+        self.failed: list[np.ndarray] = []
+        self.swept: list[tuple[float, float]] = []
+        self.progress = _Progress()
+        self.frames = 0
+        self.trav: TraversabilityGrid | None = None
+        self.others_targets: list[np.ndarray] = []
+        self.failures_in_a_row = 0
+
+    # -- perception ----------------------------------------------------------------------
+    def points(self, frame: Frame) -> np.ndarray:
+        """World points of a frame's valid pixels within max range (stereo is matched first)."""
+        cam = frame.camera
+        if frame.is_depth:
+            depth = frame.depth
+        else:
+            depth = self.matcher.depth(frame.left, frame.right, cam)
+        return points_from_depth(
+            depth, cam.fx, cam.fy, cam.cx, cam.cy, frame.pose.xyz, frame.pose.ypr, self.sensor.max_range
+        )
+
+    def fuse(self, frame: Frame) -> Delta:
+        """Fuse a frame's batch into the local map (eq. 24-25); returns the information it added."""
+        result = self.map.integrate(np.asarray(frame.pose.xyz), self.points(frame))
+        self.apply_entropy(result.delta)
+        return result.delta
+
+    def apply_external(self, delta: Delta) -> None:
+        """Add information another robot gathered (from the team's merged stream)."""
+        self.map.apply(delta)
+        self.apply_entropy(delta)
+
+    def apply_entropy(self, delta: Delta) -> None:
+        idx = delta.idx.astype(np.int64)
+        self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
+
+    @property
+    def map_entropy(self) -> float:
+        return float(self.entropy.total)
+
+    # -- decisions -----------------------------------------------------------------------
+    def decide(self, x: float, y: float, yaw: float) -> Decision:
+        """The command for this frame, given the robot's pose (from the frame)."""
+        self.frames += 1
+        here = np.array([x, y])
+        if not self.swept or np.hypot(*(here - self.swept[-1])) > 0.05:
+            self.swept.append((x, y))
+        if self.map_entropy <= self.threshold:
+            self.state = "done"
+        if self.state == "done":
+            return Decision(0.0, 0.0, "done")
+        if self.state == "look_around":
+            return self._look_around(yaw)
+        if self.state == "gaze":
+            return self._gaze(yaw)
+        if self.state == "drive":
+            return self._drive(here, yaw)
+        return self._choose(here, yaw)
+
+    def _look_around(self, yaw: float) -> Decision:
+        if self.last_yaw is not None:
+            self.turned += abs(wrap_angle(yaw - self.last_yaw))
+        self.last_yaw = yaw
+        if self.turned >= 2 * math.pi - 0.2:
+            self.state = "choose"
+            return Decision(0.0, 0.0, "choose")
+        return Decision(0.0, self.mission.robot.max_turn_rate * 0.8, "look_around")
+
+    def _gaze(self, yaw: float) -> Decision:
+        error = wrap_angle(self.target.gaze_yaw - yaw) if self.target else 0.0
+        if abs(error) <= GAZE_TOLERANCE:
+            self.state = "choose"
+            return Decision(0.0, 0.0, "gaze", self._target_xy())
+        omega = float(
+            np.clip(2.0 * error, -self.mission.robot.max_turn_rate, self.mission.robot.max_turn_rate)
+        )
+        return Decision(0.0, omega, "gaze", self._target_xy())
+
+    def _refresh_traversability(self) -> TraversabilityGrid:
+        self.trav = build_traversability(
+            self.map,
+            robot_height=self.robot_height,
+            robot_radius=self.mission.robot.radius,
+            swept=np.asarray(self.swept),
+        )
+        return self.trav
+
+    def _choose(self, here: np.ndarray, yaw: float) -> Decision:
+        trav = self._refresh_traversability()
+        planner = GridPlanner(trav)
+        cell = tuple(int(c) for c in trav.cell_of(here))
+        start = here
+        if not trav.is_free(np.array(cell)):
+            # The robot's own cell looks blocked (inflation, noise): leave from the nearest free one.
+            cell = nearest_free_cell(trav, cell)
+            if cell is None:
+                return self._wander_blind(yaw)
+            start = trav.centre(np.array(cell))
+        if self.failures_in_a_row >= MAX_FAILURES:
+            self.failures_in_a_row = 0
+            return self._wander_blind(yaw)
+        cost = planner.cost_map(cell)
+        exclude = [*self.failed[-FAILED_MEMORY:], *self.others_targets]
+        target = choose_target(
+            self.strategy,
+            self.map,
+            self.entropy.values,
+            (here[0], here[1], yaw),
+            self.rig.camera_height,
+            trav,
+            cost,
+            self.mission.exploration.radius,
+            self.rng,
+            exclude=exclude,
+        )
+        if target is None:
+            self.state = "done"
+            return Decision(0.0, 0.0, "done")
+        path = planner.plan(start, target.xy)
+        if path is None or len(path) < 2:
+            if path is not None and np.hypot(*(target.xy - here)) < 0.15:
+                self.target = target  # already there: just look
+                self.state = "gaze"
+                return self._gaze(yaw)
+            self.failed.append(np.asarray(target.xy))
+            self.failures_in_a_row += 1
+            return Decision(0.0, 0.0, "choose")
+        if start is not here:
+            path = np.vstack([here, path])
+        self.failures_in_a_row = 0
+        self.target = target
+        self.follower.set_path(path)
+        self.state = "drive"
+        self.progress = _Progress(here.copy(), 0)
+        return self._drive(here, yaw)
+
+    def _drive(self, here: np.ndarray, yaw: float) -> Decision:
+        self.progress.frames += 1
+        if np.hypot(*(here - self.progress.position)) > 0.05:
+            self.progress = _Progress(here.copy(), 0)
+        if self.progress.frames > STUCK_FRAMES:
+            return self._give_up()
+        if self.frames % REPLAN_EVERY == 0:
+            trav = self._refresh_traversability()
+            if needs_replan(self.follower.remaining_path(), trav):
+                path = GridPlanner(trav).plan(here, self.target.xy)
+                if path is None or len(path) < 2:
+                    return self._give_up()
+                self.follower.set_path(path)
+        command = self.follower.command(here[0], here[1], yaw)
+        if command.arrived:
+            self.state = "gaze"
+            return self._gaze(yaw)
+        return Decision(command.v, command.omega, "drive", self._target_xy())
+
+    def _give_up(self) -> Decision:
+        self.failures_in_a_row += 1
+        if self.target is not None:
+            self.failed.append(np.asarray(self.target.xy))
+        self.target = None
+        self.state = "choose"
+        return Decision(0.0, 0.0, "choose")
+
+    def _wander_blind(self, yaw: float) -> Decision:
+        """No free cell known around the robot: turn on the spot to see more."""
+        self.state = "look_around"
+        self.turned = 0.0
+        self.last_yaw = yaw
+        return Decision(0.0, self.mission.robot.max_turn_rate * 0.8, "look_around")
+
+    def _target_xy(self) -> tuple[float, float] | None:
+        return None if self.target is None else (float(self.target.xy[0]), float(self.target.xy[1]))

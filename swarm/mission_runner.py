@@ -1,0 +1,204 @@
+"""``swarm sim``: a whole mission on one machine, every role a separate process over Zenoh.
+
+The runner writes the effective mission to the run folder, starts the simulated world
+(``swarm sim world``) and one ``swarm agent`` per robot on a loopback endpoint, and watches
+the mission as any monitor could: it keeps a replica of the team map from ``delta/*``
+(the entropy curve), trajectories from ``sim/truth`` and states from ``robot/*/status``.
+It stops at H_th (eq. 36), when every agent is done, or at the time limit, then writes the
+run folder: metrics.json, map.npz, plots and the config used.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from swarm import bus
+from swarm.config import Mission
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.delta import Delta
+from swarm.map.entropy import EntropyCache, default_table
+from swarm.wire import DeltaMessage, Status, TruthPoses, WireError
+
+
+@dataclass
+class MissionOptions:
+    out: Path
+    strategy: str = "entropy"
+    seed: int = 0
+    max_time_s: float | None = None
+    wall_limit_s: float = 3600.0
+    quiet: bool = False
+
+
+@dataclass
+class TeamMonitor:
+    """What an observer of the bus knows: the team map, trajectories, states and traffic."""
+
+    mission: Mission
+    cmap: CoverageMap = field(init=False)
+    entropy: EntropyCache = field(init=False)
+    curve: list[tuple[float, float]] = field(default_factory=list)
+    trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
+    states: dict[str, str] = field(default_factory=dict)
+    bytes_shared: dict[str, int] = field(default_factory=dict)
+    observed_by: dict[str, np.ndarray] = field(default_factory=dict)
+    sim_time: float = 0.0
+    dead: list[str] = field(default_factory=list)
+    rejected: int = 0
+    seen: set = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        grid = self.mission.workspace.grid()
+        self.cmap = CoverageMap(grid, self.mission.sensor.model())
+        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
+        self.curve.append((0.0, float(self.entropy.total)))
+        self._lock = threading.Lock()
+
+    def on_delta(self, _key: str, payload: bytes) -> None:
+        try:
+            msg = DeltaMessage.decode(payload)
+            delta = Delta(msg.idx, msg.dlam, msg.deta)
+            with self._lock:
+                if (msg.robot, msg.epoch, msg.seq) in self.seen:
+                    return  # a resend: already counted
+                self.cmap.apply(delta)
+                self.seen.add((msg.robot, msg.epoch, msg.seq))
+                idx = msg.idx.astype(np.int64)
+                self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
+                self.curve.append((float(msg.t), float(self.entropy.total)))
+                mask = self.observed_by.setdefault(msg.robot, np.zeros(self.cmap.grid.size, bool))
+                mask[idx] = True
+                self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
+        except (WireError, ValueError) as exc:
+            self.rejected += 1
+            print(f"monitor: rejected delta: {exc}", file=sys.stderr)
+
+    def on_truth(self, _key: str, payload: bytes) -> None:
+        try:
+            truth = TruthPoses.decode(payload)
+        except WireError:
+            self.rejected += 1
+            return
+        with self._lock:
+            self.sim_time = truth.t
+            self.dead = list(truth.dead)
+            for rid, (x, y, _yaw) in truth.poses.items():
+                self.trajectories.setdefault(rid, []).append((truth.t, float(x), float(y)))
+
+    def on_status(self, _key: str, payload: bytes) -> None:
+        try:
+            status = Status.decode(payload)
+        except WireError:
+            self.rejected += 1
+            return
+        self.states[status.robot] = status.state
+
+    @property
+    def team_entropy(self) -> float:
+        return float(self.entropy.total)
+
+
+def _child(args: list[str], log_path: Path) -> subprocess.Popen:
+    log = open(log_path, "w")  # noqa: SIM115 (kept open for the child's lifetime)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", *args], stdout=log, stderr=subprocess.STDOUT, env=env
+    )
+
+
+def _stop(procs: list[subprocess.Popen], timeout: float = 10.0) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor, dict]:
+    """Run ``mission`` with every role in its own process; returns the monitor and run facts."""
+    out = options.out
+    out.mkdir(parents=True, exist_ok=True)
+    if options.max_time_s is not None:
+        mission = mission.model_copy(
+            update={"stop": mission.stop.model_copy(update={"max_time_s": options.max_time_s})}
+        )
+    config_path = out / "config.yaml"
+    config_path.write_text(mission.to_yaml())
+    threshold = mission.threshold_bits()
+
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    monitor = TeamMonitor(mission)
+    session = bus.open_session(listen=[endpoint])  # the runner is the mission's router
+    name = mission.mission
+    subs = [
+        bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta),
+        bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
+        bus.subscribe(session, bus.key_pattern(name, "robot", "*", "status"), monitor.on_status),
+    ]
+    world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
+    agents = [
+        _child(
+            ["agent", "--id", rid, "--connect", endpoint, "--config", str(config_path),
+             "--strategy", options.strategy, "--seed", str(options.seed)],
+            out / f"agent-{rid}.log",
+        )
+        for rid in mission.robot_ids
+    ]  # fmt: skip
+    started = time.monotonic()
+    reason = "running"
+    last_print = 0.0
+    try:
+        while True:
+            time.sleep(0.2)
+            now = time.monotonic()
+            h = monitor.team_entropy
+            if h <= threshold:
+                reason = "threshold"
+            elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
+                reason = "agents done"
+            elif world.poll() is not None:
+                reason = "world stopped (max time or all agents dead)"
+            elif now - started > options.wall_limit_s:
+                reason = "wall-clock limit"
+            if not options.quiet and (now - last_print > 2.0 or reason != "running"):
+                last_print = now
+                known = float(np.mean(monitor.cmap.known_mask()))
+                states = " ".join(f"{r}:{monitor.states.get(r, '-')}" for r in mission.robot_ids)
+                print(
+                    f"[{now - started:6.1f} s] sim t={monitor.sim_time:7.1f} s  H={h:,.0f} bits "
+                    f"(H_th {threshold:,.0f})  known {known:5.1%}  {states}",
+                    flush=True,
+                )
+            if reason != "running":
+                break
+    finally:
+        _stop(agents)  # agents flush their pending deltas on SIGTERM
+        time.sleep(0.5)
+        _stop([world])
+        for sub in subs:
+            sub.undeclare()
+        session.close()
+    facts = {
+        "reason": reason,
+        "wall_time_s": time.monotonic() - started,
+        "threshold_bits": threshold,
+        "exit_codes": {
+            "world": world.returncode,
+            **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=True)},
+        },
+    }
+    return monitor, facts

@@ -1,0 +1,125 @@
+"""Measures of DESIGN.md section 7 against hand-computed examples."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from swarm.evaluation import (
+    coverage_mae,
+    entropy_split,
+    explored_fraction,
+    mission_time,
+    observable_mask,
+    occupancy_f1,
+    overlap_fraction,
+    path_length,
+)
+from swarm.map.grid import Grid
+
+
+def test_occupancy_f1_hand_example():
+    exp = np.array([0.9, 0.8, 0.2, 0.6, 0.1, 0.5, 0.9])
+    true = np.array([1.0, 0.7, 1.0, 0.0, 0.0, 0.9, 0.0])
+    mask = np.array([True, True, True, True, True, True, False])  # the last (an fp) is left out
+    # predicted (> 0.5): 1 1 0 1 0 0 ; true (> 0.5): 1 1 1 0 0 1 -> tp 2, fp 1, fn 2
+    r = occupancy_f1(exp, true, mask)
+    assert (r["tp"], r["fp"], r["fn"], r["n"]) == (2, 1, 2, 6)
+    assert r["precision"] == pytest.approx(2 / 3)
+    assert r["recall"] == pytest.approx(2 / 4)
+    assert r["f1"] == pytest.approx(2 * (2 / 3) * 0.5 / (2 / 3 + 0.5))
+
+
+def test_occupancy_f1_shapes_mix_and_empty_cases():
+    exp = np.full((2, 2, 2), 0.1)
+    true = np.zeros(8)
+    mask = np.ones((2, 2, 2), bool)
+    assert occupancy_f1(exp, true, mask)["f1"] == 1.0  # no positives on either side
+    true[3] = 1.0
+    r = occupancy_f1(exp, true, mask)
+    assert (r["f1"], r["recall"], r["fn"]) == (0.0, 0.0, 1)
+    assert occupancy_f1(exp, true, np.zeros(8, bool))["n"] == 0
+
+
+def test_coverage_mae_direct():
+    rng = np.random.default_rng(1)
+    exp, true = rng.random(50), rng.random(50)
+    mask = rng.random(50) > 0.4
+    assert coverage_mae(exp, true, mask) == pytest.approx(np.abs(exp - true)[mask].mean())
+    assert np.isnan(coverage_mae(exp, true, np.zeros(50, bool)))
+
+
+def test_observable_mask_thick_block():
+    grid = Grid((0.0, 0.0, 0.0), 0.1, (8, 8, 8))
+    cov = np.zeros(grid.shape, np.float32)
+    cov[2:6, 2:6, 2:6] = 1.0  # a 4 x 4 x 4 block floating in the grid
+    mask = observable_mask(cov, grid)
+    assert mask.shape == grid.shape
+    assert not mask[3:5, 3:5, 3:5].any()  # its 2 x 2 x 2 core
+    block = np.zeros(grid.shape, bool)
+    block[2:6, 2:6, 2:6] = True
+    assert np.count_nonzero(mask & block) == 64 - 8  # its surface
+    assert mask[~block].all()  # all the free space
+
+
+def test_observable_mask_grid_border_floor_and_workspace():
+    # A block standing on the floor, through the top of the grid; the grid reaches z < 0.
+    grid = Grid((0.0, 0.0, -0.2), 0.1, (6, 6, 6))  # z from -0.2 to 0.4
+    cov = np.zeros(grid.shape, np.float32)
+    cov[:, :, :2] = 1.0  # the ground
+    cov[1:5, 1:5, :] = 1.0  # the block
+    mask = observable_mask(cov, grid)
+    assert not mask[:, :, :2].any()  # below the floor
+    assert not mask[2:4, 2:4, 2:].any()  # core: neighbours outside the grid count as covered
+    assert mask[1, 2, 3] and not mask[2, 2, 5]
+    assert observable_mask(cov, grid, floor_z=None)[0, 0, 1]  # the ground's surface
+    # voxels whose centre is outside the workspace are left out
+    cut = observable_mask(cov, grid, workspace=((0, 0, 0), (0.5, 0.6, 0.4)))
+    assert not cut[5].any() and cut[4, 0, 2]
+
+
+def test_explored_fraction():
+    obs = np.array([True, True, True, True, False])
+    known = np.array([True, False, True, False, True])
+    assert explored_fraction(known, obs) == pytest.approx(0.5)
+    assert explored_fraction(known, np.zeros(5, bool)) == 0.0
+
+
+def test_overlap_fraction():
+    a = np.array([1, 1, 0, 0, 0, 0], bool)
+    b = np.array([0, 1, 1, 0, 0, 0], bool)
+    c = np.array([0, 1, 0, 1, 0, 0], bool)
+    assert overlap_fraction({"a": a, "b": b}) == pytest.approx(1 / 3)
+    assert overlap_fraction({"a": a, "b": b, "c": c}) == pytest.approx(1 / 4)
+    assert overlap_fraction({"a": a}) == 0.0
+    assert overlap_fraction({"a": np.zeros(6, bool)}) == 0.0
+    assert overlap_fraction({}) == 0.0
+
+
+def test_mission_time_first_crossing():
+    curve = [(0.0, 100.0), (1.0, 50.0), (2.0, 30.0), (3.0, 40.0), (4.0, 20.0)]
+    assert mission_time(curve, 30.0) == 2.0  # H <= H_th counts
+    assert mission_time(curve, 35.0) == 2.0
+    assert mission_time(curve, 25.0) == 4.0
+    assert mission_time(curve, 10.0) is None
+    assert mission_time([], 10.0) is None
+
+
+def test_entropy_split_hand_example():
+    h = np.array([1.0, 2.0, 3.0, 4.0])
+    obs = np.array([True, True, False, False])
+    s = entropy_split(h, obs, 7.0)
+    assert s["initial_bits"] == 28.0 and s["final_bits"] == 10.0
+    assert s["final_observable_bits"] == 3.0 and s["final_unobservable_bits"] == 7.0
+    assert s["unobservable_share"] == pytest.approx(0.7)
+    assert s["decrease"] == pytest.approx(1 - 10 / 28)
+    assert s["decrease_observable"] == pytest.approx(1 - 3 / 14)
+    per_voxel = entropy_split(h, obs, np.array([7.0, 5.0, 7.0, 7.0]))
+    assert per_voxel["decrease_observable"] == pytest.approx(1 - 3 / 12)
+
+
+def test_path_length():
+    traj = [[0.0, 0.0, 0.0], [1.0, 3.0, 4.0], [2.0, 3.0, 4.0], [3.0, 0.0, 0.0]]
+    assert path_length(traj) == pytest.approx(10.0)
+    assert path_length(traj[:1]) == 0.0
+    assert path_length([]) == 0.0

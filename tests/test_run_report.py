@@ -1,0 +1,166 @@
+"""Run folder: metrics of a run record and the files of DESIGN.md section 6."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from swarm.floor_plan import FloorPlan, rectangle
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.grid import Grid
+from swarm.map_file import REQUIRED_KEYS
+from swarm.run_report import METRIC_KEYS, RunRecord, compute_metrics, top_view_image, write_run_folder
+
+GRID = Grid((0.0, 0.0, 0.0), 0.1, (20, 10, 8))  # 2 m x 1 m x 0.8 m
+
+
+def _truth() -> np.ndarray:
+    """A block x in [1.5, 2.0], full width, 0.6 m high."""
+    cov = np.zeros(GRID.shape, np.float32)
+    cov[15:, :, :6] = 1.0
+    return cov
+
+
+def _plan() -> FloorPlan:
+    return FloorPlan([rectangle((1.75, 0.5), (0.5, 1.0))], [0.6], (0, 0), (2, 1))
+
+
+def _fused_map() -> tuple[CoverageMap, dict[str, np.ndarray]]:
+    """Two robots look at the block's face x = 1.5 from the left half of the room."""
+    cmap = CoverageMap(GRID)
+    y, z = np.meshgrid(np.linspace(0.02, 0.98, 25), np.linspace(0.02, 0.58, 15))
+    face = np.stack([np.full(y.size, 1.5), y.ravel(), z.ravel()], axis=1)
+    observed = {}
+    for rid, origin in (("r1", (0.3, 0.3, 0.3)), ("r2", (0.4, 0.7, 0.3))):
+        observed[rid] = np.zeros(GRID.size, bool)
+        for _ in range(3):
+            observed[rid][cmap.integrate(np.array(origin), face).delta.idx] = True
+    return cmap, observed
+
+
+def _record(**kw) -> RunRecord:
+    args = dict(
+        config="configs/box.yaml",
+        robots=["r1", "r2"],
+        strategy="entropy_gradient",
+        coordination="coordinator",
+        seed=3,
+        threshold_bits=8000.0,
+        initial_entropy_bits=1120.0 * 7.0,
+        entropy_curve=[[0.0, 7840.0], [0.5, 7000.0], [1.0, 6000.0], [1.5, 5000.0]],
+        trajectories={"r1": [[0.0, 0.3, 0.3], [0.5, 0.6, 0.7], [1.0, 0.6, 0.2]], "r2": [[0.0, 0.4, 0.7]]},
+        bytes_shared={"r1": 1234, "r2": 56},
+        sim_time_s=1.5,
+        wall_time_s=0.25,
+        floor_plan=_plan(),
+        height_band=(0.1, 0.5),
+    )
+    args.update(kw)
+    return RunRecord(**args)
+
+
+def test_distance_is_the_sum_of_segment_lengths():
+    cmap, _ = _fused_map()
+    m = compute_metrics(_record(), cmap, _truth())
+    assert m["distance_m"]["r1"] == pytest.approx(0.5 + 0.5)  # (0.3, 0.4) then (0, -0.5)
+    assert m["distance_m"]["r2"] == 0.0
+
+
+def test_perfect_map_scores_perfectly():
+    truth = _truth()
+    lam = np.full(GRID.size, 1e8, np.float32)  # sigma = 1e-4, so E[C] is within 1e-4 of mu
+    cmap = CoverageMap(GRID, lam=lam, eta=lam * truth.ravel())
+    m = compute_metrics(_record(), cmap, truth)
+    assert m["occupancy_f1"] == 1.0 and m["occupancy_f1_observed"] == 1.0
+    assert m["coverage_mae"] == pytest.approx(0.0, abs=1e-3)
+    assert m["explored_fraction"] == 1.0
+    core = 4 * 10 * 5  # block voxels with six covered neighbours (outside the grid counts as covered)
+    assert m["observable_voxels"] == GRID.size - core
+    assert m["overlap_fraction"] is None  # no per-robot masks given
+
+
+def test_metrics_of_a_fused_map():
+    cmap, observed = _fused_map()
+    m = compute_metrics(_record(), cmap, _truth(), observed)
+    # The face was seen, most of the room was not: F1 over observed voxels is much better.
+    assert m["occupancy_f1_observed"] > 0.8
+    assert m["occupancy_f1"] < m["occupancy_f1_observed"]
+    assert m["occupancy"]["observed"]["n"] < m["occupancy"]["observable"]["n"]
+    assert m["coverage_mae_observed"] < m["coverage_mae"]
+    assert 0.0 < m["explored_fraction"] < 1.0
+    assert 0.0 < m["overlap_fraction"] < 1.0
+    assert m["final_entropy_bits"] < 7.0 * GRID.size
+    assert m["entropy_split"]["final_bits"] == pytest.approx(m["final_entropy_bits"])
+    assert m["entropy_split"]["unobservable_share"] > 0.0  # the block's core keeps its prior
+    assert m["reached_threshold"] and m["mission_time_s"] == 0.0  # 7840 <= 8000 at once
+    m = compute_metrics(_record(threshold_bits=5500.0), cmap, _truth(), observed)
+    assert m["reached_threshold"] and m["mission_time_s"] == 1.5
+    m = compute_metrics(_record(threshold_bits=100.0), cmap, _truth(), observed)
+    assert not m["reached_threshold"] and m["mission_time_s"] is None
+
+
+def test_metrics_without_ground_truth():
+    cmap, _ = _fused_map()
+    m = compute_metrics(_record(), cmap)
+    assert m["occupancy_f1"] is None and m["coverage_mae"] is None
+    assert m["observable_voxels"] == GRID.size
+    assert m["explored_fraction"] == pytest.approx(m["known_voxels"] / GRID.size)
+
+
+def test_top_view_image_marks_unknown_columns():
+    cmap = CoverageMap(GRID)
+    ijk = np.array([[3, 4, 2], [3, 4, 3], [5, 5, 7]])  # z = 0.25, 0.35 (in the band), 0.75 (above)
+    idx = GRID.flat(ijk)
+    cmap.lam[idx] = 1e4
+    cmap.eta[idx] = 1e4 * np.array([0.9, 0.1, 1.0], np.float32)
+    image, layers = top_view_image(cmap, (0.1, 0.5))
+    assert layers.tolist() == [1, 2, 3, 4]
+    assert image[3, 4] == pytest.approx(0.9, abs=1e-3)
+    assert np.isnan(image[5, 5]) and np.count_nonzero(~np.isnan(image)) == 1
+
+
+def test_write_run_folder(tmp_path):
+    cmap, observed = _fused_map()
+    record = _record()
+    metrics = compute_metrics(record, cmap, _truth(), observed)
+    out = tmp_path / "run"
+    write_run_folder(out, metrics, cmap, "mission: box\n", record)
+
+    data = json.loads((out / "metrics.json").read_text())
+    assert set(METRIC_KEYS) <= set(data)
+    assert data["config"] == "configs/box.yaml" and data["robots"] == ["r1", "r2"]
+    assert data["seed"] == 3 and data["strategy"] == "entropy_gradient"
+    assert data["reached_threshold"] is True and data["mission_time_s"] == 0.0
+    assert data["bytes_shared"] == {"r1": 1234, "r2": 56}
+    assert data["entropy_curve"] == record.entropy_curve
+    assert data["distance_m"]["r1"] == pytest.approx(1.0)
+    floats = ("occupancy_f1", "coverage_mae", "explored_fraction", "overlap_fraction", "final_entropy_bits")
+    for key in floats:
+        assert isinstance(data[key], float), key
+    assert 0.0 <= data["occupancy_f1"] <= 1.0
+
+    with np.load(out / "map.npz") as npz:
+        assert set(REQUIRED_KEYS) <= set(npz.files)
+        assert npz["mu"].shape == GRID.shape and npz["expected_coverage"].dtype == np.float32
+    assert (out / "config.yaml").read_text() == "mission: box\n"
+    for name in ("entropy.png", "top_view.png"):
+        image = cv2.imread(str(out / name))
+        assert image is not None, name
+        h, w = image.shape[:2]
+        assert w >= 600 and h >= 300, (name, w, h)
+        assert image.std() > 10  # not a blank canvas
+
+
+def test_metrics_json_has_no_nan(tmp_path):
+    cmap = CoverageMap(GRID)
+    truth = np.ones(GRID.shape, np.float32)  # all solid: nothing is observable
+    record = _record(entropy_curve=[], trajectories={})
+    metrics = compute_metrics(record, cmap, truth)
+    assert metrics["coverage_mae"] is None
+    metrics["extra"] = float("nan")
+    write_run_folder(tmp_path, metrics, cmap, "", record)
+    text = (tmp_path / "metrics.json").read_text()
+    assert "NaN" not in text and json.loads(text)["extra"] is None
