@@ -1,0 +1,465 @@
+"""Where a robot should go next: the paper's entropy-gradient target and two baselines.
+
+Pure functions of the map, the robot's pose, its traversability grid and its planner cost
+map (DESIGN.md section 3, "Exploration", paper eq. 27-36); no I/O, no state.
+
+- ``"entropy"`` (the paper): l_s = argmax |grad H_G(l)| (1 - E[C_l]) over the slab of
+  voxels at sensor height within xi of the robot (eq. 30, 32, 33, 35), among voxels the
+  robot can *view* from reachable space; gaze along grad H_G(l_s) (eq. 34). The robot
+  stands back from l_s, on the side the gradient comes from, so that l_s and the higher
+  entropy beyond it are in its field of view. When nothing within xi is conclusive the
+  radius is doubled up to the whole map (our extension, so that missions finish); then
+  the robot wanders while unknown voxels bordering known free space remain in view of
+  reachable space; otherwise there is no reachable informative target (None, a mission
+  stop condition).
+- ``"frontier"`` (Yamauchi 1997): the nearest reachable frontier cell by path cost.
+- ``"random"``: a uniformly random reachable cell within 2 xi.
+
+Viewing model. The sensor's plane is the slab layer k0 that holds the sensor (eq. 30). A
+slab voxel is *opaque* when it is known and E[C] >= 0.2 (not surely free); unknown and
+free voxels are transparent. A voxel is *in view* of reachable space within a range r
+when a path of at most r through transparent slab voxels (octagonal metric: 4- and
+8-neighbour steps alternate) joins it to a reachable cell. An entropy target's standing point is then
+checked exactly (:class:`ViewGeometry`: distance, angle to the gaze, straight line of
+sight); candidates without one are skipped.
+
+Grids: the traversability grid must be the map's x-y columns (same origin, resolution
+and shape), as :func:`robot_agent.traversability.build_traversability` makes it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from robot_agent.traversability import TraversabilityGrid
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
+from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_plane, robot_axes, target_scores
+
+__all__ = [
+    "DEFAULT_MIN_STEP_BITS",
+    "STRATEGIES",
+    "ExplorationTarget",
+    "ViewGeometry",
+    "choose_target",
+    "frontier_cells",
+]
+
+STRATEGIES = ("entropy", "frontier", "random")
+#: Default eq. 35 threshold, as an entropy step between neighbouring voxels: a score is
+#: conclusive when it beats a 2-bit step (per voxel edge) at a surely empty voxel, or a
+#: 4-bit step at an unknown one (E[C] = 1/2); tuned on the office simulation.
+DEFAULT_MIN_STEP_BITS = 2.0
+#: Known slab voxels with E[C] at least this block the view: the traversability grid's
+#: free threshold, so that ambiguous surface voxels do not let the view leak into solids.
+OPAQUE_COVERAGE = 0.2
+#: Candidates the standing-point check rejects before the radius is widened anyway.
+_MAX_TRIES = 64
+
+
+@dataclass(frozen=True, eq=False)
+class ExplorationTarget:
+    """A goal for the navigator: stand at ``xy``, face ``gaze_yaw`` (radians, world frame).
+
+    ``xy`` is the centre of a reachable free cell, or of the robot's own cell (turn in place;
+    the robot's cell always counts as reachable, even when inflation marks it blocked).
+
+    ``utility`` is the eq. 35 score for ``"entropy"``, the unknown floor area (m^2) within
+    viewing range for ``"frontier"`` and ``"random"``, 0 for ``"wander"``; ``voxel`` is the
+    flat index of l_s (entropy targets only).
+    """
+
+    xy: np.ndarray
+    gaze_yaw: float
+    utility: float
+    voxel: int | None
+    kind: str
+
+
+@dataclass(frozen=True)
+class ViewGeometry:
+    """Where a robot may stand to look at an entropy target voxel: between ``near`` and
+    ``far`` metres from it, with it within ``half_angle`` (radians) of the gaze (half the
+    camera's horizontal field of view)."""
+
+    near: float = 0.3
+    far: float = 1.0
+    half_angle: float = math.radians(30.0)
+
+
+def choose_target(
+    strategy: str,
+    cmap: CoverageMap,
+    entropy: np.ndarray,
+    pose: tuple[float, float, float],
+    sensor_height: float,
+    trav: TraversabilityGrid,
+    planner_cost: np.ndarray,
+    radius: float,
+    rng: np.random.Generator,
+    min_score: float | None = None,
+    exclude: Sequence[np.ndarray] = (),
+    *,
+    view: ViewGeometry = ViewGeometry(),
+    exclude_radius: float = 1.0,
+    widen: bool = True,
+) -> ExplorationTarget | None:
+    """The next target of ``strategy`` ("entropy", "frontier" or "random"), or None when done.
+
+    ``entropy`` is the per-voxel entropy (flat, as kept by EntropyCache), ``pose`` the robot's
+    (x, y, yaw), ``sensor_height`` the sensor's world z, ``planner_cost`` the
+    GridPlanner.cost_map from the robot's cell (metres, inf where unreachable; from
+    ``nearest_free_cell`` when inflation blocks the robot's own cell), ``radius``
+    the neighbourhood xi of eq. 30. ``exclude``: x-y points (other robots' targets, recently
+    failed ones); targets within ``exclude_radius`` of them are skipped. ``min_score`` (eq.
+    35 units, bits/m) defaults to DEFAULT_MIN_STEP_BITS / voxel edge. ``view`` says where
+    the robot may stand to look at an entropy target; ``widen=False`` keeps the paper's
+    fixed radius (then wander, then None).
+    """
+    ctx = _Context.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    if strategy == "entropy":
+        return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen)
+    if strategy == "frontier":
+        return _frontier_target(ctx, view.far)
+    if strategy == "random":
+        return _random_target(ctx, 2.0 * radius, rng, view.far)
+    raise ValueError(f"unknown exploration strategy {strategy!r}; expected one of {STRATEGIES}")
+
+
+# ---------------------------------------------------------------------------------------
+# Shared state of one call
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _Context:
+    """Everything the strategies share, computed once per call (2-D arrays are (nx, ny))."""
+
+    cmap: CoverageMap
+    trav: TraversabilityGrid
+    position: np.ndarray  # sensor position x (3,), eq. 30
+    yaw: float
+    k0: int  # slab layer holding the sensor
+    cost: np.ndarray
+    reach: np.ndarray  # reachable free cells and the robot's own cell
+    start: tuple[int, int]  # the robot's cell
+    cx: np.ndarray  # column centre x (nx,)
+    cy: np.ndarray  # column centre y (ny,)
+    allowed: np.ndarray  # columns farther than exclude_radius from every excluded point
+    slab_known: np.ndarray
+    slab_cov: np.ndarray  # E[C] of slab voxels (unknown: prior mean)
+    opaque: np.ndarray  # known slab voxels with E[C] >= OPAQUE_COVERAGE
+
+    @classmethod
+    def build(
+        cls,
+        cmap: CoverageMap,
+        pose: tuple[float, float, float],
+        sensor_height: float,
+        trav: TraversabilityGrid,
+        planner_cost: np.ndarray,
+        exclude: Sequence[np.ndarray],
+        exclude_radius: float,
+    ) -> _Context:
+        grid = cmap.grid
+        nx, ny, nz = grid.shape
+        e = grid.voxel
+        if trav.shape != (nx, ny) or not (
+            math.isclose(trav.resolution, e) and np.allclose(trav.origin, grid.lo[:2], atol=1e-9)
+        ):
+            raise ValueError("traversability grid must cover the map's x-y columns (origin, voxel, shape)")
+        cost = np.asarray(planner_cost, dtype=np.float64)
+        if cost.shape != (nx, ny):
+            raise ValueError(f"planner_cost has shape {cost.shape}, expected {(nx, ny)}")
+        k0 = int(np.floor((float(sensor_height) - grid.lo[2]) / e))
+        if not 0 <= k0 < nz:
+            raise ValueError(f"sensor height {sensor_height} m is outside the map's z range")
+        x, y, yaw = (float(v) for v in pose)
+        cx = grid.lo[0] + (np.arange(nx) + 0.5) * e
+        cy = grid.lo[1] + (np.arange(ny) + 0.5) * e
+        allowed = np.ones((nx, ny), dtype=bool)
+        for p in exclude:
+            p = np.asarray(p, dtype=np.float64)
+            allowed &= (cx[:, None] - p[0]) ** 2 + (cy[None, :] - p[1]) ** 2 > exclude_radius**2
+        # reachable: free cells the planner reaches, and the cell the robot stands on
+        reach = trav.free & np.isfinite(cost)
+        own = trav.cell_of(np.array([x, y]))
+        if trav.contains(own):
+            start = (int(own[0]), int(own[1]))
+            reach[start] = True
+        else:
+            start = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        slab = np.arange(nx * ny, dtype=np.int64) * nz + k0
+        known = cmap.known_mask()[slab].reshape(nx, ny)
+        cov = expected_coverage(cmap.mean(slab), cmap.sigma(slab)).reshape(nx, ny)
+        return cls(
+            cmap=cmap,
+            trav=trav,
+            position=np.array([x, y, float(sensor_height)]),
+            yaw=yaw,
+            k0=k0,
+            cost=cost,
+            reach=reach,
+            start=(int(start[0]), int(start[1])),
+            cx=cx,
+            cy=cy,
+            allowed=allowed,
+            slab_known=known,
+            slab_cov=cov,
+            opaque=known & (cov >= OPAQUE_COVERAGE),
+        )
+
+    @property
+    def voxel(self) -> float:
+        return self.cmap.grid.voxel
+
+    def centre(self, i: int, j: int) -> np.ndarray:
+        return np.array([self.cx[i], self.cy[j]])
+
+    def in_view(self, max_range: float) -> np.ndarray:
+        """Slab columns in view of reachable space within ``max_range`` (see the module doc)."""
+        return _in_view(self.reach, ~self.opaque, int(math.ceil(max_range / self.voxel - 1e-9)))
+
+    def unknown_in_view(self) -> bool:
+        """Is any unknown slab voxel that borders known free space (4-neighbours) in view of
+        reachable space within the sensor's range? (Unknown voxels enclosed by surfaces or
+        by other unknown voxels alone do not count: no view would reach them.)"""
+        border = ~self.slab_known & _grow(self.slab_known & ~self.opaque, square=False)
+        if not border.any():
+            return False
+        return bool(np.any(self.in_view(self.cmap.sensor.max_range) & border))
+
+    def unknown_area(self, i: int, j: int, max_range: float) -> float:
+        """Unknown floor area (m^2, traversability columns) within ``max_range`` of cell (i, j)."""
+        unk = self.trav.unknown & ~self.trav.occupied
+        d2 = (self.cx[:, None] - self.cx[i]) ** 2 + (self.cy[None, :] - self.cy[j]) ** 2
+        return float(np.count_nonzero(unk & (d2 <= max_range**2))) * self.voxel**2
+
+
+def _grow(mask: np.ndarray, square: bool) -> np.ndarray:
+    """One dilation step of a 2-D mask: 8-neighbour (``square``) or 4-neighbour."""
+    out = mask.copy()
+    out[1:] |= mask[:-1]
+    out[:-1] |= mask[1:]
+    src = out.copy() if square else mask
+    out[:, 1:] |= src[:, :-1]
+    out[:, :-1] |= src[:, 1:]
+    return out
+
+
+def _in_view(sources: np.ndarray, transparent: np.ndarray, steps: int) -> np.ndarray:
+    """Cells within ``steps`` of ``sources`` through transparent cells (octagonal metric).
+
+    Opaque cells are reached (their surface is seen) but never passed through.
+    """
+    seen = sources.copy()
+    for s in range(steps):
+        seen |= _grow(seen & transparent, square=s % 2 == 1)
+    return seen
+
+
+# ---------------------------------------------------------------------------------------
+# Entropy gradient (the paper)
+# ---------------------------------------------------------------------------------------
+def _entropy_target(
+    ctx: _Context,
+    entropy: np.ndarray,
+    radius: float,
+    rng: np.random.Generator,
+    min_score: float | None = None,
+    view: ViewGeometry = ViewGeometry(),
+    widen: bool = True,
+) -> ExplorationTarget | None:
+    """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else wander/None."""
+    grid = ctx.cmap.grid
+    nx, ny, nz = grid.shape
+    e = grid.voxel
+    H = np.asarray(entropy).reshape(nx, ny, nz)
+    if min_score is None:
+        min_score = DEFAULT_MIN_STEP_BITS / e
+    if not (radius > 0 and min_score >= 0):
+        raise ValueError(f"need radius > 0 and min_score >= 0, got {radius}, {min_score}")
+    if not ctx.reach.any():
+        return None
+    # eq. 32 on the slab (one layer below it for the z difference), projected (eq. 33)
+    k0 = ctx.k0
+    G = entropy_gradient(H[:, :, max(k0 - 1, 0) : k0 + 1], e)[:, :, -1]
+    G = project_on_plane(G, robot_axes(ctx.yaw)[2])
+    gnorm = np.sqrt(np.einsum("ijk,ijk->ij", G, G))
+    score = target_scores(gnorm, ctx.slab_cov, np.arange(nx * ny)).reshape(nx, ny)  # eq. 35
+    open_ = ctx.in_view(view.far) & ctx.allowed & (score > min_score)
+    # distance to the farthest slab voxel: beyond it, widening adds nothing
+    far = np.linalg.norm(np.maximum(ctx.position - grid.lo, grid.hi - ctx.position)[:2]) + e
+    xi = float(radius)
+    while open_.any():
+        flat = candidate_voxels(grid.shape, e, grid.origin, ctx.position, xi)  # eq. 30
+        cols = flat // nz
+        cols = cols[open_.ravel()[cols]]
+        tries = 0
+        for c in cols[np.argsort(-score.ravel()[cols], kind="stable")]:
+            i, j = divmod(int(c), ny)
+            g = G[i, j, :2] / gnorm[i, j]
+            stand = _standing_cell(ctx, i, j, g, view)
+            if stand is not None:
+                return ExplorationTarget(
+                    xy=ctx.centre(*stand),
+                    gaze_yaw=math.atan2(g[1], g[0]),  # eq. 34, towards higher entropy
+                    utility=float(score[i, j]),
+                    voxel=int(c) * nz + k0,
+                    kind="entropy",
+                )
+            open_[i, j] = False
+            tries += 1
+            if tries >= _MAX_TRIES:
+                break
+        if not widen or xi >= far:
+            break
+        xi *= 2.0
+    if not ctx.unknown_in_view():
+        return None
+    return _random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)
+
+
+def _standing_cell(
+    ctx: _Context, i: int, j: int, g: np.ndarray, view: ViewGeometry
+) -> tuple[int, int] | None:
+    """Where to stand to view voxel column (i, j) looking along the unit gradient ``g``.
+
+    Among reachable cells at distance view.near .. view.far from the voxel, within
+    view.half_angle of the gaze g as seen from the cell (so the voxel and the higher
+    entropy beyond it are in the field of view) and with a straight line of sight to it
+    (no opaque slab voxel in between), the one nearest the point (near + far) / 2 behind
+    the voxel along -g. None if no cell fits.
+    """
+    lo, hi = view.near, view.far
+    e = ctx.voxel
+    n = int(math.ceil(hi / e))
+    nx, ny = ctx.reach.shape
+    i0, i1, j0, j1 = max(i - n, 0), min(i + n + 1, nx), max(j - n, 0), min(j + n + 1, ny)
+    ii, jj = np.nonzero(ctx.reach[i0:i1, j0:j1])
+    ii += i0
+    jj += j0
+    target = ctx.centre(i, j)
+    pts = np.stack([ctx.cx[ii], ctx.cy[jj]], axis=-1)
+    ahead = target - pts
+    d = np.linalg.norm(ahead, axis=1)
+    ok = (d >= lo - 1e-9) & (d <= hi + 1e-9) & (ahead @ g >= math.cos(view.half_angle) * d - 1e-9)
+    ii, jj, pts = ii[ok], jj[ok], pts[ok]
+    if ii.size == 0:
+        return None
+    # line of sight: samples every quarter voxel, ignoring the target's own column
+    t = np.arange(1, 4 * n + 1) / (4 * n + 1)
+    samples = pts[:, None, :] + t[None, :, None] * (target - pts)[:, None, :]
+    si = np.clip(np.floor((samples[..., 0] - ctx.cmap.grid.lo[0]) / e).astype(np.int64), 0, nx - 1)
+    sj = np.clip(np.floor((samples[..., 1] - ctx.cmap.grid.lo[1]) / e).astype(np.int64), 0, ny - 1)
+    blocked = ctx.opaque[si, sj] & ~((si == i) & (sj == j))
+    clear = ~blocked.any(axis=1)
+    if not clear.any():
+        return None
+    ii, jj, pts = ii[clear], jj[clear], pts[clear]
+    ideal = target - 0.5 * (lo + hi) * g
+    k = int(np.argmin(np.linalg.norm(pts - ideal, axis=1)))
+    return int(ii[k]), int(jj[k])
+
+
+# ---------------------------------------------------------------------------------------
+# Frontier baseline (Yamauchi 1997)
+# ---------------------------------------------------------------------------------------
+def frontier_cells(trav: TraversabilityGrid) -> np.ndarray:
+    """Frontier cells (nx, ny) bool: free cells 8-adjacent to cells blocked only by unknown.
+
+    Yamauchi's frontier (known free next to unknown) in the robot's configuration space: a
+    free cell borders a non-free cell that would be free if the unknown (not occupied)
+    columns were free, i.e. one farther than the inflation distance from every occupied
+    column. With build_traversability (unknown columns blocked but not inflated) these
+    are the unknown columns clear of the walls' inflation, so this is "free cells
+    8-adjacent to unknown cells"; with a grid that also inflates unknown columns
+    (TraversabilityGrid.from_blocked) it is the ring of free cells around their inflation.
+    Unknown space behind a known wall gives no frontier.
+    """
+    unknown = trav.unknown & ~trav.occupied
+    if not unknown.any():
+        return np.zeros(trav.shape, dtype=bool)
+    nonfree = ~trav.free
+    # inflation distance (cells): that of the robot's radius, or more if a margin was added
+    d_blocked = _distance_to(trav.occupied | unknown)
+    threshold = max(trav.robot_radius / trav.resolution + 0.5, float(d_blocked[nonfree].max()))
+    shadow = nonfree & (_distance_to(trav.occupied) > threshold + 1e-9)
+    return trav.free & _grow(shadow, square=True)
+
+
+def _distance_to(mask: np.ndarray) -> np.ndarray:
+    """Distance (cells) from each cell centre to the nearest ``mask`` cell, the outside counting."""
+    padded = np.pad(mask, 1, constant_values=True)
+    return ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
+
+
+def _frontier_target(
+    ctx: _Context, view_range: float = 1.0, min_travel: float = 0.5
+) -> ExplorationTarget | None:
+    """The reachable frontier cell of least path cost (ignoring ones nearer than ``min_travel``
+    unless only those remain); gaze at the mean direction of the nearest unknown columns."""
+    front = frontier_cells(ctx.trav) & ctx.reach & ctx.allowed
+    if not front.any():
+        return None
+    far = front & (ctx.cost >= min_travel)
+    pool = far if far.any() else front
+    i, j = np.unravel_index(int(np.argmin(np.where(pool, ctx.cost, np.inf))), pool.shape)
+    unk = np.argwhere(ctx.trav.unknown & ~ctx.trav.occupied)
+    vec = (unk - np.array([i, j])).astype(np.float64)
+    d = np.linalg.norm(vec, axis=1)
+    near = d <= d.min() + 1.0  # the nearest unknown columns, within one cell of the nearest
+    direction = (vec[near] / d[near, None]).mean(axis=0)
+    if np.linalg.norm(direction) < 1e-9:
+        direction = vec[int(np.argmin(d))]
+    return ExplorationTarget(
+        xy=ctx.centre(i, j),
+        gaze_yaw=math.atan2(direction[1], direction[0]),
+        utility=ctx.unknown_area(i, j, view_range),
+        voxel=None,
+        kind="frontier",
+    )
+
+
+# ---------------------------------------------------------------------------------------
+# Random baseline and wandering
+# ---------------------------------------------------------------------------------------
+def _random_target(
+    ctx: _Context, radius: float, rng: np.random.Generator, view_range: float = 1.0
+) -> ExplorationTarget | None:
+    """A uniformly random reachable cell within ``radius`` (not the robot's own), random gaze.
+
+    None when no unknown slab voxel is in view (sensor range) of reachable space, so
+    missions stop; the robot's own cell (turn in place) when it has nowhere else to go.
+    """
+    if not ctx.reach.any() or not ctx.unknown_in_view():
+        return None
+    return _random_cell_target(ctx, radius, rng, "random", None, view_range)
+
+
+def _random_cell_target(
+    ctx: _Context,
+    radius: float,
+    rng: np.random.Generator,
+    kind: str,
+    utility: float | None,
+    view_range: float = 1.0,
+) -> ExplorationTarget:
+    """Uniform reachable cell within ``radius`` of the robot, else any reachable one, else its own."""
+    x, y = ctx.position[:2]
+    pool = ctx.reach & ctx.allowed
+    pool[ctx.start] = False
+    near = pool & ((ctx.cx[:, None] - x) ** 2 + (ctx.cy[None, :] - y) ** 2 <= radius**2)
+    if near.any():
+        pool = near
+    elif not pool.any():  # nowhere else to go: turn in place
+        pool[ctx.start] = True
+    cells = np.flatnonzero(pool)
+    i, j = np.unravel_index(int(cells[rng.integers(cells.size)]), pool.shape)
+    yaw = float(rng.uniform(-math.pi, math.pi))
+    if utility is None:
+        utility = ctx.unknown_area(int(i), int(j), view_range)
+    return ExplorationTarget(xy=ctx.centre(i, j), gaze_yaw=yaw, utility=utility, voxel=None, kind=kind)

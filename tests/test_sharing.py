@@ -1,0 +1,70 @@
+"""The agent's delta outbox: utility filter, numbering, acks, bounded unacked store."""
+
+import numpy as np
+
+from robot_agent.sharing import DeltaOutbox
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.delta import Delta
+from swarm.map.entropy import default_table
+from swarm.map.grid import Grid
+
+GRID = Grid((0, 0, 0), 0.1, (10, 10, 4))
+
+
+def delta(idx, dlam, mu=0.0) -> Delta:
+    idx = np.asarray(idx, np.uint32)
+    dlam = np.full(len(idx), dlam, np.float32)
+    return Delta(idx, dlam, (dlam * mu).astype(np.float32))
+
+
+def fused(cmap: CoverageMap, outbox: DeltaOutbox, d: Delta) -> None:
+    cmap.apply(d)
+    outbox.add(d)
+
+
+def test_only_voxels_worth_share_min_bits_are_sent_and_the_rest_waits():
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=default_table())
+    fused(cmap, outbox, delta([1, 2], 400.0))  # sigma 0.05: several bits each
+    fused(cmap, outbox, delta([7], 0.01))  # next to nothing
+    seq, sent = outbox.take(cmap.lam, cmap.eta)
+    assert seq == 1 and sent.idx.tolist() == [1, 2]
+    # the team's entropy drop for each sent voxel is at least the threshold, computed independently
+    table = default_table()
+    lam0 = cmap.lam[[1, 2]] - sent.dlam
+    drop = table(0.5 * np.ones(2), 1 / np.sqrt(lam0)) - table(cmap.mean([1, 2]), cmap.sigma([1, 2]))
+    assert np.all(drop >= 0.5)
+    assert outbox.take(cmap.lam, cmap.eta) is None  # voxel 7 is still not worth it
+    for _ in range(200):  # ... until enough information piles up
+        fused(cmap, outbox, delta([7], 5.0))
+    seq, sent = outbox.take(cmap.lam, cmap.eta)
+    assert seq == 2 and sent.idx.tolist() == [7]
+    assert sent.dlam[0] == np.float32(0.01 + 200 * 5.0)
+
+
+def test_flush_sends_everything_and_sums_equal_what_was_gathered():
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=default_table())
+    gathered = [delta([3, 4, 5], 0.02, 1.0), delta([4, 9], 300.0), delta([5], 0.05, 0.5)]
+    for d in gathered:
+        fused(cmap, outbox, d)
+    sent = [outbox.take(cmap.lam, cmap.eta), outbox.take(cmap.lam, cmap.eta, flush=True)]
+    sent = [d for _, d in filter(None, sent)]
+    team = CoverageMap(GRID)
+    for d in sent:
+        team.apply(d)
+    np.testing.assert_allclose(team.lam, cmap.lam, rtol=1e-6)
+    np.testing.assert_allclose(team.eta, cmap.eta, rtol=1e-6, atol=1e-6)
+    assert outbox.take(cmap.lam, cmap.eta, flush=True) is None
+
+
+def test_acks_forget_deltas_and_the_store_is_bounded():
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.0, table=default_table(), max_unacked=3)
+    for i in range(5):
+        fused(cmap, outbox, delta([i], 100.0))
+        assert outbox.take(cmap.lam, cmap.eta)[0] == i + 1
+    assert [s for s, _ in outbox.to_resend()] == [3, 4, 5]
+    assert outbox.stats.dropped_unacked == 2
+    outbox.acknowledge(4)
+    assert [s for s, _ in outbox.to_resend()] == [5]
