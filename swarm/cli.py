@@ -9,7 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_SCAN = Path(__file__).resolve().parent.parent / "data" / "octomap" / "scan.dat.bz2"
+BUNDLED_SCAN = Path("data") / "octomap" / "scan.dat.bz2"
+# The bundled scan, from the project folder or beside an editable install.
+DEFAULT_SCAN = next(
+    (p for p in (BUNDLED_SCAN, Path(__file__).resolve().parent.parent / BUNDLED_SCAN) if p.exists()),
+    BUNDLED_SCAN,
+)
 
 
 def _fail(message: str) -> int:
@@ -188,7 +193,7 @@ def _run_bench_entropy(args: argparse.Namespace) -> int:
 
 # -- swarm sim ----------------------------------------------------------------------------
 SIM_COMMANDS = {"run", "render", "world", "-h", "--help"}
-DEFAULT_MISSION = "configs/lab.yaml"
+DEFAULT_MISSION = "configs/office.yaml"
 
 
 def _add_sim(sub: argparse._SubParsersAction) -> None:
