@@ -23,6 +23,8 @@ from typing import Any, Literal, Protocol
 import cv2
 import numpy as np
 
+from swarm.rotation import rotation_zyx
+
 SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
     "hh": cv2.STEREO_SGBM_MODE_HH,
@@ -194,13 +196,7 @@ def depth_from_disparity(disp: np.ndarray, calib: RectifiedRig) -> np.ndarray:
 
 def rotation_ypr(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """world_R_body = Rz(yaw) Ry(pitch) Rx(roll) (body x forward, y left, z up)."""
-    cz, sz = math.cos(yaw), math.sin(yaw)
-    cy, sy = math.cos(pitch), math.sin(pitch)
-    cx, sx = math.cos(roll), math.sin(roll)
-    rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
-    return rz @ ry @ rx
+    return rotation_zyx(yaw, pitch, roll)
 
 
 def points_from_depth(

@@ -21,6 +21,7 @@ import msgpack
 import numpy as np
 
 from swarm.map.grid import Grid
+from swarm.rotation import rotation_zyx
 
 VERSION = 1
 STEREO_ENCODINGS = ("raw8", "png")
@@ -126,14 +127,7 @@ class Pose:
 
     def rotation(self) -> np.ndarray:
         """world_R_body = Rz(yaw) Ry(pitch) Rx(roll)."""
-        yaw, pitch, roll = self.ypr
-        cz, sz = math.cos(yaw), math.sin(yaw)
-        cy, sy = math.cos(pitch), math.sin(pitch)
-        cx, sx = math.cos(roll), math.sin(roll)
-        rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-        ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-        rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-        return rz @ ry @ rx
+        return rotation_zyx(*self.ypr)
 
     def optical_rotation(self) -> np.ndarray:
         """world_R_optical: maps camera optical-frame vectors (x right, y down, z fwd) to world."""

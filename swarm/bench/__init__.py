@@ -1,1 +1,14 @@
 """Benchmarks that print their figures (``swarm bench ...``)."""
+
+import time
+from collections.abc import Callable
+
+
+def best_seconds(fn: Callable[[], object], repeat: int) -> float:
+    """The fastest of ``repeat`` timed calls of ``fn``."""
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best

@@ -10,16 +10,8 @@ import time
 
 import numpy as np
 
+from swarm.bench import best_seconds
 from swarm.map.entropy import EntropyCache, EntropyTable, entropy_exact
-
-
-def _best(fn, repeat: int) -> float:
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def run(voxels: int = 1_000_000, repeat: int = 5, seed: int = 0) -> dict:
@@ -32,21 +24,24 @@ def run(voxels: int = 1_000_000, repeat: int = 5, seed: int = 0) -> dict:
     t0 = time.perf_counter()
     table = EntropyTable()
     build = time.perf_counter() - t0
-    total = {}
-    table_s = _best(lambda: total.__setitem__("H", float(np.sum(table(mu, sigma), dtype=np.float64))), repeat)
+
+    def map_entropy() -> float:
+        return float(np.sum(table(mu, sigma), dtype=np.float64))
+
+    table_s = best_seconds(map_entropy, repeat)
     sample = 20_000
-    exact_s = _best(lambda: entropy_exact(mu[:sample], sigma[:sample]), 1) / sample * voxels
+    exact_s = best_seconds(lambda: entropy_exact(mu[:sample], sigma[:sample]), 1) / sample * voxels
 
     cache = EntropyCache(table(mu, sigma))
     idx = rng.choice(voxels, 20_000, replace=False)
-    update_s = _best(lambda: cache.update(idx, mu[idx] * 0.9, sigma[idx] * 0.9), repeat)
+    update_s = best_seconds(lambda: cache.update(idx, mu[idx] * 0.9, sigma[idx] * 0.9), repeat)
     return {
         "voxels": voxels,
         "table_build_s": build,
         "table_entropy_s": table_s,
         "exact_entropy_s_extrapolated": exact_s,
         "cache_update_20k_s": update_s,
-        "map_entropy_bits": total["H"],
+        "map_entropy_bits": map_entropy(),
     }
 
 

@@ -8,12 +8,12 @@ at most once per scan, while the paper's model fuses every (ray, voxel) measurem
 from __future__ import annotations
 
 import os
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from swarm.bench import best_seconds
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -54,15 +54,6 @@ def synthetic_frame(width: int = 160, height: int = 120, hfov_deg: float = 60.0)
     return rays * t[:, None]
 
 
-def _best_seconds(fn, repeat: int) -> float:
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def _octomap():
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
@@ -80,7 +71,7 @@ def measure(name: str, points: np.ndarray, max_range: float, voxel: float, repea
     ends = points * np.minimum(1.0, max_range / dist)
     grid = Grid.from_bounds(np.minimum(ends.min(0), 0) - voxel, np.maximum(ends.max(0), 0) + 2 * voxel, voxel)
     result = batch_information(grid, sensor, origin, points)
-    seconds = _best_seconds(lambda: batch_information(grid, sensor, origin, points), repeat)
+    seconds = best_seconds(lambda: batch_information(grid, sensor, origin, points), repeat)
 
     octo_seconds = None
     octomap = _octomap()
@@ -90,7 +81,7 @@ def measure(name: str, points: np.ndarray, max_range: float, voxel: float, repea
         def insert():
             octomap.OcTree(voxel).insertPointCloud(points, origin, maxrange=octo_range)
 
-        octo_seconds = _best_seconds(insert, repeat)
+        octo_seconds = best_seconds(insert, repeat)
     return FusionFigures(name, max_range, result.rays, seconds, result.voxel_updates, octo_seconds)
 
 
