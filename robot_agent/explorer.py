@@ -84,6 +84,7 @@ class Explorer:
         self.trav: TraversabilityGrid | None = None
         self.others_targets: list[np.ndarray] = []
         self.failures_in_a_row = 0
+        self.looked_before_done = False
 
     # -- perception ----------------------------------------------------------------------
     def points(self, frame: Frame) -> np.ndarray:
@@ -192,8 +193,13 @@ class Explorer:
             exclude=exclude,
         )
         if target is None:
+            if not self.looked_before_done:
+                # Nothing reachable looks informative: turn once more before concluding.
+                self.looked_before_done = True
+                return self._wander_blind(yaw)
             self.state = "done"
             return Decision(0.0, 0.0, "done")
+        self.looked_before_done = False
         path = planner.plan(start, target.xy)
         if path is None or len(path) < 2:
             if path is not None and np.hypot(*(target.xy - here)) < 0.15:

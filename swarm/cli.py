@@ -169,6 +169,17 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     entropy.add_argument("--voxels", type=int, default=1_000_000)
     entropy.add_argument("--repeat", type=int, default=5)
     entropy.set_defaults(run=_run_bench_entropy)
+    agent = bsub.add_parser(
+        "agent",
+        help="time per frame of stereo, fusion and planning",
+        description="Time per frame of the agent's stages (stereo: SGBM + depth + points; fusion; "
+        "planning: traversability + Dijkstra + one path) on frames rendered from a mission, at "
+        "160x120 and 640x480 by default.",
+    )
+    agent.add_argument("--config", type=Path, default=Path("configs/office.yaml"), help="mission to render")
+    agent.add_argument("--sizes", nargs="+", default=["160x120", "640x480"], help="image sizes WxH")
+    agent.add_argument("--repeat", type=int, default=5)
+    agent.set_defaults(run=_run_bench_agent)
 
 
 def _run_bench_fusion(args: argparse.Namespace) -> int:
@@ -188,6 +199,17 @@ def _run_bench_entropy(args: argparse.Namespace) -> int:
     from swarm.bench import entropy
 
     print(entropy.format_figures(entropy.run(args.voxels, args.repeat)))
+    return 0
+
+
+def _run_bench_agent(args: argparse.Namespace) -> int:
+    from swarm.bench import agent_frame
+
+    try:
+        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes]
+    except ValueError:
+        return _fail(f"--sizes takes WxH values like 160x120, got {args.sizes}")
+    print(agent_frame.format_table(agent_frame.run(args.config, sizes, args.repeat)))
     return 0
 
 

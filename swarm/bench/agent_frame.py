@@ -1,0 +1,97 @@
+"""``swarm bench agent``: time per frame of the agent's stages, stereo, fusion and planning.
+
+Frames are rendered by sim2d from the office mission (a robot in the corridor). Stereo is
+OpenCV SGBM plus depth and world points; fusion is one batch into the local map; planning
+is a traversability grid from the map, a Dijkstra cost map and one path.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from robot_agent.planner import GridPlanner, nearest_free_cell
+from robot_agent.stereo import StereoMatcher, points_from_depth
+from robot_agent.traversability import build_traversability
+from sim2d.render import Renderer, camera_pose
+from swarm.bench import best_seconds
+from swarm.config import load_mission
+from swarm.map.coverage_map import CoverageMap
+
+
+def look_around_map(mission, rid: str, views: int = 16) -> CoverageMap:
+    """The map a robot builds turning once on the spot at its start (range frames, 160x120)."""
+    spec = mission.robot_spec(rid)
+    rig = mission.rig_for(rid)
+    camera = rig.model_copy(update={"width": 160, "height": 120}).camera()
+    renderer = Renderer(mission.load_floor_plan(), camera, seed=0)
+    cmap = CoverageMap(mission.workspace.grid(), mission.sensor.model())
+    for yaw in spec.start.yaw + np.linspace(0, 2 * math.pi, views, endpoint=False):
+        pose = camera_pose(spec.start.x, spec.start.y, yaw, rig.camera_height)
+        depth = renderer.depth_image(pose, 0.0, None, np.random.default_rng(0))
+        points = points_from_depth(depth, camera.fx, camera.fy, camera.cx, camera.cy, pose.xyz, pose.ypr, 5.0)
+        cmap.integrate(np.asarray(pose.xyz), points)
+    return cmap
+
+
+def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
+    """Seconds per frame of each stage at one image size, best of ``repeat``."""
+    spec = mission.robot_spec(rid)
+    rig = mission.rig_for(rid).model_copy(update={"width": width, "height": height, "mode": "stereo"})
+    camera = rig.camera()
+    renderer = Renderer(mission.load_floor_plan(), camera, seed=0)
+    pose = camera_pose(
+        spec.start.x, spec.start.y, spec.start.yaw, rig.camera_height, math.radians(rig.pitch_deg)
+    )
+    left, right = renderer.stereo_pair(pose)
+    matcher = StereoMatcher.for_rig(camera)
+    max_range = mission.sensor.max_range
+
+    def stereo() -> np.ndarray:
+        depth = matcher.depth(left, right, camera)
+        return points_from_depth(
+            depth, camera.fx, camera.fy, camera.cx, camera.cy, pose.xyz, pose.ypr, max_range
+        )
+
+    points = stereo()
+    cmap = look_around_map(mission, rid)
+    origin = np.asarray(pose.xyz)
+
+    def plan() -> None:
+        trav = build_traversability(cmap, robot_radius=mission.robot.radius, swept=origin[None, :2])
+        cell = nearest_free_cell(trav, tuple(int(c) for c in trav.cell_of(origin[:2])))
+        planner = GridPlanner(trav)
+        cost = planner.cost_map(cell)
+        reachable = np.argwhere(np.isfinite(cost))
+        goal = trav.centre(reachable[np.argmax(cost[np.isfinite(cost)])])  # the farthest reachable cell
+        planner.plan(trav.centre(np.array(cell)), goal)
+
+    return {
+        "size": f"{width}x{height}",
+        "points": len(points),
+        "stereo_s": best_seconds(stereo, repeat),
+        "fusion_s": best_seconds(lambda: cmap.integrate(origin, points), repeat),
+        "planning_s": best_seconds(plan, repeat),
+        "voxels": cmap.grid.size,
+    }
+
+
+def run(config: Path, sizes: list[tuple[int, int]], repeat: int = 5) -> list[dict]:
+    """Per-stage seconds per frame for each image size, on the first robot of ``config``."""
+    mission = load_mission(config)
+    return [measure(mission, mission.robot_ids[0], w, h, repeat) for w, h in sizes]
+
+
+def format_table(rows: list[dict]) -> str:
+    lines = [
+        "| image | points | stereo ms | fusion ms | planning ms | map voxels |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['size']} | {r['points']:,} | {r['stereo_s'] * 1e3:.1f} | {r['fusion_s'] * 1e3:.1f} "
+            f"| {r['planning_s'] * 1e3:.1f} | {r['voxels']:,} |"
+        )
+    return "\n".join(lines)
