@@ -29,7 +29,7 @@ STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)
 REPLAN_EVERY = 4  # frames between traversability refreshes while driving
 STUCK_FRAMES = 16  # frames without 5 cm of progress before a target is given up
-FAILED_MEMORY = 12  # how many visited or given-up targets to avoid
+FAILED_MEMORY = 12  # how many given-up targets to avoid
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
 
 
@@ -77,7 +77,7 @@ class Explorer:
         self.turned = 0.0
         self.last_yaw: float | None = None
         self.target: ExplorationTarget | None = None
-        self.avoid: list[np.ndarray] = []
+        self.failed: list[np.ndarray] = []
         self.swept: list[tuple[float, float]] = []
         self.progress = _Progress()
         self.frames = 0
@@ -148,8 +148,6 @@ class Explorer:
     def _gaze(self, yaw: float) -> Decision:
         error = wrap_angle(self.target.gaze_yaw - yaw) if self.target else 0.0
         if abs(error) <= GAZE_TOLERANCE:
-            if self.target is not None:  # looked at: avoid it for a while, like a failed one
-                self.avoid.append(np.asarray(self.target.xy))
             self.state = "choose"
             return Decision(0.0, 0.0, "gaze", self._target_xy())
         omega = float(
@@ -181,7 +179,7 @@ class Explorer:
             self.failures_in_a_row = 0
             return self._wander_blind(yaw)
         cost = planner.cost_map(cell)
-        exclude = [*self.avoid[-FAILED_MEMORY:], *self.others_targets]
+        exclude = [*self.failed[-FAILED_MEMORY:], *self.others_targets]
         target = choose_target(
             self.strategy,
             self.map,
@@ -208,7 +206,7 @@ class Explorer:
                 self.target = target  # already there: just look
                 self.state = "gaze"
                 return self._gaze(yaw)
-            self.avoid.append(np.asarray(target.xy))
+            self.failed.append(np.asarray(target.xy))
             self.failures_in_a_row += 1
             return Decision(0.0, 0.0, "choose")
         if start is not here:
@@ -242,7 +240,7 @@ class Explorer:
     def _give_up(self) -> Decision:
         self.failures_in_a_row += 1
         if self.target is not None:
-            self.avoid.append(np.asarray(self.target.xy))
+            self.failed.append(np.asarray(self.target.xy))
         self.target = None
         self.state = "choose"
         return Decision(0.0, 0.0, "choose")
