@@ -31,6 +31,7 @@ from pydantic import (
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.wire import Camera
+from swarm.yaml_file import read_yaml
 
 #: Entropy of one voxel under the near-uniform prior (128 bins), in bits.
 PRIOR_BITS_PER_VOXEL = 7.0
@@ -339,14 +340,7 @@ class Mission(_Section):
 def load_mission(path: str | Path) -> Mission:
     """Read, validate and check a mission YAML file; raise ConfigError on any problem."""
     path = Path(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror or e}") from e
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {e}") from e
-    return mission_from_dict(data, source=path)
+    return mission_from_dict(read_yaml(path, ConfigError), source=path)
 
 
 def mission_from_dict(

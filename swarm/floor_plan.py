@@ -31,8 +31,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
+
+from swarm.yaml_file import read_yaml
 
 DEFAULT_WALL_HEIGHT = 2.0
 
@@ -393,13 +394,7 @@ def load_floor_plan(path: str | Path, wall_height: float = DEFAULT_WALL_HEIGHT) 
 
 
 def _read_yaml(path: Path) -> object:
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise FloorPlanError(f"{path}: cannot read: {e.strerror or e}") from e
-    except yaml.YAMLError as e:
-        raise FloorPlanError(f"{path}: not valid YAML: {e}") from e
+    data = read_yaml(path, FloorPlanError)
     return {} if data is None else data
 
 
