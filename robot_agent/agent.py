@@ -136,6 +136,8 @@ class Agent:
             if acks is None:
                 continue  # no server yet: keep everything
             self.outbox.acknowledge(acks)
+            for seq in [s for s in self._last_sent if s <= acks]:
+                del self._last_sent[seq]
             now = time.monotonic()
             for seq, delta in self.outbox.to_resend():
                 if now - self._last_sent.get(seq, 0.0) > RESEND_AFTER_S:

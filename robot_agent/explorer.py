@@ -82,7 +82,6 @@ class Explorer:
         self.progress = _Progress()
         self.frames = 0
         self.trav: TraversabilityGrid | None = None
-        self.others_targets: list[np.ndarray] = []
         self.failures_in_a_row = 0
         self.looked_before_done = False
 
@@ -179,7 +178,7 @@ class Explorer:
             self.failures_in_a_row = 0
             return self._wander_blind(yaw)
         cost = planner.cost_map(cell)
-        exclude = [*self.failed[-FAILED_MEMORY:], *self.others_targets]
+        exclude = self.failed[-FAILED_MEMORY:]
         target = choose_target(
             self.strategy,
             self.map,

@@ -183,9 +183,6 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_bench_fusion(args: argparse.Namespace) -> int:
-    import os
-
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
     from swarm.bench import fusion
 
     if not args.scan.exists():

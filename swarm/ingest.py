@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from swarm.map.coverage_map import CoverageMap
+from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.entropy import default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -64,7 +64,7 @@ def ingest_cloud(
     grid = Grid.from_bounds(lo, hi, voxel)
     cmap = CoverageMap(grid, sensor)
     table = default_table()
-    initial = float(table(cmap.mean(slice(0, 1)), cmap.sigma(slice(0, 1)))[0]) * grid.size
+    initial = prior_entropy_bits(grid, sensor)
 
     totals = dict(rays=0, voxel_updates=0, truncated=0, nonfinite=0, outside=0, degenerate=0)
     seconds = 0.0

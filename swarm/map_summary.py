@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarm.map.coverage_map import CoverageMap
+from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.entropy import default_table, expected_coverage
 
 
@@ -13,8 +13,7 @@ def summarize(cmap: CoverageMap) -> dict:
     mu, sigma = cmap.mean(), cmap.sigma()
     table = default_table()
     entropy = float(np.sum(table(mu, sigma), dtype=np.float64))
-    prior = CoverageMap(cmap.grid, cmap.sensor)
-    initial = float(table(prior.mean(slice(0, 1)), prior.sigma(slice(0, 1)))[0]) * cmap.grid.size
+    initial = prior_entropy_bits(cmap.grid, cmap.sensor)
     occupied = int(np.count_nonzero(expected_coverage(mu, sigma) > 0.5))
     return {
         "shape": list(cmap.grid.shape),

@@ -10,11 +10,19 @@ from __future__ import annotations
 import numpy as np
 
 from swarm.map.delta import Delta
+from swarm.map.entropy import default_table
 from swarm.map.fusion import BatchResult, batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 
 PRIOR_MU = 0.5
+
+
+def prior_entropy_bits(grid: Grid, sensor: SensorModel) -> float:
+    """Map entropy of the prior alone: every voxel at N(0.5, sigma0) (eq. 31 at k = 0)."""
+    lam0, eta0 = prior_information(sensor)
+    h0 = default_table()(np.float32(eta0 / lam0), np.float32(1.0 / np.sqrt(lam0)))
+    return float(h0) * grid.size
 
 
 def prior_information(sensor: SensorModel) -> tuple[float, float]:

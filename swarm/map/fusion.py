@@ -58,9 +58,7 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
     i, j, k, ray = voxels.i, voxels.j, voxels.k, voxels.ray
     behind = np.flatnonzero(voxels.behind)
     if len(behind):  # only a voxel behind a hit can fall outside the grid
-        nx, ny, nz = grid.shape
-        bi, bj, bk = i[behind], j[behind], k[behind]
-        out = behind[(bi < 0) | (bi >= nx) | (bj < 0) | (bj >= ny) | (bk < 0) | (bk >= nz)]
+        out = behind[~grid.contains_index(np.column_stack([i[behind], j[behind], k[behind]]))]
         if len(out):
             keep = np.ones(len(ray), dtype=bool)
             keep[out] = False
@@ -91,7 +89,11 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
 def _information(
     sensor: SensorModel, d: np.ndarray, d_l: np.ndarray, voxel: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """lam = 1/sigma^2 and eta = mu/sigma^2 of the sensor model (restored mean, eq. 14)."""
+    """lam = 1/sigma^2 and eta = mu/sigma^2 of the sensor model (restored mean, eq. 14).
+
+    The same model as ``SensorModel.mean``/``sigma``, fused for the hot path (one exp, no
+    square of a small sigma); tests check it against them.
+    """
     diff = d_l - d
     mu = np.clip(0.5 + diff / np.float32(voxel), 0.0, 1.0)
     excess = np.maximum(np.abs(diff) - np.float32(voxel / 2), 0.0)
