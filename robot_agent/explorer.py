@@ -14,15 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from robot_agent.exploration import ExplorationTarget, choose_target
-from robot_agent.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
-from robot_agent.planner import GridPlanner, nearest_free_cell
 from robot_agent.stereo import StereoMatcher, points_from_depth
-from robot_agent.traversability import TraversabilityGrid, build_traversability
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
+from swarm.navigation.exploration import ExplorationTarget, choose_target
+from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
+from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability
 from swarm.wire import Frame
 
 STRATEGIES = ("entropy", "frontier", "random")

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from robot_agent.exploration import ExplorationTarget, choose_target, frontier_cells
-from robot_agent.planner import GridPlanner
-from robot_agent.traversability import TraversabilityGrid, build_traversability, inflate
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import EntropyCache, expected_coverage
 from swarm.map.grid import Grid
+from swarm.navigation.exploration import ExplorationTarget, choose_target, frontier_cells
+from swarm.navigation.planner import GridPlanner
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 
 E = 0.1
 NZ = 8

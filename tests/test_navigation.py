@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from robot_agent.path_follower import FollowerLimits, PathFollower, needs_replan
-from robot_agent.planner import GridPlanner, nearest_free_cell, path_cost, plan_path, reachable_mask
-from robot_agent.traversability import TraversabilityGrid, build_traversability, inflate
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
+from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan
+from swarm.navigation.planner import GridPlanner, nearest_free_cell, path_cost, plan_path, reachable_mask
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 
 RES = 0.1
 

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from robot_agent.planner import GridPlanner, nearest_free_cell
 from robot_agent.stereo import StereoMatcher, points_from_depth
-from robot_agent.traversability import build_traversability
 from sim2d.render import Renderer, camera_pose
 from swarm.bench import best_seconds
 from swarm.config import load_mission
 from swarm.map.coverage_map import CoverageMap
+from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.traversability import build_traversability
 
 
 def look_around_map(mission, rid: str, views: int = 16) -> CoverageMap:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robot_agent.traversability import TraversabilityGrid
+from swarm.navigation.traversability import TraversabilityGrid
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ checked exactly (:class:`ViewGeometry`: distance, angle to the gaze, straight li
 sight); candidates without one are skipped.
 
 Grids: the traversability grid must be the map's x-y columns (same origin, resolution
-and shape), as :func:`robot_agent.traversability.build_traversability` makes it.
+and shape), as :func:`swarm.navigation.traversability.build_traversability` makes it.
 """
 
 from __future__ import annotations
@@ -36,10 +36,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from robot_agent.traversability import TraversabilityGrid
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_plane, robot_axes, target_scores
+from swarm.navigation.traversability import TraversabilityGrid
 
 __all__ = [
     "DEFAULT_MIN_STEP_BITS",

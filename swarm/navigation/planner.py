@@ -23,7 +23,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from robot_agent.traversability import TraversabilityGrid
+from swarm.navigation.traversability import TraversabilityGrid
 
 _FOUR = ndimage.generate_binary_structure(2, 1)
 
