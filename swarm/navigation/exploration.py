@@ -15,6 +15,10 @@ map (DESIGN.md section 3, "Exploration", paper eq. 27-36); no I/O, no state.
 - ``"frontier"`` (Yamauchi 1997): the nearest reachable frontier cell by path cost.
 - ``"random"``: a uniformly random reachable cell within 2 xi.
 
+``rank_entropy_targets`` lists the entropy candidates in the order ``choose_target`` tries
+them, each with its standing point, gaze, eq. 35 utility and path cost: the coordinator
+scores them for several robots (docs/coordinator.md).
+
 Viewing model. The sensor's plane is the slab layer k0 that holds the sensor (eq. 30). A
 slab voxel is *opaque* when it is known and E[C] >= 0.2 (not surely free); unknown and
 free voxels are transparent. A voxel is *in view* of reachable space within a range r
@@ -30,7 +34,7 @@ and shape), as :func:`swarm.navigation.traversability.build_traversability` make
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,10 +48,12 @@ from swarm.navigation.traversability import TraversabilityGrid
 __all__ = [
     "DEFAULT_MIN_STEP_BITS",
     "STRATEGIES",
+    "EntropyCandidate",
     "ExplorationTarget",
     "ViewGeometry",
     "choose_target",
     "frontier_cells",
+    "rank_entropy_targets",
 ]
 
 STRATEGIES = ("entropy", "frontier", "random")
@@ -79,6 +85,31 @@ class ExplorationTarget:
     utility: float
     voxel: int | None
     kind: str
+
+
+@dataclass(frozen=True, eq=False)
+class EntropyCandidate:
+    """One eq. 35 target with where to look at it from (see :func:`rank_entropy_targets`).
+
+    ``voxel`` is the flat index of the slab voxel l, ``point`` its centre w(l) (3,);
+    ``xy`` the standing point (a reachable cell centre), ``gaze_yaw`` the direction of
+    grad H_G(l) (eq. 34), ``utility`` the eq. 35 score |grad H_G(l)| (1 - E[C_l]) in
+    bits/m, ``path_cost`` the planner's path length (m) from the robot to ``xy`` (0 when
+    it is the robot's own cell).
+    """
+
+    voxel: int
+    point: np.ndarray
+    xy: np.ndarray
+    gaze_yaw: float
+    utility: float
+    path_cost: float
+
+    def as_target(self) -> ExplorationTarget:
+        """The navigator's goal for this candidate (what :func:`choose_target` returns)."""
+        return ExplorationTarget(
+            xy=self.xy, gaze_yaw=self.gaze_yaw, utility=self.utility, voxel=self.voxel, kind="entropy"
+        )
 
 
 @dataclass(frozen=True)
@@ -129,6 +160,50 @@ def choose_target(
     if strategy == "random":
         return _random_target(ctx, 2.0 * radius, rng, view.far)
     raise ValueError(f"unknown exploration strategy {strategy!r}; expected one of {STRATEGIES}")
+
+
+def rank_entropy_targets(
+    cmap: CoverageMap,
+    entropy: np.ndarray,
+    pose: tuple[float, float, float],
+    sensor_height: float,
+    trav: TraversabilityGrid,
+    planner_cost: np.ndarray,
+    radius: float,
+    min_score: float | None = None,
+    exclude: Sequence[np.ndarray] = (),
+    *,
+    view: ViewGeometry = ViewGeometry(),
+    exclude_radius: float = 1.0,
+    widen: bool = True,
+    limit: int | None = None,
+    min_separation: float = 0.0,
+    max_rejects: int = _MAX_TRIES,
+) -> list[EntropyCandidate]:
+    """Entropy targets (eq. 30-35) in the order ``choose_target("entropy", ...)`` tries them.
+
+    The arguments are those of :func:`choose_target`. Candidates come ring by ring (xi,
+    then 2 xi, 4 xi, ... while ``widen``), by decreasing eq. 35 utility within a ring, each
+    with a standing point and its path cost from ``planner_cost``; the first one is
+    ``choose_target``'s entropy target whenever that is not a wander. A radius at least the
+    map's extent gives one ring: the whole map by utility. ``min_separation`` (m) skips a
+    voxel column closer than that to one already listed (a spread-out list for the
+    coordinator); ``limit`` caps the length; ``max_rejects`` candidates without a standing
+    point end a ring early. Empty when nothing viewable beats ``min_score`` (no wandering
+    here).
+    """
+    if limit is not None and limit < 1:
+        raise ValueError(f"limit must be >= 1, got {limit}")
+    if max_rejects < 1:
+        raise ValueError(f"max_rejects must be >= 1, got {max_rejects}")
+    ctx = _Context.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    found = _entropy_candidates(ctx, entropy, radius, min_score, view, widen, max_rejects, min_separation)
+    out: list[EntropyCandidate] = []
+    for candidate in found:
+        out.append(candidate)
+        if limit is not None and len(out) >= limit:
+            break
+    return out
 
 
 # ---------------------------------------------------------------------------------------
@@ -274,6 +349,32 @@ def _entropy_target(
     widen: bool = True,
 ) -> ExplorationTarget | None:
     """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else wander/None."""
+    best = next(_entropy_candidates(ctx, entropy, radius, min_score, view, widen), None)
+    if best is not None:
+        return best.as_target()
+    if not ctx.reach.any() or not ctx.unknown_in_view():
+        return None
+    return _random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)
+
+
+def _entropy_candidates(
+    ctx: _Context,
+    entropy: np.ndarray,
+    radius: float,
+    min_score: float | None = None,
+    view: ViewGeometry = ViewGeometry(),
+    widen: bool = True,
+    max_rejects: int = _MAX_TRIES,
+    min_separation: float = 0.0,
+) -> Iterator[EntropyCandidate]:
+    """Eq. 35 candidates with a standing point, best first within xi, then 2 xi, 4 xi, ...
+
+    Within one radius the open slab columns (viewable from reachable space, allowed, score
+    above ``min_score``) are tried by decreasing eq. 35 score; a column without a standing
+    point is closed and counts as a reject, and after ``max_rejects`` rejects in one radius
+    the radius is widened anyway. A column within ``min_separation`` (m) of a column already
+    yielded is skipped (not a reject). Each column is yielded at most once.
+    """
     grid = ctx.cmap.grid
     nx, ny, nz = grid.shape
     e = grid.voxel
@@ -283,7 +384,7 @@ def _entropy_target(
     if not (radius > 0 and min_score >= 0):
         raise ValueError(f"need radius > 0 and min_score >= 0, got {radius}, {min_score}")
     if not ctx.reach.any():
-        return None
+        return
     # eq. 32 on the slab (one layer below it for the z difference), projected (eq. 33)
     k0 = ctx.k0
     G = entropy_gradient(H[:, :, max(k0 - 1, 0) : k0 + 1], e)[:, :, -1]
@@ -293,6 +394,8 @@ def _entropy_target(
     open_ = ctx.in_view(view.far) & ctx.allowed & (score > min_score)
     # distance to the farthest slab voxel: beyond it, widening adds nothing
     far = np.linalg.norm(np.maximum(ctx.position - grid.lo, grid.hi - ctx.position)[:2]) + e
+    z = grid.lo[2] + (k0 + 0.5) * e
+    taken: list[np.ndarray] = []
     xi = float(radius)
     while open_.any():
         flat = candidate_voxels(grid.shape, e, grid.origin, ctx.position, xi)  # eq. 30
@@ -301,26 +404,32 @@ def _entropy_target(
         tries = 0
         for c in cols[np.argsort(-score.ravel()[cols], kind="stable")]:
             i, j = divmod(int(c), ny)
+            if not open_[i, j]:
+                continue
+            here = ctx.centre(i, j)
+            if taken and min_separation > 0:
+                if np.min(np.linalg.norm(np.asarray(taken) - here, axis=1)) < min_separation:
+                    continue
             g = G[i, j, :2] / gnorm[i, j]
             stand = _standing_cell(ctx, i, j, g, view)
+            open_[i, j] = False
             if stand is not None:
-                return ExplorationTarget(
+                taken.append(here)
+                yield EntropyCandidate(
+                    voxel=int(c) * nz + k0,
+                    point=np.array([here[0], here[1], z]),
                     xy=ctx.centre(*stand),
                     gaze_yaw=math.atan2(g[1], g[0]),  # eq. 34, towards higher entropy
                     utility=float(score[i, j]),
-                    voxel=int(c) * nz + k0,
-                    kind="entropy",
+                    path_cost=0.0 if stand == ctx.start else float(ctx.cost[stand]),
                 )
-            open_[i, j] = False
+                continue
             tries += 1
-            if tries >= _MAX_TRIES:
+            if tries >= max_rejects:
                 break
         if not widen or xi >= far:
             break
         xi *= 2.0
-    if not ctx.unknown_in_view():
-        return None
-    return _random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)
 
 
 def _standing_cell(
