@@ -53,5 +53,7 @@ def test_lab_furniture_volume():
     boxes = [q for q, kind in zip(plan.quads, plan.kinds, strict=True) if kind == "box"]
     heights = plan.heights[[k == "box" for k in plan.kinds]]
     areas = [np.prod(np.linalg.norm(q[1:3] - q[:2], axis=1)) for q in boxes]  # rectangles
-    # The walls stand just outside the workspace, so only the furniture is inside it.
-    assert cov.sum() * 0.1**3 == pytest.approx(np.dot(areas, heights), rel=0.02)
+    # The walls are the workspace's outermost 0.1 m layer (a 4 x 2 m ring around a
+    # 3.8 x 1.8 m room) up to the workspace top at 2 m; the furniture stands inside.
+    walls = (4.0 * 2.0 - 3.8 * 1.8) * 2.0
+    assert cov.sum() * 0.1**3 == pytest.approx(walls + np.dot(areas, heights), rel=0.02)
