@@ -105,7 +105,7 @@ class Agent:
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
         decision = self.explorer.decide(x, y, frame.pose.ypr[0])
         self._share(flush=decision.state == "done")
-        cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega)
+        cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega, decision.tilt)
         self._cmd_pub.put(cmd.encode())
         if frame.seq % STATUS_EVERY == 0 or decision.state == "done":
             target = None if decision.target is None else (*decision.target, 0.0)

@@ -5,6 +5,11 @@ coverage map, choose a viewpoint by the entropy gradient (eq. 27-35, or a baseli
 there through known free space, look along the gradient on arrival, and stop when the map
 entropy is below H_th (eq. 36) or nothing reachable is informative. The robot starts by
 turning once on the spot, since a forward camera sees nothing of its sides.
+
+A robot whose camera sits on a tilt head (``rig.tilt_range_deg`` > 0) also looks up on
+arrival, one frame with the head raised to its limit after the gaze, and makes its last
+turn before giving up with the head raised: a level camera low on a robot sees the upper
+part of a room only from afar, and eq. 30 chooses targets in the sensor's slab alone.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ class Decision:
     omega: float
     state: str
     target: tuple[float, float] | None = None
+    tilt: float | None = None  # camera head tilt (rad, positive down); None: no tilt head
 
 
 @dataclass
@@ -84,6 +90,9 @@ class Explorer:
         self.trav: TraversabilityGrid | None = None
         self.failures_in_a_row = 0
         self.looked_before_done = False
+        self.has_head = self.rig.tilt_range_deg > 0
+        self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
+        self.head = 0.0  # the tilt this robot asks for now
 
     # -- perception ----------------------------------------------------------------------
     def points(self, frame: Frame) -> np.ndarray:
@@ -119,6 +128,11 @@ class Explorer:
     # -- decisions -----------------------------------------------------------------------
     def decide(self, x: float, y: float, yaw: float) -> Decision:
         """The command for this frame, given the robot's pose (from the frame)."""
+        decision = self._decide(x, y, yaw)
+        decision.tilt = self.head if self.has_head else None
+        return decision
+
+    def _decide(self, x: float, y: float, yaw: float) -> Decision:
         self.frames += 1
         here = np.array([x, y])
         if not self.swept or np.hypot(*(here - self.swept[-1])) > 0.05:
@@ -131,6 +145,10 @@ class Explorer:
             return self._look_around(yaw)
         if self.state == "gaze":
             return self._gaze(yaw)
+        if self.state == "look_up":  # this frame was seen with the head raised
+            self.head = 0.0
+            self.state = "choose"
+            return Decision(0.0, 0.0, "gaze", self._target_xy())
         if self.state == "drive":
             return self._drive(here, yaw)
         return self._choose(here, yaw)
@@ -140,6 +158,7 @@ class Explorer:
             self.turned += abs(wrap_angle(yaw - self.last_yaw))
         self.last_yaw = yaw
         if self.turned >= 2 * math.pi - 0.2:
+            self.head = 0.0
             self.state = "choose"
             return Decision(0.0, 0.0, "choose")
         return Decision(0.0, self.mission.robot.max_turn_rate * 0.8, "look_around")
@@ -147,7 +166,11 @@ class Explorer:
     def _gaze(self, yaw: float) -> Decision:
         error = wrap_angle(self.target.gaze_yaw - yaw) if self.target else 0.0
         if abs(error) <= GAZE_TOLERANCE:
-            self.state = "choose"
+            if self.has_head:  # raise the head for the next frame, then choose
+                self.head = self.look_up_tilt
+                self.state = "look_up"
+            else:
+                self.state = "choose"
             return Decision(0.0, 0.0, "gaze", self._target_xy())
         omega = float(
             np.clip(2.0 * error, -self.mission.robot.max_turn_rate, self.mission.robot.max_turn_rate)
@@ -193,8 +216,10 @@ class Explorer:
         )
         if target is None:
             if not self.looked_before_done:
-                # Nothing reachable looks informative: turn once more before concluding.
+                # Nothing reachable looks informative: turn once more (head raised, if it
+                # can be) before concluding.
                 self.looked_before_done = True
+                self.head = self.look_up_tilt
                 return self._wander_blind(yaw)
             self.state = "done"
             return Decision(0.0, 0.0, "done")

@@ -4,7 +4,9 @@ Each tick the simulator publishes one frame per robot on ``robot/<rid>/frame`` (
 3, ... shared by all robots), then waits until every live agent has answered with a
 ``robot/<rid>/cmd`` carrying the same seq. Only then does it apply the commands, advance
 the world by ``sim.frame_period_s`` (in ``sim.dt`` physics steps) and publish the true
-poses on ``sim/truth``. So runs are reproducible and as fast as the agents allow.
+poses on ``sim/truth``. So runs are reproducible and as fast as the agents allow. A
+command's optional ``tilt`` points the robot's camera head (clamped to the rig's
+``tilt_range_deg``; a fixed rig stays level) from the next frame on.
 
 An agent that has not answered within ``sim.agent_timeout_s`` (wall clock) is declared
 dead: its robot stops and the clock no longer waits for it. Dead robots still get frames;
@@ -77,6 +79,7 @@ class Simulator:
         self.dead: set[str] = set()
         self.rejected = 0
         self._renderers: dict[str, Renderer] = {}
+        self._tilt: dict[str, float] = {}  # robot -> camera head tilt (rad) from commands
         self._rngs = {
             rid: np.random.default_rng([mission.sim.seed, i]) for i, rid in enumerate(self.robot_ids)
         }
@@ -126,7 +129,8 @@ class Simulator:
         """Render what a robot's rig sees now, as a wire frame with the current seq."""
         rig = self.mission.rig_for(robot_id)
         x, y, yaw = self.world.pose(robot_id)
-        pose = camera_pose(x, y, yaw, rig.camera_height, math.radians(rig.pitch_deg))
+        pitch = math.radians(rig.pitch_deg) + self._tilt.get(robot_id, 0.0)
+        pose = camera_pose(x, y, yaw, rig.camera_height, pitch)
         renderer = self.renderer(rig)
         rng = self._rngs[robot_id]
         frame = Frame(robot_id, self.seq, self.time, pose, renderer.camera, self.encoding)
@@ -191,6 +195,9 @@ class Simulator:
                 self.dead.discard(cmd.robot)
             if cmd.seq == self.seq:
                 self.world.command(cmd.robot, cmd.v, cmd.omega)
+                if cmd.tilt is not None:
+                    limit = math.radians(self.mission.rig_for(cmd.robot).tilt_range_deg)
+                    self._tilt[cmd.robot] = min(max(cmd.tilt, -limit), limit)
                 waiting.discard(cmd.robot)
 
     def _accept(self, key_expr: str, payload: bytes) -> Cmd | None:

@@ -149,6 +149,9 @@ class RigConfig(_Section):
     one is ``baseline`` metres to its right. ``noise_std`` is image noise in grey levels;
     ``range_noise`` is the depth noise standard deviation per metre of range (range mode);
     ``max_range`` (m) turns farther returns into no return (None: unlimited).
+    ``pitch_deg`` is the mounting pitch (positive looks down); ``tilt_range_deg`` > 0 puts
+    the camera on a tilt head that commands can point up to that many degrees up or down
+    from the mounting pitch (0: a fixed camera).
     """
 
     width: int = Field(default=160, ge=8)
@@ -157,6 +160,7 @@ class RigConfig(_Section):
     baseline: FiniteFloat = Field(default=0.09, ge=0)
     camera_height: FiniteFloat = Field(default=0.4, gt=0)
     pitch_deg: FiniteFloat = Field(default=0.0, ge=-80, le=80)
+    tilt_range_deg: FiniteFloat = Field(default=0.0, ge=0, le=80)
     noise_std: FiniteFloat = Field(default=0.0, ge=0)
     mode: Literal["stereo", "range"] = "stereo"
     range_noise: FiniteFloat = Field(default=0.01, ge=0)

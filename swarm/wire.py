@@ -283,6 +283,8 @@ class Cmd:
     """A velocity command answering frame ``seq``: forward speed ``v`` (m/s), turn ``omega`` (rad/s).
 
     On the wire the speed is the key ``speed``: ``v`` is the protocol version of every message.
+    ``tilt`` (optional, rad) points a pan-tilt head: the camera's pitch relative to the rig's
+    mounting pitch (positive looks down, as in ``Pose``); None leaves the head where it is.
     """
 
     robot: str
@@ -290,31 +292,38 @@ class Cmd:
     t: float
     v: float
     omega: float
+    tilt: float | None = None
 
     KIND = "cmd"
 
     def encode(self) -> bytes:
-        return _pack(
-            self.KIND,
-            {
-                "robot": self.robot,
-                "seq": int(self.seq),
-                "t": float(self.t),
-                "speed": float(self.v),
-                "omega": float(self.omega),
-            },
-        )
+        fields = {
+            "robot": self.robot,
+            "seq": int(self.seq),
+            "t": float(self.t),
+            "speed": float(self.v),
+            "omega": float(self.omega),
+        }
+        if self.tilt is not None:
+            fields["tilt"] = float(self.tilt)
+        return _pack(self.KIND, fields)
 
     @classmethod
     def decode(cls, payload: Any) -> Cmd:
         kind = cls.KIND
         msg = _unpack(payload, kind)
+        tilt = msg.get("tilt")
+        if tilt is not None:
+            tilt = _number(tilt, "tilt", kind)
+            if abs(tilt) > math.pi / 2:
+                raise WireError(f"{kind}: tilt must be within +-pi/2 rad, got {tilt}")
         return cls(
             robot=_text(_field(msg, "robot", kind), "robot", kind),
             seq=_integer(_field(msg, "seq", kind), "seq", kind),
             t=_number(_field(msg, "t", kind), "t", kind),
             v=_number(_field(msg, "speed", kind), "speed", kind),
             omega=_number(_field(msg, "omega", kind), "omega", kind),
+            tilt=tilt,
         )
 
 

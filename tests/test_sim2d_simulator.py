@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
@@ -17,13 +18,13 @@ from swarm.wire import Cmd, Frame, TruthPoses
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def small_mission(agent_timeout_s: float) -> Mission:
+def small_mission(agent_timeout_s: float, r1_rig: dict | None = None) -> Mission:
     data = {
         "mission": "simtest",
         "workspace": {"lo": [0, 0, 0], "hi": [4, 2, 2]},
         "floor_plan": "plans/lab.yaml",
         "robots": [
-            {"id": "r1", "start": {"x": 0.6, "y": 1.0, "yaw": 0.0}},
+            {"id": "r1", "start": {"x": 0.6, "y": 1.0, "yaw": 0.0}, "rig": r1_rig},
             {"id": "r2", "start": {"x": 0.6, "y": 0.5, "yaw": 0.0}, "rig": {"mode": "range"}},
         ],
         "rig": {"width": 64, "height": 48},
@@ -35,9 +36,10 @@ def small_mission(agent_timeout_s: float) -> Mission:
 class Responder:
     """A stand-in for the agents: answers each frame of the robots in ``answer`` with a command."""
 
-    def __init__(self, session, mission: str, answer: set[str], speed: float = 0.2):
+    def __init__(self, session, mission: str, answer: set[str], speed: float = 0.2, tilt=None):
         self.answer = answer
         self.speed = speed
+        self.tilt = tilt
         self.gates = {rid: threading.Event() for rid in ("r1", "r2")}
         for gate in self.gates.values():
             gate.set()
@@ -64,7 +66,8 @@ class Responder:
         while (frame := self._todo.get()) is not None:
             if frame.robot in self.answer:
                 self.gates[frame.robot].wait()
-                self._pubs[frame.robot].put(Cmd(frame.robot, frame.seq, frame.t, self.speed, 0.0).encode())
+                cmd = Cmd(frame.robot, frame.seq, frame.t, self.speed, 0.0, self.tilt)
+                self._pubs[frame.robot].put(cmd.encode())
 
     def send_raw(self, robot: str, payload: bytes) -> None:
         assert bus.wait_for_subscribers([self._pubs[robot]], timeout=5.0)
@@ -175,3 +178,21 @@ def test_run_stops_when_all_agents_are_dead(sessions):
         assert summary.dead == ["r1", "r2"]
     finally:
         sim.close()
+
+
+def test_tilt_head_points_the_camera_within_its_range(sessions):
+    sim_side, agent_side = sessions
+    mission = small_mission(agent_timeout_s=5.0, r1_rig={"tilt_range_deg": 30.0})
+    responder = Responder(agent_side, "simtest", {"r1", "r2"}, speed=0.0, tilt=-1.2)  # 69 deg up
+    sim = Simulator(mission, sim_side)
+    try:
+        assert sim.wait_for_agents(timeout=5.0) == []
+        assert sim.tick() and sim.tick()
+        frames = [responder.frames.get(timeout=5) for _ in range(4)]
+        pitch = {(f.robot, f.seq): f.pose.ypr[1] for f in frames}
+        assert pitch[("r1", 1)] == pytest.approx(0.0)  # level until the first command
+        assert pitch[("r1", 2)] == pytest.approx(-math.radians(30.0))  # clamped to the head's range
+        assert pitch[("r2", 2)] == pytest.approx(0.0)  # r2's rig has no tilt head
+    finally:
+        sim.close()
+        responder.close()

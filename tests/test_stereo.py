@@ -358,3 +358,22 @@ def test_cli_errors_name_the_file(pair_files, capsys) -> None:
     rc = cli([str(d / "junk.png"), str(d / "right.png"), "--calib", str(d / "calib.yaml"), "--out", out])
     assert rc == 2 and "junk.png" in capsys.readouterr().err
     assert not (d / "depth.npy").exists()
+
+
+def test_texture_filter_drops_blank_areas() -> None:
+    # The top half of the scene is blank (the sky above walls, say): SGBM spreads disparities
+    # into it from the textured half, the texture filter removes them.
+    rng = np.random.default_rng(3)
+    texture = rng.integers(0, 256, size=(60, 200)).astype(np.uint8)
+    scene = np.full((120, 200), 30, dtype=np.uint8)
+    scene[60:] = texture
+    shift = 8
+    left, right = scene[:, :160].copy(), scene[:, shift : shift + 160].copy()  # disparity 8 px
+    filtered = StereoMatcher(num_disparities=16).disparity(left, right)
+    plain = StereoMatcher(num_disparities=16, min_texture=0).disparity(left, right)
+    assert np.isfinite(plain[:56]).sum() > 0  # without the filter, blank pixels get disparities
+    assert not np.isfinite(filtered[:56]).any()
+    textured = filtered[66:, 40:]
+    assert np.nanmedian(textured) == pytest.approx(shift, abs=0.1) and np.isfinite(textured).mean() > 0.9
+    with pytest.raises(ValueError, match="min_texture"):
+        StereoMatcher(min_texture=-1)

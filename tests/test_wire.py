@@ -108,6 +108,13 @@ def test_cmd_status_truth_assign_round_trip():
     assert msgpack.unpackb(cmd.encode())["speed"] == 0.25
     with pytest.raises(WireError, match="omega must be finite"):
         Cmd.decode(tamper(cmd.encode(), omega=math.inf))
+    assert cmd.tilt is None and "tilt" not in msgpack.unpackb(cmd.encode())
+    tilted = Cmd("r1", 8, 4.0, 0.0, 0.0, tilt=-0.6)
+    assert Cmd.decode(tilted.encode()) == tilted
+    with pytest.raises(WireError, match="tilt must be finite"):
+        Cmd.decode(tamper(tilted.encode(), tilt=math.nan))
+    with pytest.raises(WireError, match="tilt must be within"):
+        Cmd.decode(tamper(tilted.encode(), tilt=2.0))
     status = Status("r1", 3.5, POSE, (1.0, 2.0, 0.0), "exploring", 1234)
     assert Status.decode(status.encode()) == status
     idle = Status("r1", 3.5, POSE, None, "idle", 0)

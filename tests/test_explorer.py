@@ -1,0 +1,42 @@
+"""The explorer's state machine: the tilt head's look-up after a gaze."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_agent.explorer import Explorer
+from swarm.config import load_mission
+from swarm.navigation.exploration import ExplorationTarget
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+def gazing_explorer(tilt_range_deg: float) -> Explorer:
+    mission = load_mission(CONFIGS / "lab.yaml")
+    mission.rig.tilt_range_deg = tilt_range_deg
+    explorer = Explorer(mission, "r1")
+    explorer.state = "gaze"
+    explorer.target = ExplorationTarget(np.array([1.0, 1.0]), 0.3, 1.0, None, "entropy")
+    return explorer
+
+
+def test_a_gaze_ends_with_one_frame_looking_up_then_level():
+    explorer = gazing_explorer(35.0)
+    turning = explorer.decide(1.0, 1.0, 1.3)  # 1 rad left of the gaze: turn right, head level
+    assert turning.omega < 0 and turning.tilt == 0.0 and turning.state == "gaze"
+    aligned = explorer.decide(1.0, 1.0, 0.3)  # on the gaze: raise the head for the next frame
+    assert (aligned.v, aligned.omega) == (0.0, 0.0)
+    assert aligned.tilt == pytest.approx(-math.radians(35.0))
+    assert explorer.state == "look_up"
+    lowered = explorer.decide(1.0, 1.0, 0.3)  # that frame was seen looking up: level again
+    assert lowered.tilt == 0.0 and explorer.state == "choose"
+
+
+def test_a_fixed_camera_sends_no_tilt_and_chooses_after_the_gaze():
+    explorer = gazing_explorer(0.0)
+    aligned = explorer.decide(1.0, 1.0, 0.3)
+    assert aligned.tilt is None and explorer.state == "choose"
