@@ -216,6 +216,19 @@ class SharingConfig(_Section):
     share_min_bits: FiniteFloat = Field(default=0.5, ge=0)
 
 
+class CoordinationConfig(_Section):
+    """The coordinator's Burgard-style assignment (docs/coordinator.md).
+
+    ``footprint_radius`` None: min(2 * exploration.radius, sensor.max_range).
+    """
+
+    beta: FiniteFloat = Field(default=0.1, ge=0, description="utility lost per metre of path (1/m)")
+    footprint_radius: FiniteFloat | None = Field(default=None, gt=0)
+    robot_timeout_s: FiniteFloat = Field(default=10.0, gt=0)
+    max_candidates: int = Field(default=200, ge=1)
+    candidate_spacing: FiniteFloat = Field(default=0.5, ge=0)
+
+
 class RobotBodyConfig(_Section):
     """The simulated robot: a disc with differential-drive limits."""
 
@@ -271,6 +284,7 @@ class Mission(_Section):
     sensor: SensorConfig = SensorConfig()
     exploration: ExplorationConfig = ExplorationConfig()
     sharing: SharingConfig = SharingConfig()
+    coordination: CoordinationConfig = CoordinationConfig()
     robot: RobotBodyConfig = RobotBodyConfig()
     stop: StopConfig = StopConfig()
     sim: SimConfig = SimConfig()

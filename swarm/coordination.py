@@ -1,0 +1,329 @@
+"""Coordinated target assignment for a team (Burgard et al. 2005) over eq. 35 targets.
+
+Pure numpy, no I/O and no clock of its own (times are arguments). The coordinator role
+(``swarm.coordinator``) feeds it the entropy targets of the team map (paper eq. 30-35, from
+``swarm.navigation.exploration.rank_entropy_targets``) and the path cost of each robot to
+each of them; docs/coordinator.md has the rule with examples.
+
+The rule (Burgard, Moors, Stachniss, Schneider: "Coordinated multi-robot exploration",
+IEEE T-RO 21(3), 2005, algorithm 1), with our choices of U, P and normalisation:
+
+1. Every target t starts with the utility U_t = S_t / max_t' S_t', where S_t is its eq. 35
+   score |grad H_G(l_t)| (1 - E[C_l_t]) (bits/m): the best target has U = 1, as all
+   frontier cells have U = 1 in Burgard's algorithm.
+2. Repeatedly pick the (robot r, target t) pair, among robots without a target and targets
+   not yet given, that maximises  U_t - beta * V_r(t),  where V_r(t) is r's path length (m)
+   to t and beta (1/m) trades utility for travel (Burgard's eq. 5).
+3. Lower the utility of every remaining target t' near the chosen t:
+   U_t' <- U_t' * P(|x_t' - x_t|), with P(d) = min(d / R, 1): 0 at the chosen target, growing
+   linearly to 1 at the footprint radius R (the area a robot observes around its target;
+   the linear ramp stands for Burgard's visibility probability, which falls roughly
+   linearly with the range).
+4. Hard spacing: while some remaining target lies at least R from every chosen target, only
+   such targets may be chosen, so no two robots work within one footprint of each other
+   while anything else with positive utility is left. Only when every target is within a
+   footprint does the discount alone decide.
+
+For one request (robot r asks again; the others keep what they hold) the targets held by
+the other robots count as chosen already: steps 3-4 are applied for each of them, then step
+2 is taken for r alone (:func:`best_target`). :class:`AssignmentBook` keeps who holds what
+and releases a target when its robot asks again, reports it is done, or goes silent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "DONE_STATES",
+    "AssignmentBook",
+    "CoordinationParams",
+    "RobotRecord",
+    "assign_team",
+    "best_target",
+    "discounted_utilities",
+    "normalised_utilities",
+    "outside_footprints",
+    "visibility_discount",
+]
+
+#: Status states that end a robot's hold on its target (it finished, or gave the target up).
+DONE_STATES = ("done", "gave_up", "failed")
+#: How many of a robot's released targets are remembered (not given back to it at once).
+RECENT_RELEASES = 4
+
+
+@dataclass(frozen=True)
+class CoordinationParams:
+    """Parameters of the assignment rule (module doc) and of the book's release rules.
+
+    ``beta`` (1/m): utility lost per metre of path (U is normalised to 1 for the best
+    target), so 0.1 means ten metres of travel cost as much as the best target is worth.
+    ``footprint_radius`` (m): R of the discount P(d) and of the hard spacing.
+    ``robot_timeout_s``: a robot not heard from (status or request) for longer than this
+    loses its target. ``status_grace_s``: for this long after an assignment, the robot's
+    statuses do not change its target (they may have been sent before it got the answer),
+    except one of DONE_STATES.
+    """
+
+    beta: float = 0.1
+    footprint_radius: float = 3.0
+    robot_timeout_s: float = 10.0
+    status_grace_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "beta": self.beta >= 0,
+            "footprint_radius": self.footprint_radius > 0,
+            "robot_timeout_s": self.robot_timeout_s > 0,
+            "status_grace_s": self.status_grace_s >= 0,
+        }
+        for name, ok in checks.items():
+            value = getattr(self, name)
+            if not (ok and math.isfinite(value)):
+                raise ValueError(f"coordination: {name} must be a finite number in range, got {value!r}")
+
+
+# ---------------------------------------------------------------------------------------
+# The rule
+# ---------------------------------------------------------------------------------------
+def visibility_discount(distance, footprint_radius: float) -> np.ndarray:
+    """P(d) = min(d / R, 1) (step 3 of the module doc): 0 at a chosen target, 1 beyond R."""
+    if not footprint_radius > 0:
+        raise ValueError(f"footprint radius must be > 0, got {footprint_radius!r}")
+    d = np.asarray(distance, dtype=np.float64)
+    return np.clip(d / float(footprint_radius), 0.0, 1.0)
+
+
+def _points(values, name: str) -> np.ndarray:
+    pts = np.asarray(values, dtype=np.float64)
+    if pts.size == 0:
+        return np.zeros((0, 2))
+    if pts.ndim != 2 or pts.shape[1] < 2:
+        raise ValueError(f"{name} must be points of shape (N, 2) or (N, 3), got {pts.shape}")
+    return pts[:, :2]
+
+
+def _distances(positions: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    """(K, M) x-y distances between targets and chosen points."""
+    return np.linalg.norm(positions[:, None, :] - chosen[None, :, :], axis=-1)
+
+
+def normalised_utilities(scores) -> np.ndarray:
+    """U_t = S_t / max S (step 1): eq. 35 scores scaled so the best is 1; non-finite -> 0."""
+    s = np.asarray(scores, dtype=np.float64).ravel().copy()
+    s[~np.isfinite(s)] = 0.0
+    top = float(s.max()) if s.size else 0.0
+    return s / top if top > 0 else np.zeros_like(s)
+
+
+def discounted_utilities(utilities, positions, chosen, footprint_radius: float) -> np.ndarray:
+    """U_t * prod over chosen points c of P(|x_t - c|) (step 3, for every chosen point)."""
+    u = np.asarray(utilities, dtype=np.float64).ravel()
+    pos = _points(positions, "positions")
+    ch = _points(chosen, "chosen")
+    if len(pos) != len(u):
+        raise ValueError(f"{len(u)} utilities but {len(pos)} positions")
+    if len(ch) == 0 or len(u) == 0:
+        return u.copy()
+    return u * np.prod(visibility_discount(_distances(pos, ch), footprint_radius), axis=1)
+
+
+def outside_footprints(positions, chosen, footprint_radius: float) -> np.ndarray:
+    """Targets at least R from every chosen point (all of them when nothing is chosen)."""
+    pos = _points(positions, "positions")
+    ch = _points(chosen, "chosen")
+    if len(ch) == 0:
+        return np.ones(len(pos), dtype=bool)
+    return np.all(_distances(pos, ch) >= footprint_radius, axis=1)
+
+
+def _eligible(utilities: np.ndarray, outside: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Step 4: only targets outside every footprint while any of them has U > 0; else any
+    with U > 0 (a target at a chosen one has U = 0, so it is never given twice)."""
+    useful = ok & (utilities > 0)
+    spaced = useful & outside
+    return spaced if spaced.any() else useful
+
+
+def best_target(
+    utilities,
+    positions,
+    costs,
+    held: Sequence | np.ndarray = (),
+    params: CoordinationParams = CoordinationParams(),
+) -> int | None:
+    """The target for one robot: argmax U'_t - beta V(t) (step 2) with the others' ``held``
+    targets discounted (step 3) and spaced from (step 4).
+
+    ``utilities`` (K,) are eq. 35 scores (normalised here, step 1), ``positions`` (K, 2|3)
+    the targets, ``costs`` (K,) the robot's path lengths (inf: unreachable, never chosen),
+    ``held`` (M, 2|3) the other robots' targets. None when no reachable target has U' > 0.
+    """
+    u = normalised_utilities(utilities)
+    pos = _points(positions, "positions")
+    cost = np.asarray(costs, dtype=np.float64).ravel()
+    if not (len(u) == len(pos) == len(cost)):
+        raise ValueError(
+            f"utilities, positions and costs differ in length: {len(u)}, {len(pos)}, {len(cost)}"
+        )
+    ok = np.isfinite(cost)
+    u = discounted_utilities(u, pos, held, params.footprint_radius)
+    eligible = _eligible(u, outside_footprints(pos, held, params.footprint_radius), ok)
+    if not eligible.any():
+        return None
+    score = np.where(eligible, u - params.beta * np.where(ok, cost, 0.0), -np.inf)
+    return int(np.argmax(score))
+
+
+def assign_team(
+    utilities,
+    positions,
+    costs,
+    held: Sequence | np.ndarray = (),
+    params: CoordinationParams = CoordinationParams(),
+) -> list[tuple[int, int]]:
+    """Burgard's greedy assignment of targets to several robots at once (steps 1-4).
+
+    ``costs`` (R, K): robot r's path length to target t (inf: unreachable). ``held`` (M, 2|3):
+    targets already taken by robots outside this batch. Returns the (robot, target) index
+    pairs in the order they were chosen; a robot missing from it got nothing (no reachable
+    target with U' > 0 was left for it). No target is given twice.
+    """
+    u = normalised_utilities(utilities)
+    pos = _points(positions, "positions")
+    cost = np.asarray(costs, dtype=np.float64)
+    if cost.ndim != 2 or cost.shape[1] != len(u) or len(pos) != len(u):
+        raise ValueError(f"costs must be (robots, {len(u)}) for {len(u)} targets, got {cost.shape}")
+    chosen = list(_points(held, "held"))
+    u = discounted_utilities(u, pos, chosen, params.footprint_radius) if chosen else u
+    out: list[tuple[int, int]] = []
+    waiting = list(range(cost.shape[0]))
+    while waiting:
+        outside = outside_footprints(pos, np.asarray(chosen), params.footprint_radius)
+        eligible = np.stack([_eligible(u, outside, np.isfinite(cost[r])) for r in waiting])
+        if not eligible.any():
+            break
+        score = np.where(eligible, u[None, :] - params.beta * np.where(eligible, cost[waiting], 0.0), -np.inf)
+        w, t = np.unravel_index(int(np.argmax(score)), score.shape)
+        out.append((waiting.pop(int(w)), int(t)))
+        chosen.append(pos[t])
+        u = u * visibility_discount(np.linalg.norm(pos - pos[t], axis=1), params.footprint_radius)
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# Who holds what
+# ---------------------------------------------------------------------------------------
+@dataclass
+class RobotRecord:
+    """What the coordinator knows of one robot. Times are the caller's clock (seconds)."""
+
+    robot: str
+    last_seen: float
+    xy: np.ndarray | None = None
+    state: str | None = None
+    target: np.ndarray | None = None  # x-y of the target it holds
+    assigned_at: float | None = None  # when the coordinator gave that target
+    silent: bool = False
+    recent: list[np.ndarray] = field(default_factory=list)  # released targets, newest last
+
+
+class AssignmentBook:
+    """Targets held by robots, and the rules that release them (see CoordinationParams).
+
+    A robot's target is released when the robot asks again (it reached or gave up its
+    target), when its status reports a state of DONE_STATES, or no target (after the grace
+    period of an assignment), and when it has been silent for ``robot_timeout_s``. A status
+    that shows a target (after the grace period) makes that the held target: a robot that
+    chose for itself still keeps the others away. Every method returns what it released as
+    (robot, reason) pairs, for the caller to log.
+    """
+
+    def __init__(self, params: CoordinationParams = CoordinationParams()) -> None:
+        self.params = params
+        self.robots: dict[str, RobotRecord] = {}
+
+    def _record(self, robot: str, now: float) -> RobotRecord:
+        rec = self.robots.get(robot)
+        if rec is None:
+            rec = self.robots[robot] = RobotRecord(robot, now)
+        rec.last_seen = max(rec.last_seen, now)
+        rec.silent = False
+        return rec
+
+    def _release(self, rec: RobotRecord, reason: str) -> list[tuple[str, str]]:
+        if rec.target is None:
+            return []
+        rec.recent = [*rec.recent, rec.target][-RECENT_RELEASES:]
+        rec.target = None
+        rec.assigned_at = None
+        return [(rec.robot, reason)]
+
+    def note_status(
+        self, robot: str, now: float, xy=None, state: str | None = None, target=None
+    ) -> list[tuple[str, str]]:
+        """A status from ``robot``: liveness, pose, state and the target it reports (or None)."""
+        rec = self._record(robot, now)
+        if xy is not None:
+            rec.xy = np.asarray(xy, dtype=np.float64)[:2]
+        rec.state = state
+        if state in DONE_STATES:
+            return self._release(rec, f"status {state}")
+        if rec.assigned_at is not None and now - rec.assigned_at < self.params.status_grace_s:
+            return []  # may predate the assignment
+        if target is None:
+            return self._release(rec, f"status {state or '-'} without a target")
+        rec.target = np.asarray(target, dtype=np.float64)[:2]
+        return []
+
+    def note_request(self, robot: str, now: float, xy=None) -> list[tuple[str, str]]:
+        """``robot`` asks for a target: it no longer holds the one it had."""
+        rec = self._record(robot, now)
+        if xy is not None:
+            rec.xy = np.asarray(xy, dtype=np.float64)[:2]
+        return self._release(rec, "asked again")
+
+    def hold(self, robot: str, target, now: float) -> None:
+        """Record that the coordinator gave ``target`` (x-y) to ``robot`` at ``now``."""
+        rec = self._record(robot, now)
+        rec.target = np.asarray(target, dtype=np.float64)[:2]
+        rec.assigned_at = now
+
+    def release(self, robot: str, reason: str = "released") -> list[tuple[str, str]]:
+        rec = self.robots.get(robot)
+        return [] if rec is None else self._release(rec, reason)
+
+    def expire(self, now: float) -> list[tuple[str, str]]:
+        """Release the targets of robots silent for longer than ``robot_timeout_s``."""
+        out: list[tuple[str, str]] = []
+        for rec in self.robots.values():
+            if not rec.silent and now - rec.last_seen > self.params.robot_timeout_s:
+                rec.silent = True
+                out += self._release(rec, f"silent for {now - rec.last_seen:.1f} s")
+        return out
+
+    def held_by_others(self, robot: str) -> np.ndarray:
+        """(M, 2) targets held by live robots other than ``robot`` (call ``expire`` first)."""
+        pts = [
+            rec.target
+            for rec in self.robots.values()
+            if rec.robot != robot and rec.target is not None and not rec.silent
+        ]
+        return np.array(pts, dtype=np.float64).reshape(-1, 2)
+
+    def holder(self, robot: str) -> np.ndarray | None:
+        rec = self.robots.get(robot)
+        return None if rec is None else rec.target
+
+    def recent_releases(self, robot: str) -> list[np.ndarray]:
+        """The last targets ``robot`` released, oldest first (not to be handed straight back)."""
+        rec = self.robots.get(robot)
+        return [] if rec is None else list(rec.recent)
+
+    def live(self) -> list[str]:
+        return [r for r, rec in self.robots.items() if not rec.silent]

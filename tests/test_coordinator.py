@@ -1,0 +1,321 @@
+"""The coordinator role: replica of the merged stream, coord/assign over real Zenoh on loopback."""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from swarm import bus
+from swarm.config import mission_from_dict
+from swarm.coordination import CoordinationParams
+from swarm.coordinator import (
+    Coordinator,
+    CoordinatorState,
+    add_arguments,
+    ask_for_target,
+    params_from_mission,
+)
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.grid import Grid
+from swarm.navigation.traversability import build_traversability
+from swarm.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status
+
+MISSION = {
+    "mission": "coordtest",
+    "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [8.0, 4.0, 1.0], "voxel": 0.1},
+    "robots": [
+        {"id": "r1", "start": {"x": 1.0, "y": 2.0}},
+        {"id": "r2", "start": {"x": 1.4, "y": 2.0}},
+        {"id": "r3", "start": {"x": 6.5, "y": 2.0}},
+    ],
+    "rig": {"camera_height": 0.4},
+    "exploration": {"radius": 1.0},
+}
+FOOTPRINT = 2.0  # min(2 xi, max range)
+POSES = {"r1": (1.0, 2.0), "r2": (1.4, 2.0), "r3": (6.5, 2.0)}
+
+
+def mission(**coordination):
+    data = dict(MISSION)
+    if coordination:
+        data["coordination"] = coordination
+    return mission_from_dict(data)
+
+
+def corridor_map(m, x_lo=0.3, x_hi=7.7) -> CoverageMap:
+    """Known free columns (every layer) over a corridor y 1.5..2.5 m; the rest unknown."""
+    cmap = CoverageMap(m.workspace.grid(), m.sensor.model())
+    nx, ny, nz = cmap.grid.shape
+    cx = (np.arange(nx) + 0.5) * 0.1
+    cy = (np.arange(ny) + 0.5) * 0.1
+    cols = ((cx >= x_lo) & (cx <= x_hi))[:, None] & ((cy >= 1.5) & (cy <= 2.5))[None, :]
+    lam = cmap.lam.reshape(nx, ny, nz)
+    eta = cmap.eta.reshape(nx, ny, nz)
+    lam[cols] = 1.0 / 0.02**2
+    eta[cols] = 0.0
+    return cmap
+
+
+def deltas_of(m, cmap: CoverageMap, robot: str, epoch: int, chunks: int) -> list[DeltaMessage]:
+    prior = CoverageMap(cmap.grid, cmap.sensor)
+    idx = np.flatnonzero(cmap.lam != prior.lam)
+    dlam = cmap.lam[idx].astype(np.float64) - prior.lam[idx]
+    deta = cmap.eta[idx].astype(np.float64) - prior.eta[idx]
+    parts = np.array_split(np.arange(len(idx)), chunks)
+    return [
+        DeltaMessage(robot, epoch, seq, 0.0, cmap.grid, idx[p], dlam[p], deta[p])
+        for seq, p in enumerate(parts, start=1)
+    ]
+
+
+def pose(robot: str) -> Pose:
+    x, y = POSES[robot]
+    return Pose((x, y, 0.4), (0.0, 0.0, 0.0))
+
+
+def far_apart(targets: list[tuple[float, ...]], radius: float) -> bool:
+    return all(math.dist(a[:2], b[:2]) >= radius for a, b in itertools.combinations(targets, 2))
+
+
+# ---------------------------------------------------------------------------------------
+# Without transport
+# ---------------------------------------------------------------------------------------
+def test_state_spreads_three_robots_and_gives_a_released_target_back():
+    m = mission()
+    assert params_from_mission(m).footprint_radius == FOOTPRINT
+    state = CoordinatorState(m)
+    for msg in deltas_of(m, corridor_map(m), "r9", 1, 3):
+        assert state.team.apply_payload(msg.encode()) == "applied"
+    answers = {r: state.answer(AssignRequest(r, pose(r)), now=0.0) for r in ("r1", "r2", "r3")}
+    targets = [a.reply.target for a in answers.values()]
+    assert all(t is not None for t in targets)
+    assert far_apart(targets, FOOTPRINT)
+    for a in answers.values():
+        assert a.reply.utility == pytest.approx(a.candidate.utility) and a.reply.utility > 0
+        assert np.linalg.norm(a.reply.gaze) == pytest.approx(1.0)
+        assert 0.3 <= a.reply.target[0] <= 7.7 and 1.5 <= a.reply.target[1] <= 2.5  # in the corridor
+    # r1 goes silent: after the timeout r4, standing where r1 stood, gets r1's target
+    # before that, r4 gets the spot least crowded by the three: no place of the corridor is
+    # a footprint from all of them, so the discount decides (3.5 m between r2 and r3)
+    before = state.answer(AssignRequest("r4", pose("r1")), now=5.0).reply.target
+    assert min(math.dist(before[:2], t[:2]) for t in targets) > 1.4
+    state.on_status(Status("r2", 0.0, pose("r2"), answers["r2"].reply.target, "drive", 0).encode(), 9.0)
+    state.on_status(Status("r3", 0.0, pose("r3"), answers["r3"].reply.target, "drive", 0).encode(), 9.0)
+    r4 = state.answer(AssignRequest("r4", pose("r1")), now=10.5)
+    assert r4.reply.target == pytest.approx(answers["r1"].reply.target)
+    assert state.counts["released"] == 2  # r1 (silent) and r4's first target (asked again)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_random_maps_never_crowd_robots_while_room_is_left(seed):
+    rng = np.random.default_rng(seed)
+    m = mission()
+    for trial in range(3):
+        state = CoordinatorState(m)
+        cmap = CoverageMap(m.workspace.grid(), m.sensor.model())
+        nx, ny, nz = cmap.grid.shape
+        known = ndimage.binary_dilation(rng.random((nx, ny)) < 0.01, iterations=int(rng.integers(4, 10)))
+        occupied = known & ndimage.binary_dilation(rng.random((nx, ny)) < 0.01, iterations=1)
+        lam, eta = cmap.lam.reshape(nx, ny, nz), cmap.eta.reshape(nx, ny, nz)
+        lam[known] = 1.0 / 0.03**2
+        eta[known] = np.where(occupied[known], 1.0, 0.0)[:, None] * lam[known]
+        for msg in deltas_of(m, cmap, "r9", trial + 1, 2):
+            state.team.apply_payload(msg.encode())
+        trav = build_traversability(cmap, robot_height=0.5, robot_radius=m.robot.radius)
+        free = np.argwhere(trav.free)
+        if len(free) < 3:
+            continue
+        held: list[np.ndarray] = []
+        for k, cell in enumerate(free[rng.choice(len(free), 3, replace=False)]):
+            x, y = trav.centre(cell)
+            robot_pose = Pose((float(x), float(y), 0.4), (float(rng.uniform(-3, 3)), 0.0, 0.0))
+            answer = state.answer(AssignRequest(f"r{k}", robot_pose), now=float(k))
+            found = state.candidates_for(f"r{k}", robot_pose, *state.team.copy())  # what it chose from
+            if answer.reply.target is None:
+                assert not found
+                continue
+            target = np.array(answer.reply.target[:2])
+            assert any(np.allclose(c.xy, target) for c in found)
+            room = [c for c in found if all(np.hypot(*(c.xy - h)) >= FOOTPRINT for h in held)]
+            if room:
+                assert all(np.hypot(*(target - h)) >= FOOTPRINT for h in held), (seed, trial, k)
+            assert all(np.hypot(*(target - h)) > 0 for h in held)
+            held.append(target)
+
+
+# ---------------------------------------------------------------------------------------
+# Over Zenoh
+# ---------------------------------------------------------------------------------------
+class MapServerStandIn:
+    """A router with a real map/snapshot queryable, and a publisher on the merged stream."""
+
+    def __init__(self, name: str, snapshot: Snapshot | None) -> None:
+        self.endpoint = bus.tcp_endpoint(bus.free_port())
+        self.session = bus.open_session(listen=[self.endpoint])
+        self.merged = bus.reliable_publisher(self.session, bus.key(name, "merged"))
+        self.status = {}
+        self.name = name
+        self._snap = None
+        if snapshot is not None:
+            payload = snapshot.encode()
+            self._snap = self.session.declare_queryable(
+                bus.key(name, "map", "snapshot"), lambda q: q.reply(q.key_expr, payload)
+            )
+
+    def publish_status(self, robot: str, target, state: str = "drive") -> None:
+        if robot not in self.status:
+            self.status[robot] = self.session.declare_publisher(bus.key(self.name, "robot", robot, "status"))
+        self.status[robot].put(Status(robot, 0.0, pose(robot), target, state, 0).encode())
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def wait_until(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.02)
+    return condition()
+
+
+def query(session, name: str, payload: bytes, timeout: float = 5.0):
+    replies = list(session.get(bus.key(name, "coord", "assign"), payload=payload, timeout=timeout))
+    assert len(replies) == 1
+    return replies[0]
+
+
+def test_coordinator_role_over_zenoh():
+    m = mission()
+    name = m.mission
+    full = corridor_map(m)
+    left, right = corridor_map(m, x_hi=4.0), corridor_map(m, x_lo=4.0001)
+    # the server has applied r9's three deltas (the left part) when the coordinator starts
+    old = deltas_of(m, left, "r9", 1, 3)
+    rest = deltas_of(m, right, "r8", 7, 4)
+    snap = Snapshot(left.grid, left.lam, left.eta, acks={"r9": {1: 3}})
+    server = MapServerStandIn(name, snap)
+    coord_session = bus.open_session(connect=[server.endpoint])
+    client = bus.open_session(connect=[server.endpoint])
+    params = CoordinationParams(beta=0.1, footprint_radius=FOOTPRINT, robot_timeout_s=1.5, status_grace_s=0.2)
+    coordinator = Coordinator(m, coord_session, params, snapshot_timeout=5.0)
+    try:
+        coordinator.start()
+        assert coordinator.started_from_snapshot
+        assert bus.wait_for_subscribers([server.merged], timeout=5.0)
+        # replays of what the snapshot holds, the rest once, a duplicate, and two bad messages
+        for msg in [*old, *rest, rest[0]]:
+            server.merged.put(msg.encode())
+        server.merged.put(b"\x93not a delta")
+        other_grid = DeltaMessage("r8", 7, 99, 0.0, Grid((0, 0, 0), 0.2, (4, 4, 4)), *(np.zeros(0),) * 3)
+        server.merged.put(other_grid.encode())
+        assert wait_until(lambda: coordinator.counts["merged_applied"] == 4), coordinator.counts
+        assert wait_until(lambda: coordinator.counts["merged_rejected"] == 2), coordinator.counts
+        counts = coordinator.counts
+        assert counts["merged_duplicate"] == 4
+        replica, _ = coordinator.state.team.copy()
+        assert np.allclose(replica.lam, full.lam, rtol=1e-5) and np.allclose(replica.eta, full.eta, atol=1e-3)
+
+        for r in ("r1", "r2", "r3"):
+            server.publish_status(r, None, "look_around")
+        assert wait_until(lambda: len(coordinator.state.book.live()) == 3)
+
+        # three robots ask one after the other: distinct targets, one footprint apart
+        replies = {}
+        for r in ("r1", "r2", "r3"):
+            reply = ask_for_target(client, name, r, pose(r), timeout=5.0)
+            assert reply is not None and reply.target is not None
+            replies[r] = reply
+        assert far_apart([rep.target for rep in replies.values()], FOOTPRINT)
+
+        # malformed requests get an error reply; the coordinator keeps serving
+        bad = [
+            b"garbage",
+            msgpack.packb({"v": 1, "robot": "r1"}),
+            AssignRequest("r1", Pose((50.0, 2.0, 0.4))).encode(),
+            msgpack.packb({"v": 2, "robot": "r1", "pose": pose("r1").to_wire()}),
+        ]
+        for payload in bad:
+            reply = query(client, name, payload)
+            assert reply.ok is None and b"coord/assign" in reply.err.payload.to_bytes()
+        assert coordinator.counts["requests_rejected"] == len(bad)
+
+        # r2 and r3 keep reporting their targets; r1 falls silent and loses its target,
+        # which r4 (standing where r1 stood) then gets
+        deadline = time.monotonic() + params.robot_timeout_s + 0.5
+        while time.monotonic() < deadline:
+            server.publish_status("r2", replies["r2"].target)
+            server.publish_status("r3", replies["r3"].target)
+            time.sleep(0.2)
+        assert wait_until(lambda: "r1" not in coordinator.state.book.live())
+        r4 = AssignReply.decode(
+            query(client, name, AssignRequest("r4", pose("r1")).encode()).ok.payload.to_bytes()
+        )
+        assert r4.target == pytest.approx(replies["r1"].target)
+        assert coordinator.counts["assigned"] == 4
+    finally:
+        coordinator.stop()
+        coord_session.close()
+        client.close()
+        server.close()
+
+
+def test_without_a_coordinator_the_agent_is_told_nothing_and_decides_alone():
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    router = bus.open_session(listen=[endpoint])
+    client = bus.open_session(connect=[endpoint])
+    try:
+        assert ask_for_target(client, "nobody", "r1", pose("r1"), timeout=1.0) is None
+    finally:
+        client.close()
+        router.close()
+
+
+def test_command_line_runs_without_a_map_server_and_stops_on_sigterm(tmp_path: Path):
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--config", "x.yaml", "--connect", "tcp/127.0.0.1:1", "--mission", "m2"])
+    assert (args.config, args.connect, args.mission) == (Path("x.yaml"), ["tcp/127.0.0.1:1"], "m2")
+
+    import yaml
+
+    config = tmp_path / "mission.yaml"
+    config.write_text(yaml.safe_dump(MISSION))
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    router = bus.open_session(listen=[endpoint])
+    code = (
+        "import argparse, sys\n"
+        "from swarm.coordinator import add_arguments, run\n"
+        "p = argparse.ArgumentParser(); add_arguments(p)\n"
+        "sys.exit(run(p.parse_args(sys.argv[1:])))\n"
+    )
+    cmd = [sys.executable, "-c", code, "--config", str(config), "--connect", endpoint, "--mission", "other"]
+    cmd += ["--snapshot-timeout", "0.5"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        reply = None
+        deadline = time.monotonic() + 20.0
+        while reply is None and time.monotonic() < deadline:
+            reply = ask_for_target(router, "other", "r1", pose("r1"), timeout=1.0)
+            time.sleep(0.1)
+        # the prior map holds nothing informative to stand in front of: nothing left
+        assert reply is not None and reply.target is None and reply.gaze is None
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+        router.close()
+    assert proc.returncode == 0, err
+    assert "coordinator: " in out and "requests 1" in out
+    assert "assign r1 -> nothing left" in err
