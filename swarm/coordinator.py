@@ -225,14 +225,14 @@ class CoordinatorState:
             released = self.book.note_status(
                 status.robot, now, status.pose.xyz, status.state, status.target
             ) + self.book.expire(now)
-        self.counts["released"] += len(released)
+            self.counts["released"] += len(released)
         return released
 
     def expire(self, now: float) -> list[tuple[str, str]]:
         """Release the targets of silent robots (also done on every status and request)."""
         with self._book_lock:
             released = self.book.expire(now)
-        self.counts["released"] += len(released)
+            self.counts["released"] += len(released)
         return released
 
     # -- answers ----------------------------------------------------------------------------
@@ -290,14 +290,14 @@ class CoordinatorState:
                 released = self.book.note_request(request.robot, now, request.pose.xyz)
                 released += self.book.expire(now)
                 recent = self.book.recent_releases(request.robot)
-            self.counts["released"] += len(released)
+                self.counts["released"] += len(released)
             for robot, reason in released:
                 log.info("released the target of %s: %s", robot, reason)
             cmap, entropy = self.team.copy()
             found = self.candidates_for(request.robot, request.pose, cmap, entropy)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
             with self._book_lock:
-                self.book.expire(now)
+                released = self.book.expire(now)
                 held = self.book.held_by_others(request.robot)
                 best = None
                 if pool:
@@ -311,6 +311,9 @@ class CoordinatorState:
                 chosen = None if best is None else pool[best]
                 if chosen is not None:
                     self.book.hold(request.robot, chosen.xy, now)
+                self.counts["released"] += len(released)
+            for robot, reason in released:
+                log.info("released the target of %s: %s", robot, reason)
         if chosen is None:
             self.counts["nothing_left"] += 1
             return Answer(request.robot, AssignReply(None, None, 0.0), None, len(found), len(held))
