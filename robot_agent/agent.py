@@ -4,29 +4,46 @@ Takes ``robot/<rid>/frame``, answers every frame with ``robot/<rid>/cmd`` (the s
 lockstep clock waits for it), publishes ``robot/<rid>/status``, and shares voxel deltas
 on ``delta/<rid>`` through the utility-filtered outbox, keeping them until the map
 server's ``map/acks`` says they are durable.
+
+The team map reaches the agent as the server's ``merged`` stream: every delta of another
+robot (or of an earlier run of this one) is added to the local map once, so the robot
+plans on what the team has seen; its own deltas of this run are already in it and are
+skipped. An agent that starts while a map server runs begins from its ``map/snapshot``.
+With coordination on, the agent asks ``coord/assign`` for each new target and chooses by
+itself (eq. 35) when no coordinator answers in time, asking again a little later.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import queue
 import threading
 import time
+from collections import Counter
 
+import numpy as np
 import zenoh
 
 from robot_agent.explorer import Explorer
 from robot_agent.sharing import DeltaOutbox
 from swarm import bus
+from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
-from swarm.wire import Cmd, DeltaMessage, Frame, Status, WireError
+from swarm.coordinator import ask_for_target
+from swarm.map.delta import Delta
+from swarm.map_client import MapClient, MapQueryError, MapServerUnavailable
+from swarm.navigation.exploration import ExplorationTarget
+from swarm.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
 
 ACK_POLL_S = 2.0
 RESEND_AFTER_S = 5.0
 STATUS_EVERY = 4  # frames
+COORDINATOR_TIMEOUT_S = 1.0  # wait this long for coord/assign before choosing alone
+COORDINATOR_RETRY_S = 10.0  # after a silence, choose alone this long before asking again
 
 
 class Agent:
@@ -39,6 +56,7 @@ class Agent:
         session: zenoh.Session,
         strategy: str = "entropy",
         seed: int = 0,
+        coordination: bool = True,
     ) -> None:
         if robot_id not in mission.robot_ids:
             raise ValueError(f"robot {robot_id!r} is not in the mission (robots: {mission.robot_ids})")
@@ -59,6 +77,16 @@ class Agent:
         self._frame_sub = bus.subscribe(
             session, bus.key(name, "robot", robot_id, "frame"), lambda _k, p: self._frames.put(p)
         )
+        self.applied = AppliedDeltas()
+        self.merged_counts: Counter[str] = Counter()
+        self._merged: queue.Queue = queue.Queue()
+        self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), lambda _k, p: self._merged.put(p))
+        self.coordination = coordination and strategy == "entropy"
+        self.coordinator_counts: Counter[str] = Counter()
+        self._coordinator_quiet_until = 0.0
+        self._pose: Pose | None = None
+        if self.coordination:
+            self.explorer.assigner = self._ask_coordinator
         self.rejected_frames = 0
         self.last_t = 0.0
         self._last_sent: dict[int, float] = {}
@@ -68,6 +96,7 @@ class Agent:
     # -- the loop ------------------------------------------------------------------------
     def run(self, max_frames: int | None = None, idle_timeout: float | None = None) -> None:
         """Handle frames until stopped (or ``max_frames``, or ``idle_timeout`` s without a frame)."""
+        self.catch_up()
         self._acker.start()
         handled = 0
         last_frame = time.monotonic()
@@ -100,6 +129,8 @@ class Agent:
             log.warning("%s: rejected frame addressed to %s", self.robot_id, frame.robot)
             return None
         self.last_t = frame.t
+        self._pose = frame.pose
+        self.apply_merged()
         delta = self.explorer.fuse(frame)
         self.outbox.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
@@ -128,6 +159,76 @@ class Agent:
         self._delta_pub.put(payload)
         self.outbox.stats.bytes_sent += len(payload)
         self._last_sent[seq] = time.monotonic()
+
+    # -- the team map --------------------------------------------------------------------
+    def catch_up(self, timeout: float = 2.0) -> bool:
+        """Start from the map server's snapshot, if one answers within ``timeout`` seconds."""
+        try:
+            snap = MapClient(self.session, self.mission.mission, timeout).snapshot()
+        except (MapServerUnavailable, MapQueryError, zenoh.ZError) as exc:
+            log.info("%s: no team map to start from (%s)", self.robot_id, exc)
+            return False
+        try:
+            self.explorer.load_team_map(snap.grid, snap.lam, snap.eta)
+        except ValueError as exc:
+            log.warning("%s: ignored the server's snapshot: %s", self.robot_id, exc)
+            return False
+        self.applied.cover(snap.acks)
+        entropy = self.explorer.map_entropy
+        log.info("%s: started from the team map (entropy %.0f bits)", self.robot_id, entropy)
+        return True
+
+    def apply_merged(self) -> int:
+        """Add the merged deltas received since the last frame; returns how many were applied."""
+        applied = 0
+        while True:
+            try:
+                payload = self._merged.get_nowait()
+            except queue.Empty:
+                return applied
+            try:
+                msg = DeltaMessage.decode(payload)
+                if msg.grid != self.explorer.grid:
+                    raise WireError(f"merged delta on grid {msg.grid}, not the mission's")
+            except WireError as exc:
+                self.merged_counts["rejected"] += 1
+                log.warning("%s: rejected merged delta: %s", self.robot_id, exc)
+                continue
+            if msg.robot == self.robot_id and msg.epoch == self.epoch:
+                self.merged_counts["own"] += 1  # already in the local map
+                continue
+            if not self.applied.add(msg.robot, msg.epoch, msg.seq):
+                self.merged_counts["duplicate"] += 1
+                continue
+            try:
+                self.explorer.apply_external(Delta(msg.idx, msg.dlam, msg.deta))
+            except ValueError as exc:
+                self.merged_counts["rejected"] += 1
+                log.warning("%s: rejected merged delta: %s", self.robot_id, exc)
+                continue
+            self.merged_counts["applied"] += 1
+            applied += 1
+
+    # -- the coordinator -------------------------------------------------------------------
+    def _ask_coordinator(self) -> ExplorationTarget | None:
+        """The coordinator's target for this robot, or None to choose alone (eq. 35)."""
+        now = time.monotonic()
+        if self._pose is None or now < self._coordinator_quiet_until:
+            return None
+        reply = ask_for_target(
+            self.session, self.mission.mission, self.robot_id, self._pose, COORDINATOR_TIMEOUT_S
+        )
+        if reply is None:
+            self.coordinator_counts["silent"] += 1
+            self._coordinator_quiet_until = now + COORDINATOR_RETRY_S
+            return None
+        if reply.target is None:
+            self.coordinator_counts["nothing_left"] += 1
+            return None
+        self.coordinator_counts["assigned"] += 1
+        gaze = reply.gaze or (1.0, 0.0, 0.0)
+        xy = np.array(reply.target[:2], dtype=np.float64)
+        return ExplorationTarget(xy, math.atan2(gaze[1], gaze[0]), reply.utility, None, "assigned")
 
     # -- acknowledgements ----------------------------------------------------------------
     def _poll_acks(self) -> None:
@@ -166,3 +267,4 @@ class Agent:
         self._share(flush=True)
         self._stop.set()
         self._frame_sub.undeclare()
+        self._merged_sub.undeclare()

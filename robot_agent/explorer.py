@@ -15,6 +15,7 @@ part of a room only from afar, and eq. 30 chooses targets in the sensor's slab a
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,7 @@ from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
+from swarm.map.grid import Grid
 from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
@@ -93,6 +95,8 @@ class Explorer:
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
         self.head = 0.0  # the tilt this robot asks for now
+        #: Asked first for each new target (the coordinator); None: choose alone.
+        self.assigner: Callable[[], ExplorationTarget | None] | None = None
 
     # -- perception ----------------------------------------------------------------------
     def points(self, frame: Frame) -> np.ndarray:
@@ -111,6 +115,13 @@ class Explorer:
         result = self.map.integrate(np.asarray(frame.pose.xyz), self.points(frame))
         self.apply_entropy(result.delta)
         return result.delta
+
+    def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
+        """Start from the team map (a server snapshot, prior included); before any frame."""
+        if grid != self.grid:
+            raise ValueError(f"the team map's grid {grid} is not the mission's {self.grid}")
+        self.map = CoverageMap(self.grid, self.sensor, lam, eta)
+        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
 
     def apply_external(self, delta: Delta) -> None:
         """Add information another robot gathered (from the team's merged stream)."""
@@ -202,7 +213,8 @@ class Explorer:
             return self._wander_blind(yaw)
         cost = planner.cost_map(cell)
         exclude = self.failed[-FAILED_MEMORY:]
-        target = choose_target(
+        target = self.assigner() if self.assigner is not None else None
+        target = target or choose_target(
             self.strategy,
             self.map,
             self.entropy.values,

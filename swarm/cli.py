@@ -118,6 +118,48 @@ def _add_map(sub: argparse._SubParsersAction) -> None:
     info.add_argument("map", type=Path, help="map.npz file")
     info.add_argument("--json", action="store_true", help="print JSON")
     info.set_defaults(run=_run_map_info)
+    stats = msub.add_parser(
+        "stats",
+        help="a running map server's figures (map/stats JSON)",
+        description="Ask a running map server (swarm server) for map/stats and print the JSON: "
+        "entropy, known fraction, deltas applied per robot, rejected and duplicate counts, log size.",
+    )
+    _add_map_query_arguments(stats)
+    stats.set_defaults(run=_run_map_stats)
+    get = msub.add_parser(
+        "get",
+        help="beliefs of a point's voxel or of a box, from a running map server",
+        description="Ask a running map server (map/region) for the beliefs of the voxel holding "
+        "--point, or of every voxel that the box --box touches: index, centre, mu, sigma, E[C] "
+        "and entropy in bits.",
+    )
+    _add_map_query_arguments(get)
+    where = get.add_mutually_exclusive_group(required=True)
+    where.add_argument("--point", metavar="X,Y,Z", help="world point in metres")
+    where.add_argument("--box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="world box in metres (min and max corners)")
+    get.add_argument("--json", action="store_true", help="print JSON, one object per voxel")
+    get.set_defaults(run=_run_map_get)
+    export = msub.add_parser(
+        "export",
+        help="fetch the team map from a running map server and write map.npz or a PLY",
+        description="Fetch map/snapshot from a running map server and write --out: a .npz map file "
+        "(as swarm map info reads) or a .ply of the centres of voxels with E[C] > --threshold.",
+    )
+    _add_map_query_arguments(export)
+    export.add_argument("--out", type=Path, required=True, help="output file: *.npz or *.ply")
+    export.add_argument("--threshold", type=float, default=0.5, help="PLY: E[C] above this (default 0.5)")
+    export.set_defaults(run=_run_map_export)
+
+
+def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint of the map server (default tcp/127.0.0.1:7447); repeatable",
+    )
+    p.add_argument("--mission", default="default", help="mission name, the key prefix (default: default)")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for an answer (default 5)")
 
 
 def _run_map_info(args: argparse.Namespace) -> int:
@@ -133,6 +175,46 @@ def _run_map_info(args: argparse.Namespace) -> int:
     else:
         for key, value in summary.items():
             print(f"{key:>22}: {value}")
+    return 0
+
+
+def _run_map_stats(args: argparse.Namespace) -> int:
+    from swarm.map_client import MapClient, MapQueryError
+
+    try:
+        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+            print(json.dumps(client.stats(), indent=1))
+    except (ConnectionError, MapQueryError) as exc:
+        return _fail(str(exc))
+    return 0
+
+
+def _run_map_get(args: argparse.Namespace) -> int:
+    from swarm.map_client import MapClient, MapQueryError, format_region, region_rows
+
+    try:
+        values = [float(v) for v in (args.point or args.box).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != (3 if args.point else 6):
+        return _fail(f"--point takes X,Y,Z and --box X0,Y0,Z0,X1,Y1,Z1, got {args.point or args.box!r}")
+    try:
+        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+            region = client.point(values) if args.point else client.region(values[:3], values[3:])
+    except (ConnectionError, MapQueryError) as exc:
+        return _fail(str(exc))
+    print(json.dumps(region_rows(region)) if args.json else format_region(region))
+    return 0
+
+
+def _run_map_export(args: argparse.Namespace) -> int:
+    from swarm.map_client import MapClient, MapQueryError, export_map
+
+    try:
+        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+            print(export_map(client, args.out, args.threshold))
+    except (ConnectionError, MapQueryError, ValueError, OSError) as exc:
+        return _fail(str(exc))
     return 0
 
 
@@ -329,6 +411,55 @@ def _run_agent(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- swarm server -------------------------------------------------------------------------
+def _add_server(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "server",
+        help="run the map server: merge every robot's deltas, persist, answer queries",
+        description="Run the map server of a mission: listen on --listen (agents and tools connect "
+        "there), apply each delta/<rid> exactly once, log it durably in --store before acking it, "
+        "republish it on merged, and answer map/stats, map/acks, map/snapshot and map/region. "
+        "On start it recovers the map and acks from the store; SIGINT/SIGTERM compact it and exit.",
+    )
+    p.add_argument("--config", required=True, type=Path, help="mission YAML file (grid, sensor model)")
+    p.add_argument("--store", required=True, type=Path, help="store folder (snapshot + write-ahead log)")
+    p.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on (default tcp/127.0.0.1:7447); repeatable",
+    )
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="also connect here")
+    p.add_argument("--mission", help="mission name, the key prefix (default: the config's mission)")
+    p.add_argument("--compact-mb", type=float, default=256, help="compact when the log reaches this (MB)")
+    p.add_argument("--compact-records", type=int, default=20000, help="... or this many deltas")
+    p.add_argument("--log-every", type=float, default=10.0, help="seconds between progress lines")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+    p.set_defaults(run=_run_server)
+
+
+def _run_server(args: argparse.Namespace) -> int:
+    import logging
+
+    from map_server.server import ServerOptions, serve
+    from map_server.store import StoreError
+    from swarm import bus
+    from swarm.config import ConfigError, load_mission
+
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
+    )
+    if args.compact_mb <= 0 or args.compact_records < 1 or args.log_every <= 0:
+        return _fail("--compact-mb, --compact-records and --log-every must be positive")
+    options = ServerOptions(int(args.compact_mb * 2**20), args.compact_records, log_every_s=args.log_every)
+    try:
+        mission = load_mission(args.config)
+        serve(mission, args.listen or [bus.DEFAULT_ENDPOINT], args.store, args.mission, options, args.connect)
+    except (ConfigError, StoreError, ValueError, OSError) as exc:
+        return _fail(str(exc))
+    return 0
+
+
 # -- swarm stereo -------------------------------------------------------------------------
 def _add_stereo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -362,6 +493,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_map(sub)
     _add_bench(sub)
     _add_agent(sub)
+    _add_server(sub)
     _add_stereo(sub)
     _add_sim(sub)
     return parser

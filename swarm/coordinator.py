@@ -32,6 +32,7 @@ import numpy as np
 import zenoh
 
 from swarm import bus
+from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
 from swarm.coordination import AssignmentBook, CoordinationParams, best_target
 from swarm.map.coverage_map import CoverageMap
@@ -84,24 +85,6 @@ def params_from_mission(mission: Mission) -> CoordinationParams:
 # ---------------------------------------------------------------------------------------
 # The replica
 # ---------------------------------------------------------------------------------------
-class _Seen:
-    """Sequence numbers seen for one (robot, epoch): a contiguous prefix and the ones above."""
-
-    def __init__(self, prefix: int = 0) -> None:
-        self.prefix = prefix
-        self.above: set[int] = set()
-
-    def add(self, seq: int) -> bool:
-        """Record ``seq``; False when it was seen already."""
-        if seq <= self.prefix or seq in self.above:
-            return False
-        self.above.add(seq)
-        while self.prefix + 1 in self.above:
-            self.prefix += 1
-            self.above.discard(self.prefix)
-        return True
-
-
 class TeamMap:
     """A replica of the team map: prior + every merged delta, each (robot, epoch, seq) once.
 
@@ -117,7 +100,7 @@ class TeamMap:
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
         self.lock = threading.Lock()
         self.counts: Counter[str] = Counter()
-        self._seen: dict[tuple[str, int], _Seen] = {}
+        self._seen = AppliedDeltas()
 
     def _same_grid(self, grid: Grid) -> bool:
         return grid.shape == self.grid.shape and bool(
@@ -132,11 +115,7 @@ class TeamMap:
         with self.lock:
             self.map = CoverageMap(self.grid, self.map.sensor, snap.lam, snap.eta)
             self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
-            for robot, by_epoch in snap.acks.items():
-                for epoch, seq in by_epoch.items():
-                    seen = self._seen.setdefault((robot, int(epoch)), _Seen())
-                    seen.prefix = max(seen.prefix, int(seq))
-                    seen.above = {s for s in seen.above if s > seen.prefix}
+            self._seen.cover(snap.acks)
 
     def apply_payload(self, payload: bytes) -> str:
         """Apply one ``merged`` payload: returns "applied" or "duplicate"; raises WireError
@@ -149,7 +128,7 @@ class TeamMap:
             self.counts["rejected"] += 1
             raise
         with self.lock:
-            if not self._seen.setdefault((msg.robot, msg.epoch), _Seen()).add(msg.seq):
+            if not self._seen.add(msg.robot, msg.epoch, msg.seq):
                 self.counts["duplicate"] += 1
                 return "duplicate"
             delta = Delta(msg.idx, msg.dlam, msg.deta)

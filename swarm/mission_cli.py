@@ -8,7 +8,11 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
+from swarm.map.entropy import EntropyCache, default_table
+from swarm.map_file import save_map
 
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
@@ -44,12 +48,24 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     out = args.out or Path("runs") / f"{mission.mission}-{args.strategy}-s{args.seed}"
     if args.seed:
         mission = mission.model_copy(update={"sim": mission.sim.model_copy(update={"seed": args.seed})})
+    if args.share_min_bits is not None:
+        if not args.share_min_bits >= 0:
+            print(f"swarm: error: --share-min-bits must be >= 0 (got {args.share_min_bits})", file=sys.stderr)
+            return 2
+        sharing = mission.sharing.model_copy(update={"share_min_bits": args.share_min_bits})
+        mission = mission.model_copy(update={"sharing": sharing})
+    coordination = args.coordination if len(mission.robots) > 1 and args.strategy == "entropy" else "none"
     options = MissionOptions(
-        out=out, strategy=args.strategy, seed=args.seed, max_time_s=args.max_time, quiet=args.quiet
+        out=out,
+        strategy=args.strategy,
+        seed=args.seed,
+        max_time_s=args.max_time,
+        quiet=args.quiet,
+        coordination=coordination,
     )
     print(
         f"mission {mission.mission}: robots {', '.join(mission.robot_ids)}, strategy {args.strategy}, "
-        f"seed {args.seed}, H_th {mission.threshold_bits():,.0f} bits -> {out}",
+        f"coordination {coordination}, seed {args.seed}, H_th {mission.threshold_bits():,.0f} bits -> {out}",
         flush=True,
     )
     monitor, facts = run_mission(mission, options)
@@ -63,7 +79,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         config=str(args.config or args.map or default_config),
         robots=mission.robot_ids,
         strategy=args.strategy,
-        coordination="none",
+        coordination=coordination,
         seed=args.seed,
         threshold_bits=facts["threshold_bits"],
         initial_entropy_bits=monitor.curve[0][1],
@@ -78,7 +94,17 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     )
     metrics = compute_metrics(record, monitor.cmap, truth, monitor.observed_by)
     metrics["stop_reason"] = facts["reason"]
+    metrics["share_min_bits"] = mission.sharing.share_min_bits
+    server_map = facts["server_map"]
+    if server_map is not None:
+        # The server merged the same deltas the monitor saw: its map must be the same.
+        diff = float(np.max(np.abs(server_map.lam - monitor.cmap.lam) / monitor.cmap.lam))
+        metrics["server_map_max_rel_diff"] = diff
+        metrics["server_final_entropy_bits"] = float(EntropyCache.from_information(
+            server_map.lam, server_map.eta, table=default_table()).total)  # fmt: skip
     write_run_folder(out, metrics, monitor.cmap, mission.to_yaml(), record)
+    if server_map is not None:
+        save_map(out / "server_map.npz", server_map)
     keys = (
         "reached_threshold",
         "mission_time_s",

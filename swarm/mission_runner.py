@@ -1,16 +1,21 @@
 """``swarm sim``: a whole mission on one machine, every role a separate process over Zenoh.
 
-The runner writes the effective mission to the run folder, starts the simulated world
-(``swarm sim world``) and one ``swarm agent`` per robot on a loopback endpoint, and watches
-the mission as any monitor could: it keeps a replica of the team map from ``delta/*``
-(the entropy curve), trajectories from ``sim/truth`` and states from ``robot/*/status``.
-It stops at H_th (eq. 36), when every agent is done, or at the time limit, then writes the
-run folder: metrics.json, map.npz, plots and the config used.
+The runner writes the effective mission to the run folder and is the mission's Zenoh
+router on a loopback endpoint. It starts the map server (``swarm server``, its store in
+the run folder), the coordinator (``swarm coordinator``, unless coordination is off), the
+simulated world (``swarm sim world``) and one ``swarm agent`` per robot, and watches the
+mission as any monitor could: it keeps a replica of the team map from ``delta/*`` (the
+entropy curve, bytes and overlap per robot), trajectories from ``sim/truth`` and states
+from ``robot/*/status``. It stops at H_th (eq. 36), when every agent is done, or at the
+time limit; agents flush their outboxes, the server's final map is fetched over
+``map/snapshot``, and the run folder is written: metrics.json, map.npz, server_map.npz,
+plots, the config used and every process's log.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,6 +31,7 @@ from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
+from swarm.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.wire import DeltaMessage, Status, TruthPoses, WireError
 
 
@@ -37,6 +43,7 @@ class MissionOptions:
     max_time_s: float | None = None
     wall_limit_s: float = 3600.0
     quiet: bool = False
+    coordination: str = "coordinator"  # or "none": each robot chooses alone on the shared map
 
 
 @dataclass
@@ -149,11 +156,30 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
         bus.subscribe(session, bus.key_pattern(name, "robot", "*", "status"), monitor.on_status),
     ]
+    store = out / "server-store"
+    if store.exists():
+        shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
+    server_listen = bus.tcp_endpoint(bus.free_port())
+    server = _child(
+        ["server", "--config", str(config_path), "--store", str(store),
+         "--listen", server_listen, "--connect", endpoint],
+        out / "server.log",
+    )  # fmt: skip
+    services = [server]
+    if options.coordination != "none":
+        services.append(
+            _child(
+                ["coordinator", "--config", str(config_path), "--connect", endpoint], out / "coordinator.log"
+            )
+        )
+    client = MapClient(session, name, timeout=2.0)
+    _wait_for_server(client, server)
     world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
+    coordination = "auto" if options.coordination != "none" else "none"
     agents = [
         _child(
             ["agent", "--id", rid, "--connect", endpoint, "--config", str(config_path),
-             "--strategy", options.strategy, "--seed", str(options.seed)],
+             "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination],
             out / f"agent-{rid}.log",
         )
         for rid in mission.robot_ids
@@ -187,8 +213,9 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 break
     finally:
         _stop(agents)  # agents flush their pending deltas on SIGTERM
-        time.sleep(0.5)
         _stop([world])
+        server_map = _final_server_map(client, monitor)
+        _stop(services)
         for sub in subs:
             sub.undeclare()
         session.close()
@@ -196,9 +223,42 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         "reason": reason,
         "wall_time_s": time.monotonic() - started,
         "threshold_bits": threshold,
+        "server_map": server_map,
         "exit_codes": {
             "world": world.returncode,
+            "server": server.returncode,
             **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=True)},
         },
     }
     return monitor, facts
+
+
+def _wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float = 60.0) -> None:
+    """Wait until the map server answers map/stats (it may be recovering its store)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if server.poll() is not None:
+            raise RuntimeError(f"the map server exited with code {server.returncode} (see server.log)")
+        try:
+            client.stats()
+            return
+        except (MapServerUnavailable, MapQueryError):
+            time.sleep(0.2)
+    raise RuntimeError(f"the map server did not answer within {timeout:g} s (see server.log)")
+
+
+def _final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 20.0) -> CoverageMap | None:
+    """The server's map once it has applied every delta the monitor saw (None if it never did)."""
+    deadline = time.monotonic() + timeout
+    expected = len(monitor.seen)
+    while time.monotonic() < deadline:
+        try:
+            stats = client.stats()
+            if int(stats.get("deltas_applied", 0)) >= expected:
+                snap = client.snapshot()
+                return CoverageMap(snap.grid, monitor.cmap.sensor, snap.lam, snap.eta)
+        except (MapServerUnavailable, MapQueryError) as exc:
+            print(f"runner: map server: {exc}", file=sys.stderr)
+        time.sleep(0.3)
+    print("runner: the map server did not catch up with the monitor's deltas", file=sys.stderr)
+    return None

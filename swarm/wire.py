@@ -506,6 +506,57 @@ class Snapshot:
         return cls(grid, lam, eta, acks)
 
 
+# -- map/region reply ---------------------------------------------------------------------
+
+
+@dataclass
+class Region:
+    """The beliefs of the voxels of a box: flat ``idx`` (uint32, ascending) in ``grid`` and,
+    per voxel, ``mu``, ``sigma`` (untruncated Gaussian), ``expected_coverage`` (E[C] of the
+    belief truncated to [0, 1]) and ``entropy`` (bits), all float32.
+    """
+
+    grid: Grid
+    idx: np.ndarray
+    mu: np.ndarray
+    sigma: np.ndarray
+    expected_coverage: np.ndarray
+    entropy: np.ndarray
+
+    KIND = "region"
+    _VALUES = ("mu", "sigma", "expected_coverage", "entropy")
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def centres(self) -> np.ndarray:
+        """World centres (N, 3) of the voxels."""
+        return self.grid.centre(self.grid.unflat(self.idx))
+
+    def encode(self) -> bytes:
+        n = len(self.idx)
+        if any(len(getattr(self, name)) != n for name in self._VALUES):
+            raise WireError("region: idx and every value array must have the same length")
+        fields = {"grid": self.grid.to_dict(), "idx": _le(self.idx, "<u4")}
+        fields |= {name: _le(getattr(self, name), "<f4") for name in self._VALUES}
+        return _pack(self.KIND, fields)
+
+    @classmethod
+    def decode(cls, payload: Any) -> Region:
+        kind = cls.KIND
+        msg = _unpack(payload, kind)
+        grid = _grid(_field(msg, "grid", kind), kind)
+        idx_bytes = _field(msg, "idx", kind)
+        if not isinstance(idx_bytes, bytes | bytearray) or len(idx_bytes) % 4:
+            raise WireError(f"{kind}: idx must be raw uint32 bytes")
+        n = len(idx_bytes) // 4
+        idx = _raw(idx_bytes, "<u4", n, "idx", kind)
+        if n and int(idx.max()) >= grid.size:
+            raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid.size}")
+        values = {name: _raw(_field(msg, name, kind), "<f4", n, name, kind) for name in cls._VALUES}
+        return cls(grid, idx, **values)
+
+
 # -- coord/assign -----------------------------------------------------------------------
 
 

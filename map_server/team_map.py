@@ -1,0 +1,178 @@
+"""The map server's merged team map and what it answers (pure, no I/O, not thread-safe).
+
+:class:`TeamMap` holds the coverage map (information form, float32, prior counted once),
+its per-voxel entropy cache, the :class:`~map_server.ledger.Ledger` of applied deltas and
+the counters of ``map/stats``. The server calls :meth:`TeamMap.admit` on a validated
+delta (new, or a duplicate that is only counted), makes it durable, then
+:meth:`TeamMap.apply` adds it to the map and the ledger. Queries: :meth:`stats`,
+:meth:`snapshot`, :meth:`region`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from map_server.ledger import REJECT_KINDS, DeltaId, Ledger
+from swarm.map.coverage_map import CoverageMap, prior_entropy_bits, prior_information
+from swarm.map.delta import Delta
+from swarm.map.entropy import EntropyCache, default_table, expected_coverage
+from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
+from swarm.wire import DeltaMessage, Region, Snapshot
+
+#: A region query may ask for this many voxels at most.
+MAX_REGION_VOXELS = 2_000_000
+
+
+def delta_id(msg: DeltaMessage) -> DeltaId:
+    return (msg.robot, msg.epoch, msg.seq)
+
+
+class TeamMap:
+    """The merged map of every robot's deltas, each applied exactly once."""
+
+    def __init__(
+        self,
+        grid: Grid,
+        sensor: SensorModel,
+        lam: np.ndarray | None = None,
+        eta: np.ndarray | None = None,
+        ledger: Ledger | None = None,
+        updates: dict[str, int] | None = None,
+    ) -> None:
+        self.grid = grid
+        self.sensor = sensor
+        self.cmap = CoverageMap(grid, sensor, lam, eta)
+        self.ledger = ledger or Ledger()
+        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
+        self.initial_entropy_bits = prior_entropy_bits(grid, sensor)
+        lam0, _ = prior_information(sensor)
+        self._known_lam = np.float32(lam0) * np.float32(1.0 + 1e-5)
+        self.known = int(np.count_nonzero(self.cmap.lam > self._known_lam))
+        #: voxel updates merged per robot (persisted with the snapshot)
+        self.updates: Counter[str] = Counter(updates or {})
+        self.rejected: Counter[str] = Counter()
+        self.duplicates = 0
+        self._pending: set[DeltaId] = set()
+
+    # -- merging -------------------------------------------------------------------------
+    def admit(self, msg: DeltaMessage) -> bool:
+        """True when ``msg`` is new (it is then pending until :meth:`apply` or :meth:`release`);
+        False for a delta already applied or pending, which is counted as a duplicate."""
+        ident = delta_id(msg)
+        if ident in self.ledger or ident in self._pending:
+            self.duplicates += 1
+            return False
+        self._pending.add(ident)
+        return True
+
+    def release(self, msg: DeltaMessage) -> None:
+        """Forget an admitted delta that could not be made durable (its sender will resend it)."""
+        self._pending.discard(delta_id(msg))
+
+    def apply(self, msg: DeltaMessage) -> None:
+        """Add a validated, admitted delta to the map, the entropy and the ledger."""
+        idx = msg.idx.astype(np.int64)
+        known_before = int(np.count_nonzero(self.cmap.lam[idx] > self._known_lam))
+        if len(idx) > 1 and np.all(idx[1:] > idx[:-1]) and idx[-1] < self.grid.size and idx[0] >= 0:
+            # sorted, unique and in the grid, as the protocol asks: CoverageMap.apply's sum
+            # without its uniqueness check (a hash of every index, over half the merge time)
+            self.cmap.lam[idx] += msg.dlam
+            self.cmap.eta[idx] += msg.deta
+        else:
+            self.cmap.apply(Delta(msg.idx, msg.dlam, msg.deta))
+        lam, eta = self.cmap.lam[idx], self.cmap.eta[idx]
+        self.entropy.update_information(idx, lam, eta)
+        self.known += int(np.count_nonzero(lam > self._known_lam)) - known_before
+        ident = delta_id(msg)
+        self._pending.discard(ident)
+        self.ledger.add(ident)
+        self.updates[msg.robot] += len(idx)
+
+    def count_rejected(self, kind: str) -> int:
+        """Count one refused payload of ``kind``; returns the count of that kind so far."""
+        self.rejected[kind] += 1
+        return self.rejected[kind]
+
+    # -- queries -------------------------------------------------------------------------
+    def acks(self) -> dict[str, dict[int, int]]:
+        return self.ledger.acks()
+
+    def stats(self) -> dict:
+        """The ``map/stats`` JSON object (see docs/protocol.md)."""
+        robots = self.ledger.robots()
+        for robot, entry in robots.items():
+            entry["voxel_updates"] = int(self.updates.get(robot, 0))
+        s = self.sensor
+        return {
+            "voxels": self.grid.size,
+            "shape": list(self.grid.shape),
+            "voxel_size": self.grid.voxel,
+            "origin": list(self.grid.origin),
+            "sensor": {"sigma_min": s.sigma_min, "zeta": s.zeta, "tau": s.tau, "max_range": s.max_range},
+            "entropy_bits": round(float(self.entropy.total), 3),
+            "initial_entropy_bits": round(self.initial_entropy_bits, 3),
+            "known_fraction": self.known / self.grid.size,
+            "deltas_applied": len(self.ledger),
+            "updates_merged": int(sum(self.updates.values())),
+            "duplicates": self.duplicates,
+            "rejected": {kind: self.rejected.get(kind, 0) for kind in REJECT_KINDS},
+            "robots": robots,
+        }
+
+    def snapshot(self) -> Snapshot:
+        """A copy of the whole map (prior included) and the acks."""
+        return Snapshot(self.grid, self.cmap.lam.copy(), self.cmap.eta.copy(), self.acks())
+
+    def region(self, lo: np.ndarray, hi: np.ndarray) -> Region:
+        """Beliefs of the voxels whose cells overlap the box [lo, hi] (empty when it misses the grid).
+
+        Touching a cell's face does not count, so [0, 0.2] at 0.1 m is two voxels per axis; on an
+        axis where lo = hi the voxel holding that coordinate counts, so lo = hi gives the voxel
+        holding a point. Raises ValueError for lo > hi or a box of more than MAX_REGION_VOXELS.
+        """
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise ValueError("lo and hi must be 3 finite numbers each")
+        if np.any(hi < lo):
+            raise ValueError(f"hi {hi.tolist()} must be >= lo {lo.tolist()} on every axis")
+        first = self.grid.index_of(lo)
+        upper = np.ceil((hi - self.grid.lo) / self.grid.voxel - 1e-9).astype(np.int64) - 1
+        last = np.minimum(np.maximum(upper, first), np.asarray(self.grid.shape) - 1)
+        first = np.maximum(first, 0)
+        counts = np.maximum(last - first + 1, 0)
+        n = int(np.prod(counts))
+        if n > MAX_REGION_VOXELS:
+            raise ValueError(
+                f"the box holds {n:,} voxels; a region query returns at most {MAX_REGION_VOXELS:,}"
+            )
+        axes = [np.arange(first[a], first[a] + counts[a]) for a in range(3)]
+        ijk = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        idx = self.grid.flat(ijk).astype(np.uint32)
+        mu = self.cmap.mean(idx.astype(np.int64))
+        sigma = self.cmap.sigma(idx.astype(np.int64))
+        return Region(
+            self.grid,
+            idx,
+            mu.astype(np.float32),
+            sigma.astype(np.float32),
+            expected_coverage(mu, sigma).astype(np.float32),
+            self.entropy.values[idx.astype(np.int64)].copy(),
+        )
+
+
+def parse_vector(text: str | None, name: str) -> np.ndarray:
+    """``"x,y,z"`` as 3 finite floats; ValueError naming ``name`` otherwise."""
+    if text is None or text == "":
+        raise ValueError(f"missing parameter {name} (expected {name}=x,y,z)")
+    parts = text.split(",")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{name}={text!r}: expected 3 comma-separated numbers") from None
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name}={text!r}: expected 3 comma-separated finite numbers")
+    return np.array(values)

@@ -1,0 +1,203 @@
+"""Client side of the map server's queries (``map/stats``, ``map/acks``, ``map/snapshot``,
+``map/region``), used by ``swarm map stats|get|export`` and by any role that reads the team map.
+
+``MapClient.connect(endpoints, mission)`` opens its own Zenoh session; ``MapClient(session,
+mission)`` borrows one. Every query raises :class:`MapServerUnavailable` (a
+``ConnectionError``) naming the endpoint when nothing answers in time, and
+:class:`MapQueryError` when the server answers with an error.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from swarm import bus
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
+from swarm.map.sensor_model import SensorModel
+from swarm.wire import Region, Snapshot, WireError
+
+DEFAULT_TIMEOUT_S = 5.0
+
+
+class MapServerUnavailable(ConnectionError):
+    """No map server answered in time; the text names the key and endpoint."""
+
+
+class MapQueryError(RuntimeError):
+    """The map server answered a query with an error, or with a reply that cannot be read."""
+
+
+class MapClient:
+    """Queries to the map server of ``mission`` over a Zenoh session."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        mission: str = "default",
+        timeout: float = DEFAULT_TIMEOUT_S,
+        endpoint: str = "the Zenoh network",
+        owns_session: bool = False,
+    ) -> None:
+        self.session = session
+        self.mission = mission
+        self.timeout = float(timeout)
+        self.endpoint = endpoint
+        self._owns = owns_session
+
+    @classmethod
+    def connect(
+        cls, endpoints: list[str] | None = None, mission: str = "default", timeout: float = DEFAULT_TIMEOUT_S
+    ) -> MapClient:
+        """Open a client session to ``endpoints`` (default tcp/127.0.0.1:7447) within ``timeout``."""
+        endpoints = list(endpoints or [bus.DEFAULT_ENDPOINT])
+        where = ", ".join(endpoints)
+        try:
+            session = bus.open_session(connect=endpoints, wait_s=timeout)
+        except ConnectionError as exc:
+            raise MapServerUnavailable(f"no map server reachable at {where} within {timeout:g} s") from exc
+        return cls(session, mission, timeout, where, owns_session=True)
+
+    def close(self) -> None:
+        if self._owns:
+            self.session.close()
+
+    def __enter__(self) -> MapClient:
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self.close()
+
+    # -- queries -------------------------------------------------------------------------
+    def stats(self) -> dict:
+        """The ``map/stats`` JSON object."""
+        return self._json("stats")
+
+    def acks(self) -> dict[str, dict[int, int]]:
+        """``{robot: {epoch: last contiguous seq}}`` of durable, applied deltas."""
+        raw = self._json("acks")
+        return {r: {int(e): int(s) for e, s in by_epoch.items()} for r, by_epoch in raw.items()}
+
+    def snapshot(self) -> Snapshot:
+        """The whole team map (prior included) and the acks."""
+        return self._decode(Snapshot, self._get("snapshot"))
+
+    def region(self, lo, hi) -> Region:
+        """Beliefs of the voxels the box [lo, hi] (world metres) touches."""
+        params = f"lo={_vec(lo)};hi={_vec(hi)}"
+        return self._decode(Region, self._get("region", params))
+
+    def point(self, p) -> Region:
+        """The belief of the voxel holding point ``p`` (empty outside the grid)."""
+        return self.region(p, p)
+
+    # -- plumbing ------------------------------------------------------------------------
+    def _json(self, part: str):
+        payload = self._get(part)
+        try:
+            return json.loads(payload)
+        except ValueError as exc:
+            raise MapQueryError(f"map/{part}: the reply is not JSON: {exc}") from exc
+
+    @staticmethod
+    def _decode(message_type, payload: bytes):
+        try:
+            return message_type.decode(payload)
+        except WireError as exc:
+            raise MapQueryError(f"unreadable reply: {exc}") from exc
+
+    def _get(self, part: str, parameters: str = "") -> bytes:
+        key = bus.key(self.mission, "map", part)
+        selector = f"{key}?{parameters}" if parameters else key
+        deadline = time.monotonic() + self.timeout
+        while True:
+            # A query that no queryable matches yet (a server still starting, or one whose
+            # declarations have not reached this session) ends at once with no reply: ask again.
+            for reply in self.session.get(selector, timeout=max(deadline - time.monotonic(), 0.05)):
+                if reply.ok is not None:
+                    return reply.ok.payload.to_bytes()
+                raise MapQueryError(reply.err.payload.to_string())
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)
+        raise MapServerUnavailable(
+            f"no map server answered {key} at {self.endpoint} within {self.timeout:g} s "
+            f"(is 'swarm server' running for mission {self.mission!r}?)"
+        )
+
+
+def _vec(v) -> str:
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    return ",".join(repr(float(x)) for x in v)
+
+
+# -- what the CLI prints and writes ---------------------------------------------------------
+
+
+def region_rows(region: Region) -> list[dict]:
+    """One dict per voxel: index, centre, mu, sigma, expected coverage, entropy."""
+    ijk = region.grid.unflat(region.idx)
+    centres = region.centres()
+    return [
+        {
+            "index": [int(v) for v in ijk[n]],
+            "centre": [round(float(v), 6) for v in centres[n]],
+            "mu": float(region.mu[n]),
+            "sigma": float(region.sigma[n]),
+            "expected_coverage": float(region.expected_coverage[n]),
+            "entropy_bits": float(region.entropy[n]),
+        }
+        for n in range(len(region))
+    ]
+
+
+def format_region(region: Region) -> str:
+    """A table of the region's voxels."""
+    if len(region) == 0:
+        return "no voxels: the point or box is outside the map's workspace"
+    head = ("i", "j", "k", "x", "y", "z", "mu", "sigma", "E[C]", "H bits")
+    widths = (4, 4, 4, 8, 8, 8, 9, 9, 6, 6)
+    lines = [" ".join(f"{h:>{w}}" for h, w in zip(head, widths, strict=True))]
+    for row in region_rows(region):
+        i, j, k = row["index"]
+        x, y, z = row["centre"]
+        lines.append(
+            f"{i:4d} {j:4d} {k:4d} {x:8.3f} {y:8.3f} {z:8.3f} {row['mu']:9.4f} {row['sigma']:9.4g} "
+            f"{row['expected_coverage']:6.3f} {row['entropy_bits']:6.3f}"
+        )
+    return "\n".join(lines)
+
+
+def sensor_from_stats(stats: dict) -> SensorModel:
+    """The server's sensor model (it defines the prior) from ``map/stats``; defaults if absent."""
+    values = stats.get("sensor")
+    return SensorModel(**values) if isinstance(values, dict) else SensorModel()
+
+
+def export_map(client: MapClient, out: str | Path, threshold: float = 0.5) -> str:
+    """Fetch the team map and write ``out``: a ``.npz`` map file (as ``swarm map info`` reads)
+    or a ``.ply`` of the centres of voxels with E[C] > ``threshold``. Returns what was written."""
+    from swarm.map_file import save_map
+    from swarm.point_cloud_file import write_ply_points
+
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix not in (".npz", ".ply"):
+        raise ValueError(f"{out}: the output must end in .npz (map file) or .ply (occupied voxels)")
+    snap = client.snapshot()
+    if suffix == ".npz":
+        cmap = CoverageMap(snap.grid, sensor_from_stats(client.stats()), snap.lam, snap.eta)
+        save_map(out, cmap)
+        return f"wrote {out}: {snap.grid.size:,} voxels {list(snap.grid.shape)}"
+    mu = snap.eta.astype(np.float64) / snap.lam
+    sigma = 1.0 / np.sqrt(snap.lam.astype(np.float64))
+    coverage = expected_coverage(mu, sigma)
+    idx = np.flatnonzero(coverage > threshold)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_ply_points(out, snap.grid.centre(snap.grid.unflat(idx)), coverage[idx].astype(np.float32))
+    return f"wrote {out}: {len(idx):,} voxel centres with E[C] > {threshold:g}"
