@@ -262,6 +262,22 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     agent.add_argument("--sizes", nargs="+", default=["160x120", "640x480"], help="image sizes WxH")
     agent.add_argument("--repeat", type=int, default=5)
     agent.set_defaults(run=_run_bench_agent)
+    server = bsub.add_parser(
+        "server",
+        help="map server: voxel updates merged per second, publish-to-acked latency",
+        description="Voxel updates merged per second by the map server's merge path (apply alone, "
+        "with decoding, with the write-ahead log fsynced), then a swarm server process with "
+        "--agents sessions publishing deltas on loopback: throughput and the latency from "
+        "publish until map/acks shows the delta.",
+    )
+    server.add_argument("--agents", type=int, default=8, help="agent sessions (default 8)")
+    server.add_argument("--deltas", type=int, default=25, help="deltas per agent (default 25)")
+    server.add_argument("--min-voxels", type=int, default=2000, help="smallest delta (default 2000)")
+    server.add_argument("--max-voxels", type=int, default=20000, help="largest delta (default 20000)")
+    server.add_argument(
+        "--period", type=float, default=0.25, help="paced latency: seconds between an agent's deltas"
+    )
+    server.set_defaults(run=_run_bench_server)
 
 
 def _run_bench_fusion(args: argparse.Namespace) -> int:
@@ -289,6 +305,16 @@ def _run_bench_agent(args: argparse.Namespace) -> int:
     except ValueError:
         return _fail(f"--sizes takes WxH values like 160x120, got {args.sizes}")
     print(agent_frame.format_table(agent_frame.run(args.config, sizes, args.repeat)))
+    return 0
+
+
+def _run_bench_server(args: argparse.Namespace) -> int:
+    from swarm.bench import server
+
+    if args.agents < 1 or args.deltas < 1 or not 1 <= args.min_voxels <= args.max_voxels or args.period <= 0:
+        return _fail("--agents, --deltas, --period must be positive, and --min-voxels <= --max-voxels")
+    figures = server.run(args.agents, args.deltas, args.min_voxels, args.max_voxels, args.period)
+    print(server.format_table(figures))
     return 0
 
 
