@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from robot_agent.stereo import StereoMatcher, points_from_depth
 from swarm.config import Mission
@@ -38,6 +39,7 @@ REPLAN_EVERY = 4  # frames between traversability refreshes while driving
 STUCK_FRAMES = 16  # frames without 5 cm of progress before a target is given up
 FAILED_MEMORY = 12  # how many given-up targets to avoid
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
+BOXED_IN_CELLS = 30  # fewer reachable cells than this: step blind to free floor beyond
 
 
 @dataclass
@@ -212,6 +214,15 @@ class Explorer:
             self.failures_in_a_row = 0
             return self._wander_blind(yaw)
         cost = planner.cost_map(cell)
+        if np.isfinite(cost).sum() < BOXED_IN_CELLS:
+            # Boxed in by floor the camera cannot see (a level camera misses the floor near
+            # the robot): step blind to the nearest free cell beyond, as a robot with bumpers
+            # or sonars would (the paper's Scout had sonars); the physics stops it on contact.
+            roomy = _large_free_areas(trav.free, BOXED_IN_CELLS)
+            beyond = nearest_free_cell(roomy & ~np.isfinite(cost), cell)
+            if beyond is not None:
+                cell, start = beyond, trav.centre(np.array(beyond))
+                cost = planner.cost_map(cell)
         exclude = self.failed[-FAILED_MEMORY:]
         target = self.assigner() if self.assigner is not None else None
         target = target or choose_target(
@@ -237,6 +248,8 @@ class Explorer:
             return Decision(0.0, 0.0, "done")
         self.looked_before_done = False
         path = planner.plan(start, target.xy)
+        if start is not here and path is not None and len(path) < 2:
+            path = np.vstack([here, start])  # the target is where the robot leaves from
         if path is None or len(path) < 2:
             if path is not None and np.hypot(*(target.xy - here)) < 0.15:
                 self.target = target  # already there: just look
@@ -245,7 +258,7 @@ class Explorer:
             self.failed.append(np.asarray(target.xy))
             self.failures_in_a_row += 1
             return Decision(0.0, 0.0, "choose")
-        if start is not here:
+        if start is not here and not np.array_equal(path[0], here):
             path = np.vstack([here, path])
         self.failures_in_a_row = 0
         self.target = target
@@ -290,3 +303,13 @@ class Explorer:
 
     def _target_xy(self) -> tuple[float, float] | None:
         return None if self.target is None else (float(self.target.xy[0]), float(self.target.xy[1]))
+
+
+def _large_free_areas(free: np.ndarray, min_cells: int) -> np.ndarray:
+    """Free cells in 8-connected free areas of at least ``min_cells`` cells."""
+    labels, count = ndimage.label(free, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return np.zeros_like(free, dtype=bool)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return sizes[labels] >= min_cells

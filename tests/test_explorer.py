@@ -40,3 +40,24 @@ def test_a_fixed_camera_sends_no_tilt_and_chooses_after_the_gaze():
     explorer = gazing_explorer(0.0)
     aligned = explorer.decide(1.0, 1.0, 0.3)
     assert aligned.tilt is None and explorer.state == "choose"
+
+
+def test_a_robot_boxed_in_by_unseen_floor_steps_out_to_the_free_area_beyond():
+    # A level camera never sees the floor right around the robot: everything is known free
+    # except a disc of unknown columns around it, so only its own cell is reachable.
+    mission = load_mission(CONFIGS / "lab.yaml")
+    explorer = Explorer(mission, "r1", strategy="frontier")
+    grid, cmap = explorer.grid, explorer.map
+    centres = grid.centres().reshape(-1, 3)
+    robot = np.array([1.05, 1.05])
+    near = np.hypot(*(centres[:, :2] - robot).T) < 0.6
+    free = ~near & (centres[:, 2] < 1.0)
+    cmap.lam[free] = 400.0  # a sure, empty belief: mu = 0, sigma = 0.05
+    cmap.eta[free] = 0.0
+    explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+    explorer.state = "choose"
+    decision = explorer.decide(robot[0], robot[1], 0.0)
+    assert explorer.state == "drive" and decision.target is not None
+    path = explorer.follower.remaining_path()
+    assert np.allclose(path[0], robot)  # it leaves from where it stands...
+    assert np.hypot(*(path[1] - robot)) >= 0.5  # ...straight to free floor beyond the unseen disc
