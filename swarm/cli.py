@@ -332,11 +332,12 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     ssub = p.add_subparsers(dest="sim_command", required=True, metavar="COMMAND")
     run = ssub.add_parser(
         "run",
-        help="run a whole mission: the world and one agent per robot, as processes over Zenoh",
-        description="Run a mission on this machine: the simulated world and one agent per robot, "
-        "each a separate process talking Zenoh over loopback. Shows progress, stops at the "
-        "entropy threshold H_th or --max-time, and writes the run folder (metrics.json, map.npz, "
-        f"entropy.png, top_view.png, config.yaml). Default mission: {DEFAULT_MISSION}.",
+        help="run a whole mission: world, map server, coordinator and one agent per robot over Zenoh",
+        description="Run a mission on this machine: the simulated world, the map server, the "
+        "coordinator and one agent per robot, each a separate process talking Zenoh over loopback. "
+        "Shows progress, stops at the entropy threshold H_th or --max-time, and writes the run "
+        "folder (metrics.json, map.npz, server_map.npz, entropy.png, top_view.png, config.yaml, "
+        f"logs). Default mission: {DEFAULT_MISSION} (4 robots).",
     )
     run.add_argument("config", nargs="?", type=Path, help=f"mission YAML (default {DEFAULT_MISSION})")
     run.add_argument("--map", type=Path, help="a ROS map_server map.yaml to explore instead of a mission")
@@ -345,6 +346,18 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--strategy", choices=["entropy", "frontier", "random"], default="entropy")
     run.add_argument("--seed", type=int, default=0, help="random seed of the world and agents (default 0)")
     run.add_argument("--max-time", type=float, help="simulated seconds at most (default: the mission's)")
+    run.add_argument(
+        "--coordination",
+        choices=["coordinator", "none"],
+        default="coordinator",
+        help="coordinator (default): targets from swarm coordinator; none: each robot chooses alone "
+        "(eq. 35 on the shared map)",
+    )
+    run.add_argument(
+        "--share-min-bits",
+        type=float,
+        help="override sharing.share_min_bits (0 shares every voxel: the utility filter off)",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(
@@ -400,6 +413,13 @@ def _add_agent(sub: argparse._SubParsersAction) -> None:
         help="exploration: entropy gradient (the paper, default), nearest frontier, or random",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--coordination",
+        choices=["auto", "none"],
+        default="auto",
+        help="auto (default): ask the coordinator (coord/assign) for targets and choose alone when it "
+        "does not answer; none: always choose alone (eq. 35 on the shared map)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     p.set_defaults(run=_run_agent)
 
@@ -418,7 +438,8 @@ def _run_agent(args: argparse.Namespace) -> int:
     try:
         mission = load_mission(args.config)
         session = bus.open_session(args.listen, args.connect)
-        agent = Agent(mission, args.robot_id, session, args.strategy, args.seed)
+        coordinated = args.coordination == "auto"
+        agent = Agent(mission, args.robot_id, session, args.strategy, args.seed, coordination=coordinated)
     except (ConfigError, ValueError, ConnectionError) as exc:
         return _fail(str(exc))
     signal.signal(signal.SIGTERM, lambda *_: agent.stop())
@@ -430,11 +451,27 @@ def _run_agent(args: argparse.Namespace) -> int:
         print(
             f"{args.robot_id}: {stats.deltas_sent} deltas, {stats.voxels_sent} voxels, "
             f"{stats.bytes_sent} bytes sent, {stats.resent} resent; "
+            f"merged {dict(agent.merged_counts)}; coordinator {dict(agent.coordinator_counts)}; "
             f"map entropy {agent.explorer.map_entropy:,.0f} bits",
             flush=True,
         )
         session.close()
     return 0
+
+
+# -- swarm coordinator --------------------------------------------------------------------
+def _add_coordinator(sub: argparse._SubParsersAction) -> None:
+    from swarm import coordinator
+
+    p = sub.add_parser(
+        "coordinator",
+        help="run the coordinator: eq. 35 targets for the robots, spread apart (Burgard et al.)",
+        description="Run the coordinator of a mission: keep a replica of the team map from merged, "
+        "answer coord/assign with the eq. 35 target that maximises utility minus path cost, lowering "
+        "the utility of targets near those other robots hold. See docs/coordinator.md.",
+    )
+    coordinator.add_arguments(p)
+    p.set_defaults(run=coordinator.run)
 
 
 # -- swarm server -------------------------------------------------------------------------
@@ -520,6 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(sub)
     _add_agent(sub)
     _add_server(sub)
+    _add_coordinator(sub)
     _add_stereo(sub)
     _add_sim(sub)
     return parser
