@@ -358,6 +358,12 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
         type=float,
         help="override sharing.share_min_bits (0 shares every voxel: the utility filter off)",
     )
+    run.add_argument(
+        "--kill-coordinator-at",
+        type=float,
+        metavar="SIM_S",
+        help="fault injection: SIGKILL the coordinator at this sim time (agents must carry on alone)",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(

@@ -62,6 +62,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         max_time_s=args.max_time,
         quiet=args.quiet,
         coordination=coordination,
+        kill_coordinator_at_s=args.kill_coordinator_at,
     )
     print(
         f"mission {mission.mission}: robots {', '.join(mission.robot_ids)}, strategy {args.strategy}, "

@@ -44,6 +44,7 @@ class MissionOptions:
     wall_limit_s: float = 3600.0
     quiet: bool = False
     coordination: str = "coordinator"  # or "none": each robot chooses alone on the shared map
+    kill_coordinator_at_s: float | None = None  # fault injection: SIGKILL it at this sim time
 
 
 @dataclass
@@ -166,12 +167,11 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         out / "server.log",
     )  # fmt: skip
     services = [server]
+    coordinator = None
     if options.coordination != "none":
-        services.append(
-            _child(
-                ["coordinator", "--config", str(config_path), "--connect", endpoint], out / "coordinator.log"
-            )
-        )
+        coordinator_args = ["coordinator", "--config", str(config_path), "--connect", endpoint]
+        coordinator = _child(coordinator_args, out / "coordinator.log")
+        services.append(coordinator)
     client = MapClient(session, name, timeout=2.0)
     _wait_for_server(client, server)
     world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
@@ -192,6 +192,11 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             time.sleep(0.2)
             now = time.monotonic()
             h = monitor.team_entropy
+            kill_at = options.kill_coordinator_at_s
+            if coordinator is not None and kill_at is not None and monitor.sim_time >= kill_at:
+                if coordinator.poll() is None:
+                    coordinator.kill()
+                    print(f"runner: killed the coordinator at sim t={monitor.sim_time:.1f} s", flush=True)
             if h <= threshold:
                 reason = "threshold"
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
