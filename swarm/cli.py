@@ -465,6 +465,21 @@ def _run_agent(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- swarm study --------------------------------------------------------------------------
+def _add_study(sub: argparse._SubParsersAction) -> None:
+    from swarm import study
+
+    p = sub.add_parser(
+        "study",
+        help="run a grid of missions (robots x strategies x coordination x seeds) and tabulate them",
+        description="Run a grid of simulated missions as swarm sim subprocesses, with progress, "
+        "then write results.csv, summary.csv/.md (means over seeds, speed-up over one robot) and "
+        "plots of time to threshold and speed-up. See docs/study.md.",
+    )
+    study.add_arguments(p)
+    p.set_defaults(run=study.run)
+
+
 # -- swarm coordinator --------------------------------------------------------------------
 def _add_coordinator(sub: argparse._SubParsersAction) -> None:
     from swarm import coordinator
@@ -564,6 +579,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_agent(sub)
     _add_server(sub)
     _add_coordinator(sub)
+    _add_study(sub)
     _add_stereo(sub)
     _add_sim(sub)
     return parser
