@@ -971,7 +971,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Example: swarm study configs/office.yaml --robots 1 2 4 --seeds 0 1 2 --out runs/study-office "
         "(Ctrl-C stops it cleanly; run the same command with --resume to finish it)."
     )
-    parser.add_argument("configs", nargs="*", type=Path, metavar="CONFIG", help="mission YAML file(s)")
+    parser.add_argument(
+        "configs",
+        nargs="*",
+        type=Path,
+        metavar="CONFIG",
+        help="mission YAML file(s), given before the options",
+    )
     parser.add_argument(
         "--map",
         dest="maps",

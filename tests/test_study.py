@@ -410,7 +410,8 @@ def test_tiny_study_end_to_end(tmp_path: Path):
     cmd = [
         sys.executable,
         "-m",
-        "swarm.study",
+        "swarm.cli",
+        "study",
         str(cfg),
         "--robots",
         "1",
