@@ -157,37 +157,43 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
         bus.subscribe(session, bus.key_pattern(name, "robot", "*", "status"), monitor.on_status),
     ]
-    store = out / "server-store"
-    if store.exists():
-        shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
-    server_listen = bus.tcp_endpoint(bus.free_port())
-    server = _child(
-        ["server", "--config", str(config_path), "--store", str(store),
-         "--listen", server_listen, "--connect", endpoint],
-        out / "server.log",
-    )  # fmt: skip
-    services = [server]
-    coordinator = None
-    if options.coordination != "none":
-        coordinator_args = ["coordinator", "--config", str(config_path), "--connect", endpoint]
-        coordinator = _child(coordinator_args, out / "coordinator.log")
-        services.append(coordinator)
+    services: list[subprocess.Popen] = []
+    world: subprocess.Popen | None = None
+    agents: list[subprocess.Popen] = []
+    server_map = None
     client = MapClient(session, name, timeout=2.0)
-    _wait_for_server(client, server)
-    world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
-    coordination = "auto" if options.coordination != "none" else "none"
-    agents = [
-        _child(
-            ["agent", "--id", rid, "--connect", endpoint, "--config", str(config_path),
-             "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination],
-            out / f"agent-{rid}.log",
-        )
-        for rid in mission.robot_ids
-    ]  # fmt: skip
     started = time.monotonic()
-    reason = "running"
-    last_print = 0.0
+    reason = "starting"
     try:
+        store = out / "server-store"
+        if store.exists():
+            shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
+        server_listen = bus.tcp_endpoint(bus.free_port())
+        server = _child(
+            ["server", "--config", str(config_path), "--store", str(store),
+             "--listen", server_listen, "--connect", endpoint],
+            out / "server.log",
+        )  # fmt: skip
+        services.append(server)
+        coordinator = None
+        if options.coordination != "none":
+            coordinator_args = ["coordinator", "--config", str(config_path), "--connect", endpoint]
+            coordinator = _child(coordinator_args, out / "coordinator.log")
+            services.append(coordinator)
+        _wait_for_server(client, server)
+        world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
+        coordination = "auto" if options.coordination != "none" else "none"
+        agents = [
+            _child(
+                ["agent", "--id", rid, "--connect", endpoint, "--config", str(config_path),
+                 "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination],
+                out / f"agent-{rid}.log",
+            )
+            for rid in mission.robot_ids
+        ]  # fmt: skip
+        started = time.monotonic()
+        reason = "running"
+        last_print = 0.0
         while True:
             time.sleep(0.2)
             now = time.monotonic()
@@ -218,8 +224,9 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 break
     finally:
         _stop(agents)  # agents flush their pending deltas on SIGTERM
-        _stop([world])
-        server_map = _final_server_map(client, monitor)
+        _stop([world] if world is not None else [])
+        if reason != "starting":
+            server_map = _final_server_map(client, monitor)
         _stop(services)
         for sub in subs:
             sub.undeclare()
@@ -230,8 +237,8 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         "threshold_bits": threshold,
         "server_map": server_map,
         "exit_codes": {
-            "world": world.returncode,
-            "server": server.returncode,
+            "world": world.returncode if world is not None else None,
+            "server": services[0].returncode if services else None,
             **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=True)},
         },
     }
