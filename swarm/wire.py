@@ -109,6 +109,13 @@ def _raw(value: Any, dtype: str, count: int, name: str, kind: str) -> np.ndarray
     return np.frombuffer(value, dtype=dtype).copy()
 
 
+def _indices(value: Any, kind: str) -> np.ndarray:
+    """A raw little-endian uint32 array of any length (voxel indices)."""
+    if not isinstance(value, bytes | bytearray) or len(value) % 4:
+        raise WireError(f"{kind}: idx must be raw uint32 bytes")
+    return _raw(value, "<u4", len(value) // 4, "idx", kind)
+
+
 def _le(array: np.ndarray, dtype: str) -> bytes:
     return np.ascontiguousarray(array, dtype=dtype).tobytes()
 
@@ -438,11 +445,8 @@ class DeltaMessage:
         kind = cls.KIND
         msg = _unpack(payload, kind)
         grid = _grid(_field(msg, "grid", kind), kind)
-        idx_bytes = _field(msg, "idx", kind)
-        if not isinstance(idx_bytes, bytes | bytearray) or len(idx_bytes) % 4:
-            raise WireError(f"{kind}: idx must be raw uint32 bytes")
-        n = len(idx_bytes) // 4
-        idx = _raw(idx_bytes, "<u4", n, "idx", kind)
+        idx = _indices(_field(msg, "idx", kind), kind)
+        n = len(idx)
         dlam = _raw(_field(msg, "dlam", kind), "<f4", n, "dlam", kind)
         deta = _raw(_field(msg, "deta", kind), "<f4", n, "deta", kind)
         if n and int(idx.max()) >= grid.size:
@@ -546,11 +550,8 @@ class Region:
         kind = cls.KIND
         msg = _unpack(payload, kind)
         grid = _grid(_field(msg, "grid", kind), kind)
-        idx_bytes = _field(msg, "idx", kind)
-        if not isinstance(idx_bytes, bytes | bytearray) or len(idx_bytes) % 4:
-            raise WireError(f"{kind}: idx must be raw uint32 bytes")
-        n = len(idx_bytes) // 4
-        idx = _raw(idx_bytes, "<u4", n, "idx", kind)
+        idx = _indices(_field(msg, "idx", kind), kind)
+        n = len(idx)
         if n and int(idx.max()) >= grid.size:
             raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid.size}")
         values = {name: _raw(_field(msg, name, kind), "<f4", n, name, kind) for name in cls._VALUES}

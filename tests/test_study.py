@@ -15,17 +15,7 @@ import pytest
 
 from swarm import study
 from swarm.study import Cell, Skipped, StudySpec, expand_grid, summarize
-
-PLAN = """
-name: tiny
-wall_height: 1.0
-wall_thickness: 0.1
-walls:
-  - points: [[-0.05, -0.05], [2.45, -0.05], [2.45, 2.45], [-0.05, 2.45]]
-    closed: true
-boxes:
-  - {centre: [1.7, 1.6], size: [0.4, 0.4], height: 0.6}
-"""
+from tests.test_mission_e2e import PLAN
 
 # The mission of tests/test_mission_e2e.py with a second robot.
 MISSION = """
