@@ -39,6 +39,7 @@ REPLAN_EVERY = 4  # frames between traversability refreshes while driving
 STUCK_FRAMES = 16  # frames without 5 cm of progress before a target is given up
 FAILED_MEMORY = 12  # how many given-up targets to avoid
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
+MAX_LOOKS_IN_PLACE = 2  # targets in a row at the robot's own cell before it is avoided
 BOXED_IN_CELLS = 30  # fewer reachable cells than this: step blind to free floor beyond
 
 
@@ -94,6 +95,7 @@ class Explorer:
         self.trav: TraversabilityGrid | None = None
         self.failures_in_a_row = 0
         self.looked_before_done = False
+        self.looks_in_place = 0  # targets in a row at the robot's own cell
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
         self.head = 0.0  # the tilt this robot asks for now
@@ -247,20 +249,28 @@ class Explorer:
             self.state = "done"
             return Decision(0.0, 0.0, "done")
         self.looked_before_done = False
+        if np.hypot(*(target.xy - here)) < 0.15:
+            # Already there: just look. Looking from here again and again has not settled
+            # it, though, after MAX_LOOKS_IN_PLACE in a row: try elsewhere.
+            self.looks_in_place += 1
+            if self.looks_in_place <= MAX_LOOKS_IN_PLACE:
+                self.target = target
+                self.state = "gaze"
+                return self._gaze(yaw)
+            self.looks_in_place = 0
+            self.failed.append(np.asarray(target.xy))
+            return Decision(0.0, 0.0, "choose")
         path = planner.plan(start, target.xy)
         if start is not here and path is not None and len(path) < 2:
             path = np.vstack([here, start])  # the target is where the robot leaves from
         if path is None or len(path) < 2:
-            if path is not None and np.hypot(*(target.xy - here)) < 0.15:
-                self.target = target  # already there: just look
-                self.state = "gaze"
-                return self._gaze(yaw)
             self.failed.append(np.asarray(target.xy))
             self.failures_in_a_row += 1
             return Decision(0.0, 0.0, "choose")
         if start is not here and not np.array_equal(path[0], here):
             path = np.vstack([here, path])
         self.failures_in_a_row = 0
+        self.looks_in_place = 0
         self.target = target
         self.follower.set_path(path)
         self.state = "drive"

@@ -61,3 +61,18 @@ def test_a_robot_boxed_in_by_unseen_floor_steps_out_to_the_free_area_beyond():
     path = explorer.follower.remaining_path()
     assert np.allclose(path[0], robot)  # it leaves from where it stands...
     assert np.hypot(*(path[1] - robot)) >= 0.5  # ...straight to free floor beyond the unseen disc
+
+
+def test_a_target_at_the_robots_own_cell_is_avoided_after_two_looks():
+    # A target the robot stands on (within 0.15 m) means "look from here"; when the same
+    # answer keeps coming back, looking has not settled it and the spot is avoided.
+    explorer = gazing_explorer(0.0)
+    here = np.array([1.0, 1.0])
+    explorer.assigner = lambda: ExplorationTarget(here + 0.05, 0.3, 1.0, None, "entropy")
+    explorer.state = "choose"
+    states = []
+    for _ in range(3):
+        decision = explorer.decide(here[0], here[1], 0.3)  # facing the gaze already
+        states.append(decision.state)
+    assert states == ["gaze", "gaze", "choose"]
+    assert len(explorer.failed) == 1 and np.allclose(explorer.failed[0], here + 0.05)
