@@ -375,16 +375,18 @@ def test_interrupt_stops_the_running_missions_cleanly(tmp_path: Path):
         procs.append(subprocess.Popen([sys.executable, "-c", SLEEPER, str(flag)], start_new_session=True))
         return procs[-1]
 
+    interrupted_at: list[float] = []
+
     def echo(line: str) -> None:
         if line.startswith("[2/2]") and line.endswith("started"):  # Ctrl-C while mission 1 runs
-            deadline = time.monotonic() + 20
+            deadline = time.monotonic() + 120  # a loaded machine starts Python slowly
             while not flag.exists() and time.monotonic() < deadline:
                 time.sleep(0.05)
+            interrupted_at.append(time.monotonic())
             raise KeyboardInterrupt
 
-    t0 = time.monotonic()
     assert study.run_study(spec, launch=sleeper, echo=echo) == 130
-    assert time.monotonic() - t0 < 20
+    assert time.monotonic() - interrupted_at[0] < 20  # stopped without the 60 s grace
     assert len(procs) == 1 and procs[0].returncode == 130
     assert flag.read_text() == "stopped cleanly"
     assert _read_csv(out / "results.csv") == []
