@@ -353,7 +353,8 @@ def test_failed_cell_is_recorded_with_its_log_and_the_study_goes_on(tmp_path: Pa
 # -- Ctrl-C --------------------------------------------------------------------------------------
 
 SLEEPER = """
-import pathlib, sys, time
+import pathlib, signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as launch_sim's children (CI may ignore it)
 flag = pathlib.Path(sys.argv[1])
 try:
     flag.write_text("ready")
