@@ -97,8 +97,9 @@ def _run_ingest(args: argparse.Namespace) -> int:
             f"in {r.fusion_seconds:.3f} s ({r.voxel_updates:,} voxel updates)"
         )
         print(
-            f"skipped: {r.skipped_nonfinite} NaN/inf, {r.skipped_outside} leaving the box, "
-            f"{r.skipped_degenerate} zero-length; {r.truncated_at_max_range} cut at max range"
+            f"skipped: {r.skipped_nonfinite} NaN/inf, {r.skipped_outside} outside the box, "
+            f"{r.skipped_degenerate} zero-length; cut: {r.truncated_at_max_range} at max range, "
+            f"{r.clipped_at_box} at the box (free space up to it)"
         )
         print(f"entropy: {r.initial_entropy_bits:,.0f} -> {r.final_entropy_bits:,.0f} bits")
         print(f"wrote {args.out}")

@@ -29,6 +29,7 @@ class IngestReport:
     initial_entropy_bits: float
     final_entropy_bits: float
     truncated_at_max_range: int
+    clipped_at_box: int
     skipped_nonfinite: int
     skipped_outside: int
     skipped_degenerate: int
@@ -66,7 +67,7 @@ def ingest_cloud(
     table = default_table()
     initial = prior_entropy_bits(grid, sensor)
 
-    totals = dict(rays=0, voxel_updates=0, truncated=0, nonfinite=0, outside=0, degenerate=0)
+    totals = dict(rays=0, voxel_updates=0, truncated=0, clipped=0, nonfinite=0, outside=0, degenerate=0)
     seconds = 0.0
     for first in range(0, len(points), chunk_rays):
         t0 = time.perf_counter()
@@ -75,6 +76,7 @@ def ingest_cloud(
         totals["rays"] += r.rays
         totals["voxel_updates"] += r.voxel_updates
         totals["truncated"] += r.truncated
+        totals["clipped"] += r.clipped
         totals["nonfinite"] += r.skipped_nonfinite
         totals["outside"] += r.skipped_outside
         totals["degenerate"] += r.skipped_degenerate
@@ -91,6 +93,7 @@ def ingest_cloud(
         initial_entropy_bits=round(initial, 1),
         final_entropy_bits=round(final, 1),
         truncated_at_max_range=totals["truncated"],
+        clipped_at_box=totals["clipped"],
         skipped_nonfinite=totals["nonfinite"],
         skipped_outside=totals["outside"],
         skipped_degenerate=totals["degenerate"],

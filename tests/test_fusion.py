@@ -113,17 +113,45 @@ def test_nonfinite_degenerate_and_outside_points_are_counted_and_the_rest_fused(
             [np.nan, 0, 0],
             [np.inf, 1, 1],
             [0, 0, 0],
-            [50.0, 0.0, 0.0],
+            [50.0, 0.0, 0.0],  # leaves the grid at x = 3: free space up to there
             [0.5, -0.5, 0.0],
         ]
     )
     result = batch_information(GRID, SensorModel(max_range=100), origin, points)
-    assert (result.skipped_nonfinite, result.skipped_degenerate, result.skipped_outside) == (
-        2,
-        1,
-        1,
-    )
-    assert result.rays == 2 and len(result.delta) > 10
+    assert (result.skipped_nonfinite, result.skipped_degenerate, result.skipped_outside) == (2, 1, 0)
+    assert (result.rays, result.clipped) == (3, 1)
+    outside_sensor = batch_information(GRID, SENSOR, np.array([5.0, 0.0, 0.0]), points[:1])
+    assert (outside_sensor.rays, outside_sensor.skipped_outside, len(outside_sensor.delta)) == (0, 1, 0)
+
+
+def test_a_ray_leaving_the_grid_gives_the_sub_box_what_a_larger_grid_gives_it():
+    """Clipping at the boundary: the map of a sub-box gets exactly the larger map's information there."""
+    sub = Grid((-1.0, -1.0, -0.5), 0.1, (20, 20, 10))
+    sensor = SensorModel(max_range=5.0)
+    rng = np.random.default_rng(3)
+    origin = rng.uniform(-0.4, 0.4, 3) * [1, 1, 0.5]
+    direction = rng.normal(size=(300, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    to_face = np.where(direction > 0, sub.hi - origin, sub.lo - origin) / direction
+    exit_dist = to_face.min(axis=1)
+    points = origin + direction * (exit_dist + rng.uniform(0.3, 1.0, 300))[:, None]  # hits beyond the sub-box
+    points[:20] = origin + direction[:20] * 0.6  # and some hits inside it
+
+    small = batch_information(sub, sensor, origin, points)
+    large = batch_information(GRID, sensor, origin, points)
+    assert small.clipped == 280 + np.count_nonzero(exit_dist[:20] < 0.6) and small.skipped_outside == 0
+    assert small.truncated == 0
+    sub_offset = np.round((sub.lo - GRID.lo) / GRID.voxel).astype(int)
+    sub_ijk = GRID.unflat(large.delta.idx.astype(np.int64)) - sub_offset
+    in_sub = sub.contains_index(sub_ijk)
+    expected_idx = sub.flat(sub_ijk[in_sub])
+    order = np.argsort(expected_idx)
+    np.testing.assert_array_equal(small.delta.idx, expected_idx[order])
+    np.testing.assert_allclose(small.delta.dlam, large.delta.dlam[in_sub][order], rtol=1e-5)
+    np.testing.assert_allclose(small.delta.deta, large.delta.deta[in_sub][order], rtol=1e-5, atol=1e-3)
+    # Free space right up to the boundary: the voxels at the sub-box's faces were updated.
+    faces = sub.unflat(small.delta.idx.astype(np.int64))
+    assert np.any(faces == 0) and np.any(faces == np.asarray(sub.shape) - 1)
 
 
 def test_bad_deltas_are_rejected_whole():

@@ -27,14 +27,15 @@ def run_json(capsys, *args) -> dict:
 
 def test_nonfinite_and_out_of_box_points_are_reported_and_the_rest_fused(tmp_path, capsys):
     good = wall_cloud()
-    bad = np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [-np.inf, 0, 0], [9.0, 0.0, 0.0], [0.5, 5.0, 0.0]])
+    bad = np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [-np.inf, 0, 0], [-9.0, 0.0, 0.0], [0.5, 5.0, 0.0]])
     cloud = tmp_path / "cloud.npy"
     np.save(cloud, np.vstack([good, bad]))
     out = tmp_path / "map.npz"
     report = run_json(capsys, cloud, "--out", out, "--bounds", -1, -2, -1, 3, 2, 1, "--max-range", 20)
     assert report["skipped_nonfinite"] == 3
-    assert report["skipped_outside"] == 2
-    assert report["rays"] == len(good)
+    assert report["skipped_outside"] == 0
+    assert report["clipped_at_box"] == 2  # free space up to the box, no hit
+    assert report["rays"] == len(good) + 2
     assert report["voxel_updates"] > len(good) * 20
     assert report["final_entropy_bits"] < report["initial_entropy_bits"]
     assert report["initial_entropy_bits"] == pytest.approx(7 * report["voxels"], rel=0.01)

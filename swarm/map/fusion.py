@@ -27,16 +27,19 @@ class BatchResult:
     voxel_updates: int  # (ray, voxel) updates
     truncated: int  # rays longer than max range: free space up to max range, no hit
     skipped_nonfinite: int  # NaN/inf points
-    skipped_outside: int  # rays that leave the grid (or start outside it)
+    skipped_outside: int  # rays whose sensor is outside the grid
     skipped_degenerate: int  # zero-length rays
+    clipped: int = 0  # rays that leave the grid: free space up to its boundary, no hit
 
 
 def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, points: np.ndarray) -> BatchResult:
     """Information increments of one batch: sensor at ``origin`` (3,), hit points (N, 3), world metres.
 
-    Points that are NaN/inf, rays that leave the grid, and zero-length rays are skipped
-    and counted. Rays longer than ``sensor.max_range`` update free space up to max range
-    with the sensor model at their true range d, and give no hit (as OctoMap's max range).
+    Points that are NaN/inf, zero-length rays and all rays of a sensor outside the grid
+    are skipped and counted. Rays longer than ``sensor.max_range`` update free space up to
+    max range with the sensor model at their true range d, and give no hit (as OctoMap's
+    max range). Rays that leave the grid are treated alike at the grid's boundary: the
+    voxels they cross inside it are free space, whatever lies beyond.
     """
     origin = np.asarray(origin, dtype=np.float64).reshape(3)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -49,10 +52,21 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
     nondegenerate = dist > 1e-9
     vec, dist = vec[nondegenerate], dist[nondegenerate]
     returned = dist <= sensor.max_range
+    truncated = ~returned
     reach = np.where(returned, 1.0, sensor.max_range / dist)
-    end = origin + vec * reach[:, None]
-    inside = grid.contains_point(end) & bool(grid.contains_point(origin))
-    end, dist, returned = end[inside], dist[inside], returned[inside]
+    if grid.contains_point(origin):
+        exit_at = _grid_exit(grid, origin, vec)
+        clipped = reach >= exit_at
+        # Stop a hair (1e-6 voxel) inside the boundary, which is the first point outside.
+        reach = np.where(clipped, exit_at - 1e-6 * grid.voxel / dist, reach)
+        returned &= ~clipped
+        end = origin + vec * reach[:, None]
+        inside = (reach * dist > 1e-9) & grid.contains_point(end)
+    else:
+        clipped = np.zeros(len(vec), dtype=bool)
+        end = origin + vec
+        inside = np.zeros(len(vec), dtype=bool)
+    end, dist, returned, truncated = end[inside], dist[inside], returned[inside], truncated[inside]
 
     voxels = traverse(grid, origin, end, hit=returned)
     i, j, k, ray = voxels.i, voxels.j, voxels.k, voxels.ray
@@ -79,11 +93,21 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
         delta=Delta.accumulate(grid.flat_of(i, j, k), lam, eta, grid.size),
         rays=len(end),
         voxel_updates=len(ray),
-        truncated=int((~returned).sum()),
+        truncated=int(truncated.sum()),
         skipped_nonfinite=int((~finite).sum()),
         skipped_outside=int((~inside).sum()),
         skipped_degenerate=int((~nondegenerate).sum()),
+        clipped=int((clipped & inside).sum()),
     )
+
+
+def _grid_exit(grid: Grid, origin: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """Where rays from ``origin`` (inside the grid) leave it, as t in units of each ray's ``vec``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_hi = (grid.hi - origin) / vec
+        t_lo = (grid.lo - origin) / vec
+    t_axis = np.where(vec > 0, t_hi, np.where(vec < 0, t_lo, np.inf))
+    return t_axis.min(axis=1)
 
 
 def _information(
