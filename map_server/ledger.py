@@ -48,13 +48,8 @@ class Rejected(ValueError):
 
 
 def same_grid(a: Grid, b: Grid) -> bool:
-    """Equal shapes, and origins and voxel sizes equal to a millionth of a voxel."""
-    tol = 1e-6 * min(a.voxel, b.voxel)
-    return (
-        a.shape == b.shape
-        and abs(a.voxel - b.voxel) <= tol
-        and all(abs(x - y) <= tol for x, y in zip(a.origin, b.origin, strict=True))
-    )
+    """The same voxels (``Grid.matches``)."""
+    return a.matches(b)
 
 
 def describe_grid(grid: Grid) -> str:

@@ -188,7 +188,7 @@ class Agent:
                 return applied
             try:
                 msg = DeltaMessage.decode(payload)
-                if msg.grid != self.explorer.grid:
+                if not self.explorer.grid.matches(msg.grid):
                     raise WireError(f"merged delta on grid {msg.grid}, not the mission's")
             except WireError as exc:
                 self.merged_counts["rejected"] += 1

@@ -122,7 +122,7 @@ class Explorer:
 
     def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
         """Start from the team map (a server snapshot, prior included); before any frame."""
-        if grid != self.grid:
+        if not self.grid.matches(grid):
             raise ValueError(f"the team map's grid {grid} is not the mission's {self.grid}")
         self.map = CoverageMap(self.grid, self.sensor, lam, eta)
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)

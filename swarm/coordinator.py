@@ -102,15 +102,9 @@ class TeamMap:
         self.counts: Counter[str] = Counter()
         self._seen = AppliedDeltas()
 
-    def _same_grid(self, grid: Grid) -> bool:
-        return grid.shape == self.grid.shape and bool(
-            np.allclose(grid.origin, self.grid.origin, atol=1e-9)
-            and math.isclose(grid.voxel, self.grid.voxel)
-        )
-
     def load_snapshot(self, snap: Snapshot) -> None:
         """Start from a map server's snapshot; the deltas its acks cover count as applied."""
-        if not self._same_grid(snap.grid):
+        if not self.grid.matches(snap.grid):
             raise ValueError(f"snapshot grid {snap.grid} is not the mission's {self.grid}")
         with self.lock:
             self.map = CoverageMap(self.grid, self.map.sensor, snap.lam, snap.eta)
@@ -122,7 +116,7 @@ class TeamMap:
         (counted as rejected) for a malformed message or one on another grid."""
         try:
             msg = DeltaMessage.decode(payload)
-            if not self._same_grid(msg.grid):
+            if not self.grid.matches(msg.grid):
                 raise WireError(f"delta: grid {msg.grid} is not the mission's {self.grid}")
         except WireError:
             self.counts["rejected"] += 1

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm import bus
+from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
@@ -62,7 +63,8 @@ class TeamMonitor:
     sim_time: float = 0.0
     dead: list[str] = field(default_factory=list)
     rejected: int = 0
-    seen: set = field(default_factory=set)
+    seen: AppliedDeltas = field(default_factory=AppliedDeltas)
+    applied: int = 0  # distinct deltas in the map
 
     def __post_init__(self) -> None:
         grid = self.mission.workspace.grid()
@@ -74,12 +76,15 @@ class TeamMonitor:
     def on_delta(self, _key: str, payload: bytes) -> None:
         try:
             msg = DeltaMessage.decode(payload)
+            if not self.cmap.grid.matches(msg.grid):
+                raise WireError(f"delta on grid {msg.grid}, not the mission's {self.cmap.grid}")
             delta = Delta(msg.idx, msg.dlam, msg.deta)
             with self._lock:
                 if (msg.robot, msg.epoch, msg.seq) in self.seen:
                     return  # a resend: already counted
                 self.cmap.apply(delta)
-                self.seen.add((msg.robot, msg.epoch, msg.seq))
+                self.seen.add(msg.robot, msg.epoch, msg.seq)
+                self.applied += 1
                 idx = msg.idx.astype(np.int64)
                 self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
                 self.curve.append((float(msg.t), float(self.entropy.total)))
@@ -262,7 +267,7 @@ def _wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float
 def _final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 20.0) -> CoverageMap | None:
     """The server's map once it has applied every delta the monitor saw (None if it never did)."""
     deadline = time.monotonic() + timeout
-    expected = len(monitor.seen)
+    expected = monitor.applied
     while time.monotonic() < deadline:
         try:
             stats = client.stats()

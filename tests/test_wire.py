@@ -176,3 +176,14 @@ def test_pose_frames():
     np.testing.assert_allclose(r @ [0, 0, 1], [0, 1, 0], atol=1e-12)
     np.testing.assert_allclose(r @ [1, 0, 0], [1, 0, 0], atol=1e-12)
     np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, -1], atol=1e-12)
+
+
+def test_grid_matches_across_rounding_but_not_across_voxels():
+    """Every role tests grids with Grid.matches: YAML/msgpack rounding passes, another grid does not."""
+    grid = Grid((18.0, 0.0, 0.0), 0.1, (122, 80, 22))
+    rounded = Grid((18.0 + 1e-9, 1e-12, 0.0), 0.1 * (1 + 1e-9), (122, 80, 22))
+    assert grid.matches(rounded) and rounded.matches(grid)
+    assert grid.matches(Grid.from_dict(msgpack.unpackb(msgpack.packb(grid.to_dict()))))
+    assert not grid.matches(Grid((18.05, 0.0, 0.0), 0.1, (122, 80, 22)))  # half a voxel off
+    assert not grid.matches(Grid((18.0, 0.0, 0.0), 0.1, (122, 80, 23)))
+    assert not grid.matches(Grid((18.0, 0.0, 0.0), 0.1001, (122, 80, 22)))

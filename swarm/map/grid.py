@@ -113,6 +113,19 @@ class Grid:
                 f"voxel index out of grid: range [{flat.min()}, {flat.max()}] for {self.size} voxels"
             )
 
+    def matches(self, other: Grid) -> bool:
+        """The same voxels: equal shapes, origins and voxel sizes equal to a millionth of a voxel.
+
+        The one grid test of every role (server, coordinator, agents): a grid that went
+        through YAML, msgpack or a file compares equal to the mission's despite rounding.
+        """
+        tol = 1e-6 * min(self.voxel, other.voxel)
+        return (
+            tuple(self.shape) == tuple(other.shape)
+            and abs(self.voxel - other.voxel) <= tol
+            and all(abs(a - b) <= tol for a, b in zip(self.origin, other.origin, strict=True))
+        )
+
     def to_dict(self) -> dict:
         """Wire/file form: ``{origin, voxel, shape}``."""
         return {"origin": list(self.origin), "voxel": self.voxel, "shape": list(self.shape)}
