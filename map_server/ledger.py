@@ -174,6 +174,14 @@ class Ledger:
             out.setdefault(robot, {})[epoch] = seqs.contiguous
         return out
 
+    def above(self) -> dict[str, dict[int, list[int]]]:
+        """``{robot: {epoch: [seqs applied beyond the contiguous prefix]}}``, only where there are some."""
+        out: dict[str, dict[int, list[int]]] = {}
+        for (robot, epoch), seqs in self._seqs.items():
+            if seqs.above:
+                out.setdefault(robot, {})[epoch] = sorted(seqs.above)
+        return out
+
     def robots(self) -> dict[str, dict[str, int]]:
         """Per robot: ``deltas`` applied (all epochs), and ``epoch``, ``last_seq`` (highest
         applied) and ``acked_seq`` (contiguous) of its latest epoch."""

@@ -124,8 +124,10 @@ class TeamMap:
         }
 
     def snapshot(self) -> Snapshot:
-        """A copy of the whole map (prior included) and the acks."""
-        return Snapshot(self.grid, self.cmap.lam.copy(), self.cmap.eta.copy(), self.acks())
+        """A copy of the whole map (prior included), the acks and the seqs applied beyond them."""
+        return Snapshot(
+            self.grid, self.cmap.lam.copy(), self.cmap.eta.copy(), self.acks(), self.ledger.above()
+        )
 
     def region(self, lo: np.ndarray, hi: np.ndarray) -> Region:
         """Beliefs of the voxels whose cells overlap the box [lo, hi] (empty when it misses the grid).

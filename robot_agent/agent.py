@@ -173,7 +173,7 @@ class Agent:
         except ValueError as exc:
             log.warning("%s: ignored the server's snapshot: %s", self.robot_id, exc)
             return False
-        self.applied.cover(snap.acks)
+        self.applied.cover(snap.acks, snap.above)
         entropy = self.explorer.map_entropy
         log.info("%s: started from the team map (entropy %.0f bits)", self.robot_id, entropy)
         return True

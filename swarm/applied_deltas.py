@@ -8,7 +8,7 @@ repeated message changes nothing and a snapshot's acks count as already applied.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 
 class SeqSet:
@@ -56,11 +56,20 @@ class AppliedDeltas:
         seqs = self._sets.get((robot, int(epoch)))
         return seqs is not None and int(seq) in seqs
 
-    def cover(self, acks: Mapping[str, Mapping[int, int]]) -> None:
-        """Count the deltas a snapshot's ``acks`` ({robot: {epoch: last seq}}) cover."""
+    def cover(
+        self,
+        acks: Mapping[str, Mapping[int, int]],
+        above: Mapping[str, Mapping[int, Iterable[int]]] | None = None,
+    ) -> None:
+        """Count the deltas a snapshot holds as applied: its ``acks`` ({robot: {epoch: last
+        contiguous seq}}) and the seqs ``above`` them ({robot: {epoch: [seq, ...]}})."""
         for robot, by_epoch in acks.items():
             for epoch, seq in by_epoch.items():
                 self._sets.setdefault((robot, int(epoch)), SeqSet()).cover(int(seq))
+        for robot, by_epoch in (above or {}).items():
+            for epoch, seqs in by_epoch.items():
+                for seq in seqs:
+                    self.add(robot, epoch, seq)
 
     def acks(self) -> dict[str, dict[int, int]]:
         """The contiguous prefix per (robot, epoch), in the shape of ``map/acks``."""

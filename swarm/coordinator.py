@@ -109,7 +109,7 @@ class TeamMap:
         with self.lock:
             self.map = CoverageMap(self.grid, self.map.sensor, snap.lam, snap.eta)
             self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
-            self._seen.cover(snap.acks)
+            self._seen.cover(snap.acks, snap.above)
 
     def apply_payload(self, payload: bytes) -> str:
         """Apply one ``merged`` payload: returns "applied" or "duplicate"; raises WireError

@@ -469,12 +469,19 @@ class DeltaMessage:
 
 @dataclass
 class Snapshot:
-    """The whole team map in information form (prior included) and the server's acks."""
+    """The whole team map in information form (prior included) and the deltas it holds.
+
+    ``acks`` is the contiguous prefix per (robot, epoch), as ``map/acks``; ``above`` lists
+    the seqs applied beyond that prefix (optional on the wire, empty when absent), so that a
+    replica started from the snapshot counts every delta in it as applied, not only the
+    prefix, and never adds one twice.
+    """
 
     grid: Grid
     lam: np.ndarray
     eta: np.ndarray
     acks: dict[str, dict[int, int]] = field(default_factory=dict)
+    above: dict[str, dict[int, list[int]]] = field(default_factory=dict)
 
     KIND = "snapshot"
 
@@ -487,6 +494,10 @@ class Snapshot:
                 "eta": _le(np.ravel(self.eta), "<f4"),
                 "acks": {
                     str(r): {int(e): int(s) for e, s in by_epoch.items()} for r, by_epoch in self.acks.items()
+                },
+                "above": {
+                    str(r): {int(e): sorted(int(s) for s in seqs) for e, seqs in by_epoch.items()}
+                    for r, by_epoch in self.above.items()
                 },
             },
         )
@@ -507,7 +518,18 @@ class Snapshot:
             str(r): {int(e): _integer(s, f"acks.{r}", kind) for e, s in by_epoch.items()}
             for r, by_epoch in acks.items()
         }
-        return cls(grid, lam, eta, acks)
+        above = msg.get("above", {})
+        if not (
+            isinstance(above, dict)
+            and all(isinstance(v, dict) for v in above.values())
+            and all(isinstance(seqs, list) for v in above.values() for seqs in v.values())
+        ):
+            raise WireError(f"{kind}: above must be a map robot -> {{epoch: [seq, ...]}}")
+        above = {
+            str(r): {int(e): [_integer(s, f"above.{r}", kind) for s in seqs] for e, seqs in by_epoch.items()}
+            for r, by_epoch in above.items()
+        }
+        return cls(grid, lam, eta, acks, above)
 
 
 # -- map/region reply ---------------------------------------------------------------------

@@ -16,12 +16,14 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from map_server.team_map import TeamMap as ServerTeamMap
 from swarm import bus
 from swarm.config import mission_from_dict
 from swarm.coordination import CoordinationParams
 from swarm.coordinator import (
     Coordinator,
     CoordinatorState,
+    TeamMap,
     add_arguments,
     ask_for_target,
     params_from_mission,
@@ -195,6 +197,33 @@ def query(session, name: str, payload: bytes, timeout: float = 5.0):
     replies = list(session.get(bus.key(name, "coord", "assign"), payload=payload, timeout=timeout))
     assert len(replies) == 1
     return replies[0]
+
+
+def test_a_replica_started_from_a_snapshot_adds_no_delta_twice_even_beyond_the_acks():
+    """Seq 1 is late at the server, 2 and 3 are in its map: the snapshot's acks cover nothing,
+    its ``above`` covers 2 and 3, so the replica takes only seq 1 from the merged stream."""
+    m = mission()
+    grid, sensor = m.workspace.grid(), m.sensor.model()
+    d1, d2, d3 = deltas_of(m, corridor_map(m), "r9", 1, 3)
+    server = ServerTeamMap(grid, sensor)
+    for msg in (d2, d3):
+        assert server.admit(msg)
+        server.apply(msg)
+    snap = Snapshot.decode(server.snapshot().encode())
+    assert snap.acks == {"r9": {1: 0}} and snap.above == {"r9": {1: [2, 3]}}
+
+    replica = TeamMap(grid, sensor)
+    replica.load_snapshot(snap)
+    assert [replica.apply_payload(msg.encode()) for msg in (d3, d1, d2, d1)] == [
+        "duplicate",
+        "applied",
+        "duplicate",
+        "duplicate",
+    ]
+    assert server.admit(d1)
+    server.apply(d1)
+    np.testing.assert_allclose(replica.map.lam, server.cmap.lam, rtol=1e-6)
+    np.testing.assert_allclose(replica.map.eta, server.cmap.eta, rtol=1e-6, atol=1e-3)
 
 
 def test_coordinator_role_over_zenoh():

@@ -157,9 +157,14 @@ def test_delta_round_trip_and_checks():
 
 def test_snapshot_round_trip():
     grid = Grid((0.0, 0.0, 0.0), 0.1, (2, 2, 2))
-    snap = Snapshot(grid, np.full(8, 0.2, np.float32), np.full(8, 0.1, np.float32), {"r1": {17: 4}})
+    snap = Snapshot(
+        grid, np.full(8, 0.2, np.float32), np.full(8, 0.1, np.float32), {"r1": {17: 4}}, {"r1": {17: [7, 6]}}
+    )
     back = Snapshot.decode(snap.encode())
-    assert back.acks == {"r1": {17: 4}}
+    assert back.acks == {"r1": {17: 4}} and back.above == {"r1": {17: [6, 7]}}
+    assert Snapshot.decode(tamper(snap.encode(), above=None)).above == {}  # optional: older servers
+    with pytest.raises(WireError, match="above must be"):
+        Snapshot.decode(tamper(snap.encode(), above={"r1": {17: 5}}))
     np.testing.assert_array_equal(back.lam, snap.lam)
     with pytest.raises(WireError, match="lam has 28 bytes"):
         Snapshot.decode(tamper(snap.encode(), lam=np.zeros(7, "<f4").tobytes()))
