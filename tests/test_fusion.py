@@ -12,6 +12,7 @@ from tests.test_traversal import reference
 
 GRID = Grid((-3.0, -3.0, -1.0), 0.1, (60, 60, 30))
 SENSOR = SensorModel(max_range=2.3)
+SENSOR_5M = SensorModel(max_range=5.0)
 
 
 def random_batch(rng, n=200):
@@ -134,12 +135,13 @@ def test_a_ray_leaving_the_grid_gives_the_sub_box_what_a_larger_grid_gives_it():
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     to_face = np.where(direction > 0, sub.hi - origin, sub.lo - origin) / direction
     exit_dist = to_face.min(axis=1)
-    points = origin + direction * (exit_dist + rng.uniform(0.3, 1.0, 300))[:, None]  # hits beyond the sub-box
-    points[:20] = origin + direction[:20] * 0.6  # and some hits inside it
+    beyond = rng.uniform(0.3, 0.45, 300)  # past the margin (2 voxels), and inside GRID
+    points = origin + direction * (exit_dist + beyond)[:, None]  # hits beyond the sub-box
+    points[:20] = origin + direction[:20] * 0.5 * exit_dist[:20, None]  # and some hits inside it
 
     small = batch_information(sub, sensor, origin, points)
     large = batch_information(GRID, sensor, origin, points)
-    assert small.clipped == 280 + np.count_nonzero(exit_dist[:20] < 0.6) and small.skipped_outside == 0
+    assert small.clipped == 280 and small.skipped_outside == 0
     assert small.truncated == 0
     sub_offset = np.round((sub.lo - GRID.lo) / GRID.voxel).astype(int)
     sub_ijk = GRID.unflat(large.delta.idx.astype(np.int64)) - sub_offset
@@ -152,6 +154,25 @@ def test_a_ray_leaving_the_grid_gives_the_sub_box_what_a_larger_grid_gives_it():
     # Free space right up to the boundary: the voxels at the sub-box's faces were updated.
     faces = sub.unflat(small.delta.idx.astype(np.int64))
     assert np.any(faces == 0) and np.any(faces == np.asarray(sub.shape) - 1)
+
+
+def test_a_wall_on_the_boundary_is_not_cleared_by_points_seen_just_beyond_it():
+    """Points within the boundary margin beyond the grid are skipped, not cut: half the hits
+    on a wall in the grid's outer layer (x 2.9-3.0) are seen 0.15 m too far, at x = 3.1."""
+    origin = np.array([0.0, 0.0, 0.05])
+    ys = np.linspace(-0.3, 0.3, 25)
+    near = np.column_stack([np.full(25, 2.91), ys, np.full(25, 0.05)])
+    far = np.column_stack([np.full(25, 3.1), ys, np.full(25, 0.05)])
+    result = batch_information(GRID, SENSOR_5M, origin, np.vstack([near, far]))
+    assert (result.rays, result.skipped_outside, result.clipped) == (25, 25, 0)
+    cmap = CoverageMap(GRID, SENSOR_5M)
+    cmap.apply(result.delta)
+    wall = GRID.flat(GRID.index_of(near[12:13]))
+    assert cmap.mean()[wall][0] > 0.5
+    # Well beyond the margin (10% of the range, at least 2 voxels) a ray is cut and kept.
+    far_and_near = np.array([[3.45, 0.0, 0.05], [3.25, 0.0, 0.05]])
+    beyond = batch_information(GRID, SENSOR_5M, origin, far_and_near)
+    assert (beyond.clipped, beyond.skipped_outside) == (1, 1)
 
 
 def test_bad_deltas_are_rejected_whole():

@@ -17,6 +17,14 @@ from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.map.traversal import traverse
 
+#: A ray whose point lies beyond the grid's boundary by at most this share of its range (or
+#: BOUNDARY_MARGIN_VOXELS voxels, whichever is more) is skipped, not cut at the boundary: the
+#: point may be a surface on the boundary seen with a range error (a wall forming the
+#: workspace's outer layer, stereo depth overestimated by 0.1-0.5 m at 3-5 m), and the
+#: free-space update of the cut ray would clear that surface without the hit that balances it.
+BOUNDARY_MARGIN_FRACTION = 0.1
+BOUNDARY_MARGIN_VOXELS = 2.0
+
 
 @dataclass(frozen=True)
 class BatchResult:
@@ -27,7 +35,7 @@ class BatchResult:
     voxel_updates: int  # (ray, voxel) updates
     truncated: int  # rays longer than max range: free space up to max range, no hit
     skipped_nonfinite: int  # NaN/inf points
-    skipped_outside: int  # rays whose sensor is outside the grid
+    skipped_outside: int  # sensor outside the grid, or point just beyond its boundary
     skipped_degenerate: int  # zero-length rays
     clipped: int = 0  # rays that leave the grid: free space up to its boundary, no hit
 
@@ -39,7 +47,8 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
     are skipped and counted. Rays longer than ``sensor.max_range`` update free space up to
     max range with the sensor model at their true range d, and give no hit (as OctoMap's
     max range). Rays that leave the grid are treated alike at the grid's boundary: the
-    voxels they cross inside it are free space, whatever lies beyond.
+    voxels they cross inside it are free space, whatever lies beyond; but a point within
+    the boundary margin (``BOUNDARY_MARGIN_FRACTION``) beyond the boundary is skipped.
     """
     origin = np.asarray(origin, dtype=np.float64).reshape(3)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -56,7 +65,8 @@ def batch_information(grid: Grid, sensor: SensorModel, origin: np.ndarray, point
     reach = np.where(returned, 1.0, sensor.max_range / dist)
     if grid.contains_point(origin):
         exit_at = _grid_exit(grid, origin, vec)
-        clipped = reach >= exit_at
+        margin = np.maximum(BOUNDARY_MARGIN_FRACTION * dist, BOUNDARY_MARGIN_VOXELS * grid.voxel)
+        clipped = (reach >= exit_at) & ((1.0 - exit_at) * dist > margin)
         # Stop a hair (1e-6 voxel) inside the boundary, which is the first point outside.
         reach = np.where(clipped, exit_at - 1e-6 * grid.voxel / dist, reach)
         returned &= ~clipped
