@@ -109,11 +109,14 @@ def _raw(value: Any, dtype: str, count: int, name: str, kind: str) -> np.ndarray
     return np.frombuffer(value, dtype=dtype).copy()
 
 
-def _indices(value: Any, kind: str) -> np.ndarray:
-    """A raw little-endian uint32 array of any length (voxel indices)."""
+def _indices(value: Any, kind: str, grid_size: int) -> np.ndarray:
+    """A raw little-endian uint32 array of any length: voxel indices, each below ``grid_size``."""
     if not isinstance(value, bytes | bytearray) or len(value) % 4:
         raise WireError(f"{kind}: idx must be raw uint32 bytes")
-    return _raw(value, "<u4", len(value) // 4, "idx", kind)
+    idx = _raw(value, "<u4", len(value) // 4, "idx", kind)
+    if len(idx) and int(idx.max()) >= grid_size:
+        raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid_size}")
+    return idx
 
 
 def _le(array: np.ndarray, dtype: str) -> bytes:
@@ -445,12 +448,10 @@ class DeltaMessage:
         kind = cls.KIND
         msg = _unpack(payload, kind)
         grid = _grid(_field(msg, "grid", kind), kind)
-        idx = _indices(_field(msg, "idx", kind), kind)
+        idx = _indices(_field(msg, "idx", kind), kind, grid.size)
         n = len(idx)
         dlam = _raw(_field(msg, "dlam", kind), "<f4", n, "dlam", kind)
         deta = _raw(_field(msg, "deta", kind), "<f4", n, "deta", kind)
-        if n and int(idx.max()) >= grid.size:
-            raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid.size}")
         _information(dlam, deta, kind, ("dlam", "deta"))
         return cls(
             robot=_text(_field(msg, "robot", kind), "robot", kind),
@@ -572,10 +573,8 @@ class Region:
         kind = cls.KIND
         msg = _unpack(payload, kind)
         grid = _grid(_field(msg, "grid", kind), kind)
-        idx = _indices(_field(msg, "idx", kind), kind)
+        idx = _indices(_field(msg, "idx", kind), kind, grid.size)
         n = len(idx)
-        if n and int(idx.max()) >= grid.size:
-            raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid.size}")
         values = {name: _raw(_field(msg, name, kind), "<f4", n, name, kind) for name in cls._VALUES}
         return cls(grid, idx, **values)
 
