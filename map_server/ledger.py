@@ -47,11 +47,6 @@ class Rejected(ValueError):
 # -- validation ----------------------------------------------------------------------------
 
 
-def same_grid(a: Grid, b: Grid) -> bool:
-    """The same voxels (``Grid.matches``)."""
-    return a.matches(b)
-
-
 def describe_grid(grid: Grid) -> str:
     return f"shape {list(grid.shape)} voxel {grid.voxel:g} origin {[round(v, 6) for v in grid.origin]}"
 
@@ -66,7 +61,7 @@ def validate_delta(payload: bytes, grid: Grid, robot: str | None = None) -> Delt
         msg = DeltaMessage.decode(payload)
     except WireError as exc:
         raise Rejected(_classify(payload, grid), str(exc)) from exc
-    if not same_grid(msg.grid, grid):
+    if not grid.matches(msg.grid):
         raise Rejected(
             "wrong_grid", f"delta: grid {describe_grid(msg.grid)} is not the mission's {describe_grid(grid)}"
         )
@@ -93,7 +88,7 @@ def _classify(payload: Any, grid: Grid) -> str:
         sent = Grid.from_dict(msg["grid"])
     except (KeyError, TypeError, ValueError):
         return "malformed"
-    if not same_grid(sent, grid):
+    if not grid.matches(sent):
         return "wrong_grid"
     arrays = [msg.get(name) for name in ("idx", "dlam", "deta")]
     if not all(isinstance(a, bytes) for a in arrays) or len(arrays[0]) % 4:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_server.ledger import describe_grid, same_grid
+from map_server.ledger import describe_grid
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 
@@ -76,7 +76,7 @@ class StoreIdentity:
             sensor = SensorModel(**data["sensor"])
         except (KeyError, TypeError, ValueError):
             return False
-        return data.get("mission") == self.mission and same_grid(grid, self.grid) and sensor == self.sensor
+        return data.get("mission") == self.mission and grid.matches(self.grid) and sensor == self.sensor
 
     def describe(self) -> str:
         return f"mission {self.mission!r}, grid {describe_grid(self.grid)}, sensor {self.sensor}"
@@ -246,7 +246,7 @@ class Store:
                 generation = int(data["wal"])
         except (OSError, KeyError, ValueError) as exc:
             raise StoreError(f"{snap_path}: cannot read snapshot: {exc}") from exc
-        if not same_grid(grid, identity.grid) or lam.shape != (grid.size,) or eta.shape != (grid.size,):
+        if not grid.matches(identity.grid) or lam.shape != (grid.size,) or eta.shape != (grid.size,):
             raise StoreError(f"{snap_path}: snapshot grid {describe_grid(grid)} does not match the store")
         out.lam, out.eta = lam, eta
         return generation
