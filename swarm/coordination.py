@@ -24,6 +24,14 @@ IEEE T-RO 21(3), 2005, algorithm 1), with our choices of U, P and normalisation:
    while anything else with positive utility is left. Only when every target is within a
    footprint does the discount alone decide.
 
+Our addition, for robots that have already mapped part of the world: before step 2, robot
+r's utility of t is also lowered by the ground only its teammates have seen,
+U_t <- U_t (1 - w f_r(t)), where f_r(t) is the share of the x-y cells within R of t that
+another robot has observed and r has not (:func:`teammates_share`, from the per-robot
+:class:`ObservedColumns`) and w in [0, 1] is ``overlap_weight``. Burgard's discount keeps
+robots away from where the others are going; this one keeps each robot away from where the
+others have been, since whatever r observes there is observed a second time.
+
 For one request (robot r asks again; the others keep what they hold) the targets held by
 the other robots count as chosen already: steps 3-4 are applied for each of them, then step
 2 is taken for r alone (:func:`best_target`). :class:`AssignmentBook` keeps who holds what
@@ -42,12 +50,14 @@ __all__ = [
     "DONE_STATES",
     "AssignmentBook",
     "CoordinationParams",
+    "ObservedColumns",
     "RobotRecord",
     "assign_team",
     "best_target",
     "discounted_utilities",
     "normalised_utilities",
     "outside_footprints",
+    "teammates_share",
     "visibility_discount",
 ]
 
@@ -63,7 +73,9 @@ class CoordinationParams:
 
     ``beta`` (1/m): utility lost per metre of path (U is normalised to 1 for the best
     target), so 0.1 means ten metres of travel cost as much as the best target is worth.
-    ``footprint_radius`` (m): R of the discount P(d) and of the hard spacing.
+    ``footprint_radius`` (m): R of the discount P(d), of the hard spacing and of the
+    teammates' share f_r(t). ``overlap_weight`` (w, 0-1): how much of a target's utility the
+    ground only teammates have seen takes away (0: Burgard's rule alone).
     ``robot_timeout_s``: a robot not heard from (status or request) for longer than this
     loses its target. ``status_grace_s``: for this long after an assignment, the robot's
     statuses do not change its target (they may have been sent before it got the answer),
@@ -72,6 +84,7 @@ class CoordinationParams:
 
     beta: float = 0.1
     footprint_radius: float = 3.0
+    overlap_weight: float = 1.0
     robot_timeout_s: float = 10.0
     status_grace_s: float = 2.0
 
@@ -79,6 +92,7 @@ class CoordinationParams:
         checks = {
             "beta": self.beta >= 0,
             "footprint_radius": self.footprint_radius > 0,
+            "overlap_weight": 0 <= self.overlap_weight <= 1,
             "robot_timeout_s": self.robot_timeout_s > 0,
             "status_grace_s": self.status_grace_s >= 0,
         }
@@ -142,6 +156,48 @@ def outside_footprints(positions, chosen, footprint_radius: float) -> np.ndarray
     return np.all(_distances(pos, ch) >= footprint_radius, axis=1)
 
 
+def teammates_share(points, teammates_only: np.ndarray, lo, voxel: float, radius: float) -> np.ndarray:
+    """f_r(t) of the module doc: for each point, the share of the x-y cells within ``radius``
+    of it (inside the grid) that are True in ``teammates_only`` (nx, ny).
+
+    ``lo`` is the grid's x-y origin and ``voxel`` its cell size (m); a point's own cell is
+    the one it lies in. Points outside the grid count only the in-grid part of their disc
+    (0.0 when none of it is inside).
+    """
+    mask = np.asarray(teammates_only, dtype=bool)
+    pts = _points(points, "points")
+    if mask.ndim != 2:
+        raise ValueError(f"teammates_only must be an (nx, ny) mask, got shape {mask.shape}")
+    if not (voxel > 0 and radius >= 0):
+        raise ValueError(f"voxel must be > 0 and radius >= 0, got {voxel!r} and {radius!r}")
+    if len(pts) == 0:
+        return np.zeros(0)
+    reach = int(math.floor(radius / voxel))
+    d = np.arange(-reach, reach + 1)
+    dx, dy = np.meshgrid(d, d, indexing="ij")
+    inside = (dx * dx + dy * dy) * voxel * voxel <= radius * radius
+    offsets = np.stack([dx[inside], dy[inside]], axis=-1)  # (M, 2)
+    cells = np.floor((pts - np.asarray(lo, dtype=np.float64)[:2]) / voxel).astype(np.int64)
+    around = cells[:, None, :] + offsets[None, :, :]  # (K, M, 2)
+    nx, ny = mask.shape
+    valid = (around[..., 0] >= 0) & (around[..., 0] < nx) & (around[..., 1] >= 0) & (around[..., 1] < ny)
+    ix = np.clip(around[..., 0], 0, nx - 1)
+    iy = np.clip(around[..., 1], 0, ny - 1)
+    hits = (mask[ix, iy] & valid).sum(axis=1)
+    total = valid.sum(axis=1)
+    return np.where(total > 0, hits / np.maximum(total, 1), 0.0)
+
+
+def _own_utilities(utilities: np.ndarray, shares, weight: float) -> np.ndarray:
+    """U_t (1 - w f_r(t)): the module doc's lowering for ground only teammates have seen."""
+    if shares is None:
+        return utilities
+    f = np.asarray(shares, dtype=np.float64)
+    if f.shape != utilities.shape:
+        raise ValueError(f"teammates' shares have shape {f.shape}, utilities {utilities.shape}")
+    return utilities * (1.0 - weight * np.clip(np.nan_to_num(f), 0.0, 1.0))
+
+
 def _eligible(utilities: np.ndarray, outside: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """Step 4: only targets outside every footprint while any of them has U > 0; else any
     with U > 0 (a target at a chosen one has U = 0, so it is never given twice)."""
@@ -156,13 +212,16 @@ def best_target(
     costs,
     held: Sequence | np.ndarray = (),
     params: CoordinationParams = CoordinationParams(),
+    teammates: Sequence | np.ndarray | None = None,
 ) -> int | None:
     """The target for one robot: argmax U'_t - beta V(t) (step 2) with the others' ``held``
     targets discounted (step 3) and spaced from (step 4).
 
     ``utilities`` (K,) are eq. 35 scores (normalised here, step 1), ``positions`` (K, 2|3)
     the targets, ``costs`` (K,) the robot's path lengths (inf: unreachable, never chosen),
-    ``held`` (M, 2|3) the other robots' targets. None when no reachable target has U' > 0.
+    ``held`` (M, 2|3) the other robots' targets, ``teammates`` (K,) the shares f_r(t) of
+    ground only teammates have seen (None: no lowering). The lowering changes the scores,
+    not which targets are eligible. None when no reachable target has U' > 0.
     """
     u = normalised_utilities(utilities)
     pos = _points(positions, "positions")
@@ -176,7 +235,8 @@ def best_target(
     eligible = _eligible(u, outside_footprints(pos, held, params.footprint_radius), ok)
     if not eligible.any():
         return None
-    score = np.where(eligible, u - params.beta * np.where(ok, cost, 0.0), -np.inf)
+    own = _own_utilities(u, teammates, params.overlap_weight)
+    score = np.where(eligible, own - params.beta * np.where(ok, cost, 0.0), -np.inf)
     return int(np.argmax(score))
 
 
@@ -186,11 +246,13 @@ def assign_team(
     costs,
     held: Sequence | np.ndarray = (),
     params: CoordinationParams = CoordinationParams(),
+    teammates: np.ndarray | None = None,
 ) -> list[tuple[int, int]]:
     """Burgard's greedy assignment of targets to several robots at once (steps 1-4).
 
     ``costs`` (R, K): robot r's path length to target t (inf: unreachable). ``held`` (M, 2|3):
-    targets already taken by robots outside this batch. Returns the (robot, target) index
+    targets already taken by robots outside this batch. ``teammates`` (R, K): the shares
+    f_r(t) (None: no lowering; see :func:`best_target`). Returns the (robot, target) index
     pairs in the order they were chosen; a robot missing from it got nothing (no reachable
     target with U' > 0 was left for it). No target is given twice.
     """
@@ -199,6 +261,9 @@ def assign_team(
     cost = np.asarray(costs, dtype=np.float64)
     if cost.ndim != 2 or cost.shape[1] != len(u) or len(pos) != len(u):
         raise ValueError(f"costs must be (robots, {len(u)}) for {len(u)} targets, got {cost.shape}")
+    shares = np.zeros(cost.shape) if teammates is None else np.asarray(teammates, dtype=np.float64)
+    if shares.shape != cost.shape:
+        raise ValueError(f"teammates' shares must have the shape of costs {cost.shape}, got {shares.shape}")
     chosen = list(_points(held, "held"))
     u = discounted_utilities(u, pos, chosen, params.footprint_radius) if chosen else u
     out: list[tuple[int, int]] = []
@@ -208,7 +273,9 @@ def assign_team(
         eligible = np.stack([_eligible(u, outside, np.isfinite(cost[r])) for r in waiting])
         if not eligible.any():
             break
-        score = np.where(eligible, u[None, :] - params.beta * np.where(eligible, cost[waiting], 0.0), -np.inf)
+        own = np.stack([_own_utilities(u, shares[r], params.overlap_weight) for r in waiting])
+        path = params.beta * np.where(eligible, cost[waiting], 0.0)
+        score = np.where(eligible, own - path, -np.inf)
         w, t = np.unravel_index(int(np.argmax(score)), score.shape)
         out.append((waiting.pop(int(w)), int(t)))
         chosen.append(pos[t])
@@ -327,3 +394,40 @@ class AssignmentBook:
 
     def live(self) -> list[str]:
         return [r for r, rec in self.robots.items() if not rec.silent]
+
+
+# ---------------------------------------------------------------------------------------
+# Who has seen what
+# ---------------------------------------------------------------------------------------
+class ObservedColumns:
+    """The x-y cells each robot has observed: a cell counts once any voxel of its column was
+    in one of the robot's deltas. Feeds f_r(t) (:func:`teammates_share`).
+
+    ``shape`` is the grid's (nx, ny, nz); voxel indices are flat in C order, so a voxel's
+    column is its index // nz.
+    """
+
+    def __init__(self, shape: Sequence[int]) -> None:
+        nx, ny, nz = (int(n) for n in shape)
+        self.shape = (nx, ny)
+        self._nz = nz
+        self._by_robot: dict[str, np.ndarray] = {}
+
+    def add(self, robot: str, voxels) -> None:
+        """Mark the columns of ``voxels`` (flat indices) as observed by ``robot``."""
+        mask = self._by_robot.setdefault(robot, np.zeros(self.shape[0] * self.shape[1], dtype=bool))
+        mask[np.asarray(voxels, dtype=np.int64) // self._nz] = True
+
+    def robots(self) -> list[str]:
+        return sorted(self._by_robot)
+
+    def teammates_only(self, robot: str) -> np.ndarray:
+        """(nx, ny): cells some other robot has observed and ``robot`` has not."""
+        others = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
+        for rid, mask in self._by_robot.items():
+            if rid != robot:
+                others |= mask
+        mine = self._by_robot.get(robot)
+        if mine is not None:
+            others &= ~mine
+        return others.reshape(self.shape)

@@ -34,7 +34,13 @@ import zenoh
 from swarm import bus
 from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
-from swarm.coordination import AssignmentBook, CoordinationParams, best_target
+from swarm.coordination import (
+    AssignmentBook,
+    CoordinationParams,
+    ObservedColumns,
+    best_target,
+    teammates_share,
+)
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
@@ -79,7 +85,12 @@ def params_from_mission(mission: Mission) -> CoordinationParams:
     footprint = c.footprint_radius
     if footprint is None:
         footprint = min(2.0 * mission.exploration.radius, mission.sensor.max_range)
-    return CoordinationParams(beta=c.beta, footprint_radius=footprint, robot_timeout_s=c.robot_timeout_s)
+    return CoordinationParams(
+        beta=c.beta,
+        footprint_radius=footprint,
+        overlap_weight=c.overlap_weight,
+        robot_timeout_s=c.robot_timeout_s,
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -101,6 +112,7 @@ class TeamMap:
         self.lock = threading.Lock()
         self.counts: Counter[str] = Counter()
         self._seen = AppliedDeltas()
+        self.columns = ObservedColumns(grid.shape)
 
     def load_snapshot(self, snap: Snapshot) -> None:
         """Start from a map server's snapshot; the deltas its acks cover count as applied."""
@@ -110,6 +122,7 @@ class TeamMap:
             self.map = CoverageMap(self.grid, self.map.sensor, snap.lam, snap.eta)
             self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
             self._seen.cover(snap.acks, snap.above)
+            # a snapshot does not say which robot saw what: only later deltas are attributed
 
     def apply_payload(self, payload: bytes) -> str:
         """Apply one ``merged`` payload: returns "applied" or "duplicate"; raises WireError
@@ -129,6 +142,7 @@ class TeamMap:
             self.map.apply(delta)
             idx = msg.idx.astype(np.int64)
             self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
+            self.columns.add(msg.robot, idx)
         self.counts["applied"] += 1
         return "applied"
 
@@ -136,6 +150,11 @@ class TeamMap:
         """A consistent copy of the map and its per-voxel entropy (to plan without the lock)."""
         with self.lock:
             return self.map.copy(), self.entropy.values.copy()
+
+    def teammates_only(self, robot: str) -> np.ndarray:
+        """(nx, ny): x-y cells other robots have observed and ``robot`` has not."""
+        with self.lock:
+            return self.columns.teammates_only(robot)
 
     @property
     def entropy_bits(self) -> float:
@@ -269,6 +288,7 @@ class CoordinatorState:
             cmap, entropy = self.team.copy()
             found = self.candidates_for(request.robot, request.pose, cmap, entropy)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
+            shares = self._teammates_shares(request.robot, pool)
             with self._book_lock:
                 released = self.book.expire(now)
                 held = self.book.held_by_others(request.robot)
@@ -280,6 +300,7 @@ class CoordinatorState:
                         [c.path_cost for c in pool],
                         held,
                         self.params,
+                        shares,
                     )
                 chosen = None if best is None else pool[best]
                 if chosen is not None:
@@ -298,6 +319,19 @@ class CoordinatorState:
             utility=float(chosen.utility),
         )
         return Answer(request.robot, reply, chosen, len(found), len(held))
+
+    def _teammates_shares(self, robot: str, pool: list[EntropyCandidate]) -> np.ndarray | None:
+        """f_r(t) of each candidate's standing point (None when the weight is 0)."""
+        if not pool or self.params.overlap_weight == 0:
+            return None
+        grid = self.team.grid
+        return teammates_share(
+            np.array([c.xy for c in pool]),
+            self.team.teammates_only(robot),
+            grid.lo[:2],
+            grid.voxel,
+            self.params.footprint_radius,
+        )
 
     def handle_request(self, payload: bytes, now: float) -> Answer:
         """Decode and answer a ``coord/assign`` payload; WireError (counted) if it is malformed."""

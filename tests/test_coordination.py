@@ -9,12 +9,15 @@ from scipy import ndimage
 from swarm.coordination import (
     AssignmentBook,
     CoordinationParams,
+    ObservedColumns,
     assign_team,
     best_target,
     discounted_utilities,
     normalised_utilities,
+    teammates_share,
     visibility_discount,
 )
+from swarm.map.grid import Grid
 from swarm.navigation.exploration import ViewGeometry, choose_target, rank_entropy_targets
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
@@ -127,6 +130,69 @@ def test_random_teams_never_share_or_crowd_targets(seed):
             if t is not None:
                 got.append((r, t))
         _check_order(pos, costs, got, held, params.footprint_radius)
+
+
+# ---------------------------------------------------------------------------------------
+# Ground only teammates have seen
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(3))
+def test_teammates_share_counts_the_disc_cell_by_cell(seed):
+    rng = np.random.default_rng(seed)
+    lo, voxel, radius = np.array([-1.0, 2.0]), 0.25, 1.3
+    mask = rng.random((23, 17)) < 0.4
+    points = np.column_stack([rng.uniform(-2.0, 5.5, 40), rng.uniform(1.0, 7.0, 40)])
+    got = teammates_share(points, mask, lo, voxel, radius)
+    for p, share in zip(points, got, strict=True):
+        # independent: walk every cell of the grid, keep those whose offset from the
+        # point's cell is within the radius
+        own = np.floor((p - lo) / voxel)
+        hits = total = 0
+        for i in range(mask.shape[0]):
+            for j in range(mask.shape[1]):
+                if np.hypot(i - own[0], j - own[1]) * voxel <= radius:
+                    total += 1
+                    hits += bool(mask[i, j])
+        assert share == pytest.approx(hits / total if total else 0.0)
+    assert teammates_share(np.zeros((0, 2)), mask, lo, voxel, radius).shape == (0,)
+    with pytest.raises(ValueError):
+        teammates_share(points, mask.ravel(), lo, voxel, radius)
+
+
+def test_observed_columns_keep_each_robots_ground_apart():
+    grid = Grid((0.0, 0.0, 0.0), 0.1, (10, 6, 3))
+    cols = ObservedColumns(grid.shape)
+    flat = np.ravel_multi_index(([2, 2, 7], [1, 1, 4], [0, 2, 1]), grid.shape)
+    cols.add("a", flat[:2])  # two voxels of column (2, 1)
+    cols.add("b", flat)  # column (2, 1) and column (7, 4)
+    only_b = np.zeros((10, 6), dtype=bool)
+    only_b[7, 4] = True
+    assert np.array_equal(cols.teammates_only("a"), only_b)  # (2, 1) is a's own
+    assert not cols.teammates_only("b").any()
+    assert np.array_equal(cols.teammates_only("c"), only_b | (np.arange(60).reshape(10, 6) == 2 * 6 + 1))
+    assert cols.robots() == ["a", "b"]
+
+
+def test_teammates_ground_lowers_a_target_but_never_hides_it():
+    # Two equal targets, equally far: A lies in ground only a teammate has seen.
+    pos = np.array([[0.0, 0.0], [10.0, 0.0]])
+    scores, costs = np.array([1.0, 1.0]), np.array([2.0, 2.0])
+    p = CoordinationParams(beta=0.1, footprint_radius=R, overlap_weight=1.0)
+    assert best_target(scores, pos, costs, params=p, teammates=[0.8, 0.0]) == 1
+    # a better A still wins once its lowered utility beats B: 1.0 * (1 - 0.8) < 0.15
+    assert best_target([1.0, 0.15], pos, costs, params=p, teammates=[0.8, 0.0]) == 0
+    # weight 0 is Burgard's rule alone
+    burgard = CoordinationParams(beta=0.1, footprint_radius=R, overlap_weight=0.0)
+    assert best_target([1.0, 0.9], pos, costs, params=burgard, teammates=[0.8, 0.0]) == 0
+    # a target wholly in teammates' ground is still given when it is the only one
+    assert best_target(scores[:1], pos[:1], costs[:1], params=p, teammates=[1.0]) == 0
+    # the batch rule lowers per robot: robot 0 knows A's ground, robot 1 does not
+    shares = np.array([[0.0, 0.0], [0.9, 0.0]])
+    free = np.zeros((2, 2))
+    assert sorted(assign_team(scores, pos, free, params=p, teammates=shares)) == [(0, 0), (1, 1)]
+    with pytest.raises(ValueError):
+        best_target(scores, pos, costs, params=p, teammates=[0.5])
+    with pytest.raises(ValueError):
+        CoordinationParams(overlap_weight=1.5)
 
 
 # ---------------------------------------------------------------------------------------

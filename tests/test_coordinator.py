@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import math
 import signal
@@ -96,7 +97,8 @@ def far_apart(targets: list[tuple[float, ...]], radius: float) -> bool:
 def test_state_spreads_three_robots_and_gives_a_released_target_back():
     m = mission()
     assert params_from_mission(m).footprint_radius == FOOTPRINT
-    state = CoordinatorState(m)
+    # Burgard's rule alone: the map comes from "r9", so all of it is teammates' ground
+    state = CoordinatorState(m, dataclasses.replace(params_from_mission(m), overlap_weight=0.0))
     for msg in deltas_of(m, corridor_map(m), "r9", 1, 3):
         assert state.team.apply_payload(msg.encode()) == "applied"
     answers = {r: state.answer(AssignRequest(r, pose(r)), now=0.0) for r in ("r1", "r2", "r3")}
@@ -117,6 +119,24 @@ def test_state_spreads_three_robots_and_gives_a_released_target_back():
     r4 = state.answer(AssignRequest("r4", pose("r1")), now=10.5)
     assert r4.reply.target == pytest.approx(answers["r1"].reply.target)
     assert state.counts["released"] == 2  # r1 (silent) and r4's first target (asked again)
+
+
+@pytest.mark.parametrize("weight", [1.0, 0.0])
+def test_a_robot_is_sent_to_extend_its_own_ground(weight):
+    # r1 mapped the corridor's west part, r2 its east part; r1 stands just inside r2's part.
+    # Frontiers line the whole corridor. With the overlap weight r1 is sent back west, to
+    # the edge of its own ground; with Burgard's rule alone it takes one near where it stands.
+    m = mission()
+    state = CoordinatorState(m, dataclasses.replace(params_from_mission(m), overlap_weight=weight))
+    for rid, (x_lo, x_hi) in {"r1": (0.3, 4.0), "r2": (4.0, 7.7)}.items():
+        for msg in deltas_of(m, corridor_map(m, x_lo, x_hi), rid, 1, 2):
+            assert state.team.apply_payload(msg.encode()) == "applied"
+    here = Pose((4.8, 2.0, 0.4), (0.0, 0.0, 0.0))
+    x = state.answer(AssignRequest("r1", here), now=0.0).reply.target[0]
+    if weight:
+        assert x < 4.0 - FOOTPRINT / 2
+    else:
+        assert x > 4.0
 
 
 @pytest.mark.parametrize("seed", range(4))
