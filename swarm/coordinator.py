@@ -46,7 +46,12 @@ from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from swarm.navigation.exploration import EntropyCandidate, rank_entropy_targets
+from swarm.navigation.exploration import (
+    EntropyCandidate,
+    ExplorationTarget,
+    rank_entropy_targets,
+    wander_target,
+)
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability
 from swarm.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status, WireError
@@ -174,6 +179,7 @@ class Answer:
     candidate: EntropyCandidate | None
     candidates: int
     held_by_others: int
+    wander: ExplorationTarget | None = None  # the wander target, when no eq. 35 one was left
 
 
 class CoordinatorState:
@@ -194,6 +200,7 @@ class CoordinatorState:
         self._answer_lock = threading.Lock()
         self._swept: list[tuple[float, float]] = []
         self._last_xy: dict[str, np.ndarray] = {}
+        self._rng = np.random.default_rng(mission.sim.seed)
 
     # -- inputs ---------------------------------------------------------------------------
     def _moved(self, robot: str, xy) -> None:
@@ -228,11 +235,9 @@ class CoordinatorState:
         return released
 
     # -- answers ----------------------------------------------------------------------------
-    def candidates_for(self, robot: str, pose: Pose, cmap: CoverageMap, entropy: np.ndarray):
-        """Eq. 35 candidates of the team map with ``robot``'s path costs (whole map, spread out)."""
+    def _reach(self, robot: str, pose: Pose, cmap: CoverageMap):
+        """(rig, traversability, planner cost map from the robot's cell) on ``cmap``."""
         rig = self.mission.rig_for(robot) if robot in self.mission.robot_ids else self.mission.rig
-        grid = cmap.grid
-        x, y = pose.xyz[0], pose.xyz[1]
         self._check_pose(pose)
         with self._book_lock:
             swept = np.array(self._swept, dtype=np.float64).reshape(-1, 2)
@@ -242,17 +247,23 @@ class CoordinatorState:
             robot_radius=self.mission.robot.radius,
             swept=swept,
         )
-        planner = GridPlanner(trav)
-        cell = tuple(int(c) for c in trav.cell_of(np.array([x, y])))
+        cell = tuple(int(c) for c in trav.cell_of(np.array(pose.xyz[:2])))
         if not trav.is_free(np.array(cell)):
             cell = nearest_free_cell(trav, cell) or cell
-        cost = planner.cost_map(cell)
+        return rig, trav, GridPlanner(trav).cost_map(cell)
+
+    def candidates_for(self, robot: str, pose: Pose, cmap: CoverageMap, entropy: np.ndarray, reach=None):
+        """Eq. 35 candidates of the team map with ``robot``'s path costs (whole map, spread out).
+
+        ``reach``: what :meth:`_reach` gives for this robot and map, if already computed."""
+        rig, trav, cost = reach or self._reach(robot, pose, cmap)
+        grid = cmap.grid
         whole_map = float(np.linalg.norm(grid.hi[:2] - grid.lo[:2])) + grid.voxel
         c = self.mission.coordination
         return rank_entropy_targets(
             cmap,
             entropy,
-            (x, y, pose.ypr[0]),
+            (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
             rig.camera_height,
             trav,
             cost,
@@ -286,7 +297,8 @@ class CoordinatorState:
             for robot, reason in released:
                 log.info("released the target of %s: %s", robot, reason)
             cmap, entropy = self.team.copy()
-            found = self.candidates_for(request.robot, request.pose, cmap, entropy)
+            reach = self._reach(request.robot, request.pose, cmap)
+            found = self.candidates_for(request.robot, request.pose, cmap, entropy, reach)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
             shares = self._teammates_shares(request.robot, pool)
             with self._book_lock:
@@ -303,22 +315,44 @@ class CoordinatorState:
                         shares,
                     )
                 chosen = None if best is None else pool[best]
-                if chosen is not None:
-                    self.book.hold(request.robot, chosen.xy, now)
+                wander = None
+                if chosen is None:
+                    wander = self._wander(request.robot, request.pose, cmap, reach, held)
+                goal = chosen.xy if chosen is not None else None if wander is None else wander.xy
+                if goal is not None:
+                    self.book.hold(request.robot, goal, now)
                 self.counts["released"] += len(released)
             for robot, reason in released:
                 log.info("released the target of %s: %s", robot, reason)
-        if chosen is None:
+        z = request.pose.xyz[2]
+        if chosen is None and wander is None:
             self.counts["nothing_left"] += 1
             return Answer(request.robot, AssignReply(None, None, 0.0), None, len(found), len(held))
-        self.counts["assigned"] += 1
-        z = request.pose.xyz[2]
+        self.counts["assigned" if chosen is not None else "wander"] += 1
+        xy, yaw = (chosen.xy, chosen.gaze_yaw) if chosen is not None else (wander.xy, wander.gaze_yaw)
         reply = AssignReply(
-            target=(float(chosen.xy[0]), float(chosen.xy[1]), float(z)),
-            gaze=(math.cos(chosen.gaze_yaw), math.sin(chosen.gaze_yaw), 0.0),
-            utility=float(chosen.utility),
+            target=(float(xy[0]), float(xy[1]), float(z)),
+            gaze=(math.cos(yaw), math.sin(yaw), 0.0),
+            utility=float(chosen.utility) if chosen is not None else 0.0,
         )
-        return Answer(request.robot, reply, chosen, len(found), len(held))
+        return Answer(request.robot, reply, chosen, len(found), len(held), wander)
+
+    def _wander(self, robot: str, pose: Pose, cmap: CoverageMap, reach, held: np.ndarray):
+        """When no eq. 35 target is left: the agent's wander (``wander_target``), kept on the
+        robot's own or unseen ground and away from the others' targets while it can be."""
+        rig, trav, cost = reach
+        return wander_target(
+            cmap,
+            (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
+            rig.camera_height,
+            trav,
+            cost,
+            2.0 * self.mission.exploration.radius,
+            self._rng,
+            avoid=self.team.teammates_only(robot) if self.params.overlap_weight > 0 else None,
+            exclude=list(held),
+            exclude_radius=self.params.footprint_radius,
+        )
 
     def _teammates_shares(self, robot: str, pool: list[EntropyCandidate]) -> np.ndarray | None:
         """f_r(t) of each candidate's standing point (None when the weight is 0)."""
@@ -514,6 +548,17 @@ class Coordinator:
 def _log_answer(answer: Answer) -> None:
     robot = answer.robot
     c = answer.candidate
+    if c is None and answer.wander is not None:
+        w = answer.wander
+        log.info(
+            "assign %s -> wander to (%.2f, %.2f) gaze %+.0f deg: no eq. 35 target left (%d held by others)",
+            robot,
+            w.xy[0],
+            w.xy[1],
+            math.degrees(w.gaze_yaw),
+            answer.held_by_others,
+        )
+        return
     if c is None:
         log.info(
             "assign %s -> nothing left (%d candidates, %d held by others)",

@@ -12,11 +12,6 @@ Definitions:
   only from a neighbour that is not fully covered, so those voxels can never be seen.
 - *Occupied*: expected coverage E[C] > 0.5 (map) and true coverage > 0.5 (ground truth).
 - *Observed* (known) voxels: voxels with information beyond the prior.
-- *Observed by a robot* (for the overlap, :func:`observed_by_robot`): voxels whose entropy
-  the robot's own information, added to the prior, lowers by at least ``min_bits``
-  (OBSERVED_MIN_BITS, half a bit: the default ``share_min_bits``, the least the agents
-  count as worth sharing). With ``min_bits`` 0 any information counts: then a voxel a ray
-  grazed once at long range, or whose residue an agent flushed at the end, counts too.
 """
 
 from __future__ import annotations
@@ -27,9 +22,6 @@ import numpy as np
 
 from swarm.map.grid import Grid
 
-#: Bits a robot's own information must take off a voxel's prior entropy for the voxel to
-#: count as observed by that robot (overlap).
-OBSERVED_MIN_BITS = 0.5
 #: A voxel whose true coverage reaches this level counts as fully covered.
 FULL_COVERAGE = 1.0 - 1e-6
 
@@ -111,38 +103,6 @@ def explored_fraction(known_mask: np.ndarray, observable_mask: np.ndarray) -> fl
     if not total:
         return 0.0
     return int(np.count_nonzero(np.ravel(known_mask).astype(bool) & obs)) / total
-
-
-def observed_by_robot(
-    information: Mapping[str, tuple[np.ndarray, np.ndarray]],
-    prior: tuple[float, float],
-    entropy_of,
-    min_bits: float,
-) -> dict[str, np.ndarray]:
-    """Robot id -> bool mask of the voxels it observed (module doc).
-
-    ``information`` maps robot id -> (dlam, deta): the sums of the information-form updates
-    of all its deltas, per voxel (flat). ``prior`` is (lam0, eta0) of every voxel and
-    ``entropy_of(mean, sigma)`` the entropy in bits of a voxel's belief (the map's
-    EntropyTable). A voxel is observed when ``H(prior) - H(prior + robot's information)``
-    is at least ``min_bits``; with ``min_bits`` <= 0, when the robot gave it any information.
-    """
-    lam0, eta0 = (float(v) for v in prior)
-    h0 = float(np.ravel(entropy_of(np.array([eta0 / lam0]), np.array([lam0**-0.5])))[0])
-    out: dict[str, np.ndarray] = {}
-    for rid, (dlam, deta) in information.items():
-        dlam = np.ravel(dlam).astype(np.float64)
-        deta = np.ravel(deta).astype(np.float64)
-        touched = dlam != 0
-        if min_bits <= 0:
-            out[rid] = touched
-            continue
-        lam = lam0 + dlam[touched]
-        h = np.asarray(entropy_of((eta0 + deta[touched]) / lam, 1.0 / np.sqrt(lam)), dtype=np.float64)
-        mask = np.zeros(dlam.size, dtype=bool)
-        mask[np.flatnonzero(touched)] = (h0 - h) >= min_bits
-        out[rid] = mask
-    return out
 
 
 def overlap_fraction(observed_by: Mapping[str, np.ndarray]) -> float:

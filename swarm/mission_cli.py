@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
-from swarm.evaluation import overlap_fraction
 from swarm.map.entropy import EntropyCache, default_table
 from swarm.map_file import save_map
 
@@ -94,8 +93,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         floor_plan=plan,
         height_band=(0.1, mission.rig.camera_height + 0.1),
     )
-    metrics = compute_metrics(record, monitor.cmap, truth, monitor.observed_by())
-    metrics["overlap_fraction_any"] = overlap_fraction(monitor.observed_by(0.0))
+    metrics = compute_metrics(record, monitor.cmap, truth, monitor.observed_by)
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
     server_map = facts["server_map"]

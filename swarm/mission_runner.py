@@ -29,8 +29,7 @@ import numpy as np
 from swarm import bus
 from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
-from swarm.evaluation import OBSERVED_MIN_BITS, observed_by_robot
-from swarm.map.coverage_map import CoverageMap, prior_information
+from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
 from swarm.map_client import MapClient, MapQueryError, MapServerUnavailable
@@ -60,8 +59,7 @@ class TeamMonitor:
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     states: dict[str, str] = field(default_factory=dict)
     bytes_shared: dict[str, int] = field(default_factory=dict)
-    # robot id -> (dlam, deta): the sums of its deltas, per voxel (who observed what)
-    information_by: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    observed_by: dict[str, np.ndarray] = field(default_factory=dict)
     sim_time: float = 0.0
     dead: list[str] = field(default_factory=list)
     rejected: int = 0
@@ -90,14 +88,8 @@ class TeamMonitor:
                 idx = msg.idx.astype(np.int64)
                 self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
                 self.curve.append((float(msg.t), float(self.entropy.total)))
-                own = self.information_by.get(msg.robot)
-                if own is None:
-                    own = self.information_by[msg.robot] = (
-                        np.zeros(self.cmap.grid.size, np.float64),
-                        np.zeros(self.cmap.grid.size, np.float64),
-                    )
-                np.add.at(own[0], idx, msg.dlam)
-                np.add.at(own[1], idx, msg.deta)
+                mask = self.observed_by.setdefault(msg.robot, np.zeros(self.cmap.grid.size, bool))
+                mask[idx] = True
                 self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
         except (WireError, ValueError) as exc:
             self.rejected += 1
@@ -122,11 +114,6 @@ class TeamMonitor:
             self.rejected += 1
             return
         self.states[status.robot] = status.state
-
-    def observed_by(self, min_bits: float = OBSERVED_MIN_BITS) -> dict[str, np.ndarray]:
-        """Robot id -> the voxels it observed (``swarm.evaluation.observed_by_robot``)."""
-        prior = prior_information(self.cmap.sensor)
-        return observed_by_robot(self.information_by, prior, default_table(), min_bits)
 
     @property
     def team_entropy(self) -> float:

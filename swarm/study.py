@@ -478,7 +478,6 @@ RESULT_COLUMNS = (
     "coverage_mae_observed",
     "explored_fraction",
     "overlap_fraction",
-    "overlap_fraction_any",
     "distance_total_m",
     "distance_mean_m",
     "distance_max_m",
@@ -503,7 +502,6 @@ _COPIED = (
     "coverage_mae_observed",
     "explored_fraction",
     "overlap_fraction",
-    "overlap_fraction_any",
     "stop_reason",
 )
 
@@ -570,7 +568,6 @@ class SettingSummary:
     reached_time_std_s: float | None = None
     final_entropy_mean_bits: float | None = None
     overlap_mean: float | None = None
-    overlap_any_mean: float | None = None
     f1_mean: float | None = None
     f1_observed_mean: float | None = None
     explored_mean: float | None = None
@@ -626,7 +623,6 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SettingSummary]:
         s.reached_time_mean_s, s.reached_time_std_s = _mean(reached_times), _std(reached_times)
         s.final_entropy_mean_bits = _mean(r["final_entropy_bits"] for r in done)
         s.overlap_mean = _mean(r["overlap_fraction"] for r in done)
-        s.overlap_any_mean = _mean(r.get("overlap_fraction_any") for r in done)
         s.f1_mean = _mean(r["occupancy_f1"] for r in done)
         s.f1_observed_mean = _mean(r["occupancy_f1_observed"] for r in done)
         s.explored_mean = _mean(r["explored_fraction"] for r in done)
@@ -707,9 +703,9 @@ def summary_markdown(
         + ("; INTERRUPTED: incomplete" if interrupted else ""),
         "",
         "| config | robots | strategy | coordination | runs | reached H_th | time to H_th, all runs (s) "
-        "| time, reached runs (s) | final H (bits) | overlap | overlap, any | F1 | F1 observed "
-        "| distance, team (m) | speed-up |",
-        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| time, reached runs (s) | final H (bits) | overlap | F1 | F1 observed | distance, team (m) "
+        "| speed-up |",
+        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in summary:
         runs = f"{s.n_runs}" + (f" (+{s.n_failed} failed)" if s.n_failed else "")
@@ -729,7 +725,6 @@ def summary_markdown(
             t_reached,
             _num(s.final_entropy_mean_bits, ",.0f"),
             _num(s.overlap_mean, ".3f"),
-            _num(s.overlap_any_mean, ".3f"),
             _num(s.f1_mean, ".3f"),
             _num(s.f1_observed_mean, ".3f"),
             _num(s.distance_total_mean_m, ".1f"),
@@ -745,11 +740,8 @@ def summary_markdown(
         '- "time, reached runs": only the runs that reached H_th (n of them).',
         "- speed-up = time of 1 robot (same config and strategy) / time of the row, both over all runs; "
         '">=" when only the 1-robot time is a lower bound, "<=" when only the row\'s is, "?" when both are.',
-        "- final H: map entropy at the end of the run; overlap: fraction of the voxels observed by any "
-        "robot that 2+ robots observed, where a robot observed a voxel when its own information took "
-        "at least 0.5 bit off the prior (swarm.evaluation.observed_by_robot); overlap, any: the same "
-        "with any information counted; F1: occupancy F1 over observable voxels (F1 observed: over the "
-        "voxels the team saw).",
+        "- final H: map entropy at the end of the run; overlap: fraction of observed voxels seen by 2+ "
+        "robots; F1: occupancy F1 over observable voxels (F1 observed: over the voxels the team saw).",
     ]
     if failed:
         lines += ["", "## Failed runs", ""]

@@ -31,6 +31,8 @@ from swarm.coordinator import (
 )
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
+from swarm.navigation.exploration import wander_target
+from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
 from swarm.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status
 
@@ -137,6 +139,35 @@ def test_a_robot_is_sent_to_extend_its_own_ground(weight):
         assert x < 4.0 - FOOTPRINT / 2
     else:
         assert x > 4.0
+
+
+def test_wander_keeps_off_teammates_ground_and_stops_when_nothing_is_unknown():
+    m = mission()
+    cmap = corridor_map(m)
+    trav = build_traversability(cmap, robot_height=0.5, robot_radius=m.robot.radius)
+    here = (4.05, 2.05, 0.0)
+    cost = GridPlanner(trav).cost_map(tuple(int(c) for c in trav.cell_of(np.array(here[:2]))))
+    theirs = np.zeros(trav.shape, dtype=bool)
+    theirs[:40] = True  # x < 4 m: only teammates have seen it
+    rng = np.random.default_rng(0)
+    xs = []
+    for _ in range(40):
+        t = wander_target(cmap, here, 0.4, trav, cost, 3.0, rng, avoid=theirs)
+        assert t.kind == "wander" and trav.is_free(trav.cell_of(t.xy))
+        assert math.dist(t.xy, here[:2]) <= 3.0 + 1e-9
+        xs.append(t.xy[0])
+    assert min(xs) >= 4.0
+    unconstrained = [wander_target(cmap, here, 0.4, trav, cost, 3.0, rng).xy[0] for _ in range(40)]
+    assert min(unconstrained) < 4.0  # the rule, not chance, kept it east
+    # when every reachable cell is teammates' ground, it still wanders
+    assert wander_target(cmap, here, 0.4, trav, cost, 3.0, rng, avoid=~theirs | theirs) is not None
+    # nothing unknown in view of reachable space: nothing to wander for
+    known = corridor_map(m, 0.0, 8.0)
+    known.lam[:] = known.lam.max()
+    known.eta[:] = 0.0
+    trav_k = build_traversability(known, robot_height=0.5, robot_radius=m.robot.radius)
+    cost_k = GridPlanner(trav_k).cost_map(tuple(int(c) for c in trav_k.cell_of(np.array(here[:2]))))
+    assert wander_target(known, here, 0.4, trav_k, cost_k, 3.0, rng) is None
 
 
 @pytest.mark.parametrize("seed", range(4))

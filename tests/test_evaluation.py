@@ -11,15 +11,11 @@ from swarm.evaluation import (
     explored_fraction,
     mission_time,
     observable_mask,
-    observed_by_robot,
     occupancy_f1,
     overlap_fraction,
     path_length,
 )
-from swarm.map.coverage_map import prior_information
-from swarm.map.entropy import default_table, entropy_exact
 from swarm.map.grid import Grid
-from swarm.map.sensor_model import SensorModel
 
 
 def test_occupancy_f1_hand_example():
@@ -98,41 +94,6 @@ def test_overlap_fraction():
     assert overlap_fraction({"a": a}) == 0.0
     assert overlap_fraction({"a": np.zeros(6, bool)}) == 0.0
     assert overlap_fraction({}) == 0.0
-
-
-def test_a_robot_observed_what_took_half_a_bit_off_the_prior():
-    sensor = SensorModel()
-    lam0, eta0 = prior_information(sensor)
-    # voxel 0: one free-space reading (lam 1/0.1^2 at mean 0); voxel 1: a hair of information;
-    # voxel 2: nothing; voxel 3: a faint reading that is worth just under / over half a bit
-    dlam = np.array([100.0, 1e-3 * lam0, 0.0, 0.0])
-    deta = np.array([0.0, 0.5e-3 * lam0, 0.0, 0.0])
-    h0 = float(entropy_exact(np.array([eta0 / lam0]), np.array([lam0**-0.5]))[0])
-
-    def drop(k):  # entropy the prior loses with k times the prior's information at mean 0.5
-        lam = lam0 * (1 + k)
-        return h0 - float(entropy_exact(np.array([0.5]), np.array([lam**-0.5]))[0])
-
-    # bisect the k that takes exactly 0.5 bit off (the prior is wide: k is large), then
-    # stand a little each side of it
-    lo, hi = 0.0, 1e6
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if drop(mid) < 0.5 else (lo, mid)
-    assert 0.0 < lo and drop(0.97 * lo) < 0.49 and drop(1.03 * hi) > 0.51
-    info = {
-        "under": (dlam.copy(), deta.copy()),
-        "over": (dlam.copy(), deta.copy()),
-    }
-    info["under"][0][3], info["under"][1][3] = 0.97 * lo * lam0, 0.97 * lo * eta0
-    info["over"][0][3], info["over"][1][3] = 1.03 * hi * lam0, 1.03 * hi * eta0
-    seen = observed_by_robot(info, (lam0, eta0), default_table(), 0.5)
-    assert seen["under"].tolist() == [True, False, False, False]
-    assert seen["over"].tolist() == [True, False, False, True]
-    anything = observed_by_robot(info, (lam0, eta0), default_table(), 0.0)
-    assert anything["under"].tolist() == [True, True, False, True]
-    assert overlap_fraction(seen) == pytest.approx(1 / 2)
-    assert overlap_fraction(anything) == pytest.approx(1.0)
 
 
 def test_mission_time_first_crossing():

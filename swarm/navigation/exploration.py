@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
@@ -54,6 +54,7 @@ __all__ = [
     "choose_target",
     "frontier_cells",
     "rank_entropy_targets",
+    "wander_target",
 ]
 
 STRATEGIES = ("entropy", "frontier", "random")
@@ -204,6 +205,38 @@ def rank_entropy_targets(
         if limit is not None and len(out) >= limit:
             break
     return out
+
+
+def wander_target(
+    cmap: CoverageMap,
+    pose: tuple[float, float, float],
+    sensor_height: float,
+    trav: TraversabilityGrid,
+    planner_cost: np.ndarray,
+    radius: float,
+    rng: np.random.Generator,
+    avoid: np.ndarray | None = None,
+    exclude: Sequence[np.ndarray] = (),
+    *,
+    exclude_radius: float = 1.0,
+) -> ExplorationTarget | None:
+    """``choose_target``'s wander, for a caller that knows where the robot should not go.
+
+    When eq. 35 offers nothing, an agent wanders: a uniform reachable cell within
+    ``radius`` of it (else anywhere reachable), random gaze, while any unknown slab voxel
+    is in view of reachable space (None otherwise: nothing left to see). Here the cell is
+    also kept out of ``avoid`` ((nx, ny) bool) and away from the ``exclude`` points (within
+    ``exclude_radius``) while any other reachable cell is left.
+    """
+    ctx = _Context.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    if not ctx.reach.any() or not ctx.unknown_in_view():
+        return None
+    allowed = ctx.allowed if avoid is None else ctx.allowed & ~np.asarray(avoid, dtype=bool)
+    pool = ctx.reach & allowed
+    pool[ctx.start] = False
+    if not pool.any():
+        allowed = ctx.allowed if (ctx.reach & ctx.allowed).any() else np.ones_like(ctx.allowed)
+    return _random_cell_target(replace(ctx, allowed=allowed), radius, rng, "wander", 0.0)
 
 
 # ---------------------------------------------------------------------------------------
