@@ -4,8 +4,10 @@ It keeps a replica of the team map from the map server's ``merged`` stream (star
 ``map/snapshot`` when a server answers), follows every robot's ``robot/<rid>/status``, and
 answers ``coord/assign``: the requesting robot gets the eq. 35 target of the team map that
 maximises utility minus path cost, with the targets other robots hold discounted and kept
-one sensor footprint away (Burgard et al. 2005; the rule is in ``swarm.coordination`` and
-docs/coordinator.md).
+one sensor footprint away, and ground only its teammates have seen lowered (Burgard et al.
+2005 and our addition; the rule is in ``swarm.coordination`` and docs/coordinator.md).
+When no eq. 35 target is left it wanders the robot on its own ground, as long as anything
+unknown is in view.
 
 Layers: :class:`TeamMap` (the replica: idempotent merged deltas), :class:`CoordinatorState`
 (the replica, who holds what, and the planning of one answer; no I/O, callable from tests)
