@@ -302,7 +302,9 @@ class CoordinatorState:
             reach = self._reach(request.robot, request.pose, cmap)
             found = self.candidates_for(request.robot, request.pose, cmap, entropy, reach)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
-            shares = self._teammates_shares(request.robot, pool)
+            # ground only the others have seen: one mask for the scores and the wander
+            theirs = self.team.teammates_only(request.robot) if self.params.overlap_weight > 0 else None
+            shares = self._teammates_shares(pool, theirs)
             with self._book_lock:
                 released = self.book.expire(now)
                 held = self.book.held_by_others(request.robot)
@@ -319,7 +321,7 @@ class CoordinatorState:
                 chosen = None if best is None else pool[best]
                 wander = None
                 if chosen is None:
-                    wander = self._wander(request.robot, request.pose, cmap, reach, held)
+                    wander = self._wander(request.pose, cmap, reach, held, theirs)
                 goal = chosen.xy if chosen is not None else None if wander is None else wander.xy
                 if goal is not None:
                     self.book.hold(request.robot, goal, now)
@@ -339,9 +341,10 @@ class CoordinatorState:
         )
         return Answer(request.robot, reply, chosen, len(found), len(held), wander)
 
-    def _wander(self, robot: str, pose: Pose, cmap: CoverageMap, reach, held: np.ndarray):
-        """When no eq. 35 target is left: the agent's wander (``wander_target``), kept on the
-        robot's own or unseen ground and away from the others' targets while it can be."""
+    def _wander(self, pose: Pose, cmap: CoverageMap, reach, held: np.ndarray, theirs: np.ndarray | None):
+        """When no eq. 35 target is left: the agent's wander (``wander_target``), kept off
+        ``theirs`` (ground only teammates have seen; None: anywhere) and away from the others'
+        targets while it can be."""
         rig, trav, cost = reach
         return wander_target(
             cmap,
@@ -351,19 +354,19 @@ class CoordinatorState:
             cost,
             2.0 * self.mission.exploration.radius,
             self._rng,
-            avoid=self.team.teammates_only(robot) if self.params.overlap_weight > 0 else None,
+            avoid=theirs,
             exclude=list(held),
             exclude_radius=self.params.footprint_radius,
         )
 
-    def _teammates_shares(self, robot: str, pool: list[EntropyCandidate]) -> np.ndarray | None:
-        """f_r(t) of each candidate's standing point (None when the weight is 0)."""
-        if not pool or self.params.overlap_weight == 0:
+    def _teammates_shares(self, pool: list[EntropyCandidate], theirs: np.ndarray | None) -> np.ndarray | None:
+        """f_r(t) of each candidate's standing point over ``theirs`` (None when it is None)."""
+        if not pool or theirs is None:
             return None
         grid = self.team.grid
         return teammates_share(
             np.array([c.xy for c in pool]),
-            self.team.teammates_only(robot),
+            theirs,
             grid.lo[:2],
             grid.voxel,
             self.params.footprint_radius,
