@@ -225,7 +225,7 @@ class CoordinationConfig(_Section):
     beta: FiniteFloat = Field(default=0.1, ge=0, description="utility lost per metre of path (1/m)")
     footprint_radius: FiniteFloat | None = Field(default=None, gt=0)
     overlap_weight: FiniteFloat = Field(
-        default=1.0, ge=0, le=1, description="utility lost per share of a footprint only teammates saw"
+        default=1.0, ge=0, le=1, description="utility lost per share of a footprint that is teammates' ground"
     )
     robot_timeout_s: FiniteFloat = Field(default=10.0, gt=0)
     max_candidates: int = Field(default=200, ge=1)

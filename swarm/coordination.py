@@ -25,12 +25,13 @@ IEEE T-RO 21(3), 2005, algorithm 1), with our choices of U, P and normalisation:
    footprint does the discount alone decide.
 
 Our addition, for robots that have already mapped part of the world: before step 2, robot
-r's utility of t is also lowered by the ground only its teammates have seen,
-U_t <- U_t (1 - w f_r(t)), where f_r(t) is the share of the x-y cells within R of t that
-another robot has observed and r has not (:func:`teammates_share`, from the per-robot
-:class:`ObservedColumns`) and w in [0, 1] is ``overlap_weight``. Burgard's discount keeps
-robots away from where the others are going; this one keeps each robot away from where the
-others have been, since whatever r observes there is observed a second time.
+r's utility of t is also lowered by its teammates' ground, U_t <- U_t (1 - w f_r(t)), where
+f_r(t) is the share of the x-y cells within R of t that are a teammate's ground
+(:func:`teammates_share`): a cell is the ground of the robot whose deltas brought its column
+the most information (:class:`ObservedColumns`), and w in [0, 1] is ``overlap_weight``.
+Burgard's discount keeps robots away from where the others are going; this one keeps each
+robot away from where the others have been, since whatever r observes there is observed a
+second time.
 
 For one request (robot r asks again; the others keep what they hold) the targets held by
 the other robots count as chosen already: steps 3-4 are applied for each of them, then step
@@ -75,7 +76,7 @@ class CoordinationParams:
     target), so 0.1 means ten metres of travel cost as much as the best target is worth.
     ``footprint_radius`` (m): R of the discount P(d), of the hard spacing and of the
     teammates' share f_r(t). ``overlap_weight`` (w, 0-1): how much of a target's utility the
-    ground only teammates have seen takes away (0: Burgard's rule alone).
+    teammates' ground takes away (0: Burgard's rule alone).
     ``robot_timeout_s``: a robot not heard from (status or request) for longer than this
     loses its target. ``status_grace_s``: for this long after an assignment, the robot's
     statuses do not change its target (they may have been sent before it got the answer),
@@ -156,18 +157,18 @@ def outside_footprints(positions, chosen, footprint_radius: float) -> np.ndarray
     return np.all(_distances(pos, ch) >= footprint_radius, axis=1)
 
 
-def teammates_share(points, teammates_only: np.ndarray, lo, voxel: float, radius: float) -> np.ndarray:
+def teammates_share(points, teammates_ground: np.ndarray, lo, voxel: float, radius: float) -> np.ndarray:
     """f_r(t) of the module doc: for each point, the share of the x-y cells within ``radius``
-    of it (inside the grid) that are True in ``teammates_only`` (nx, ny).
+    of it (inside the grid) that are True in ``teammates_ground`` (nx, ny).
 
     ``lo`` is the grid's x-y origin and ``voxel`` its cell size (m); a point's own cell is
     the one it lies in. Points outside the grid count only the in-grid part of their disc
     (0.0 when none of it is inside).
     """
-    mask = np.asarray(teammates_only, dtype=bool)
+    mask = np.asarray(teammates_ground, dtype=bool)
     pts = _points(points, "points")
     if mask.ndim != 2:
-        raise ValueError(f"teammates_only must be an (nx, ny) mask, got shape {mask.shape}")
+        raise ValueError(f"teammates_ground must be an (nx, ny) mask, got shape {mask.shape}")
     if not (voxel > 0 and radius >= 0):
         raise ValueError(f"voxel must be > 0 and radius >= 0, got {voxel!r} and {radius!r}")
     if len(pts) == 0:
@@ -189,7 +190,7 @@ def teammates_share(points, teammates_only: np.ndarray, lo, voxel: float, radius
 
 
 def _own_utilities(utilities: np.ndarray, shares, weight: float) -> np.ndarray:
-    """U_t (1 - w f_r(t)): the module doc's lowering for ground only teammates have seen."""
+    """U_t (1 - w f_r(t)): the module doc's lowering for teammates' ground."""
     if shares is None:
         return utilities
     f = np.asarray(shares, dtype=np.float64)
@@ -220,7 +221,7 @@ def best_target(
     ``utilities`` (K,) are eq. 35 scores (normalised here, step 1), ``positions`` (K, 2|3)
     the targets, ``costs`` (K,) the robot's path lengths (inf: unreachable, never chosen),
     ``held`` (M, 2|3) the other robots' targets, ``teammates`` (K,) the shares f_r(t) of
-    ground only teammates have seen (None: no lowering). The lowering changes the scores,
+    teammates' ground (None: no lowering). The lowering changes the scores,
     not which targets are eligible. None when no reachable target has U' > 0.
     """
     u = normalised_utilities(utilities)
@@ -400,8 +401,10 @@ class AssignmentBook:
 # Who has seen what
 # ---------------------------------------------------------------------------------------
 class ObservedColumns:
-    """The x-y cells each robot has observed: a cell counts once any voxel of its column was
-    in one of the robot's deltas. Feeds f_r(t) (:func:`teammates_share`).
+    """Whose ground each x-y cell is: the information (sum of added precision, dlam) each
+    robot's deltas brought to the voxels of the cell's column. A cell is a robot's *own*
+    ground when that robot brought it the most information, so a glance through a door
+    does not make a room mapped by a teammate one's own. Feeds f_r(t) (:func:`teammates_share`).
 
     ``shape`` is the grid's (nx, ny, nz); voxel indices are flat in C order, so a voxel's
     column is its index // nz.
@@ -413,21 +416,24 @@ class ObservedColumns:
         self._nz = nz
         self._by_robot: dict[str, np.ndarray] = {}
 
-    def add(self, robot: str, voxels) -> None:
-        """Mark the columns of ``voxels`` (flat indices) as observed by ``robot``."""
-        mask = self._by_robot.setdefault(robot, np.zeros(self.shape[0] * self.shape[1], dtype=bool))
-        mask[np.asarray(voxels, dtype=np.int64) // self._nz] = True
+    def add(self, robot: str, voxels, information) -> None:
+        """Credit ``robot`` with ``information`` (dlam, >= 0) on ``voxels`` (flat indices)."""
+        cells = np.asarray(voxels, dtype=np.int64) // self._nz
+        info = np.clip(np.nan_to_num(np.asarray(information, dtype=np.float64)), 0.0, None)
+        if cells.shape != info.shape:
+            raise ValueError(f"{cells.shape[0]} voxels but information of shape {info.shape}")
+        total = self._by_robot.setdefault(robot, np.zeros(self.shape[0] * self.shape[1]))
+        total += np.bincount(cells, weights=info, minlength=total.size)
 
     def robots(self) -> list[str]:
         return sorted(self._by_robot)
 
-    def teammates_only(self, robot: str) -> np.ndarray:
-        """(nx, ny): cells some other robot has observed and ``robot`` has not."""
-        others = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
-        for rid, mask in self._by_robot.items():
+    def teammates_ground(self, robot: str) -> np.ndarray:
+        """(nx, ny): cells to which some other robot brought more information than ``robot``."""
+        others = np.zeros(self.shape[0] * self.shape[1])
+        for rid, total in self._by_robot.items():
             if rid != robot:
-                others |= mask
+                np.maximum(others, total, out=others)
         mine = self._by_robot.get(robot)
-        if mine is not None:
-            others &= ~mine
-        return others.reshape(self.shape)
+        theirs = others > (0.0 if mine is None else mine)
+        return theirs.reshape(self.shape)

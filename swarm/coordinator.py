@@ -4,7 +4,7 @@ It keeps a replica of the team map from the map server's ``merged`` stream (star
 ``map/snapshot`` when a server answers), follows every robot's ``robot/<rid>/status``, and
 answers ``coord/assign``: the requesting robot gets the eq. 35 target of the team map that
 maximises utility minus path cost, with the targets other robots hold discounted and kept
-one sensor footprint away, and ground only its teammates have seen lowered (Burgard et al.
+one sensor footprint away, and its teammates' ground lowered (Burgard et al.
 2005 and our addition; the rule is in ``swarm.coordination`` and docs/coordinator.md).
 When no eq. 35 target is left it wanders the robot on its own ground, as long as anything
 unknown is in view.
@@ -149,7 +149,7 @@ class TeamMap:
             self.map.apply(delta)
             idx = msg.idx.astype(np.int64)
             self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
-            self.columns.add(msg.robot, idx)
+            self.columns.add(msg.robot, idx, msg.dlam)
         self.counts["applied"] += 1
         return "applied"
 
@@ -158,10 +158,10 @@ class TeamMap:
         with self.lock:
             return self.map.copy(), self.entropy.values.copy()
 
-    def teammates_only(self, robot: str) -> np.ndarray:
-        """(nx, ny): x-y cells other robots have observed and ``robot`` has not."""
+    def teammates_ground(self, robot: str) -> np.ndarray:
+        """(nx, ny): x-y cells to which other robots brought more information than ``robot``."""
         with self.lock:
-            return self.columns.teammates_only(robot)
+            return self.columns.teammates_ground(robot)
 
     @property
     def entropy_bits(self) -> float:
@@ -302,8 +302,8 @@ class CoordinatorState:
             reach = self._reach(request.robot, request.pose, cmap)
             found = self.candidates_for(request.robot, request.pose, cmap, entropy, reach)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
-            # ground only the others have seen: one mask for the scores and the wander
-            theirs = self.team.teammates_only(request.robot) if self.params.overlap_weight > 0 else None
+            # teammates' ground: one mask for the scores and the wander
+            theirs = self.team.teammates_ground(request.robot) if self.params.overlap_weight > 0 else None
             shares = self._teammates_shares(pool, theirs)
             with self._book_lock:
                 released = self.book.expire(now)
@@ -343,7 +343,7 @@ class CoordinatorState:
 
     def _wander(self, pose: Pose, cmap: CoverageMap, reach, held: np.ndarray, theirs: np.ndarray | None):
         """When no eq. 35 target is left: the agent's wander (``wander_target``), kept off
-        ``theirs`` (ground only teammates have seen; None: anywhere) and away from the others'
+        ``theirs`` (teammates' ground; None: anywhere) and away from the others'
         targets while it can be."""
         rig, trav, cost = reach
         return wander_target(

@@ -133,7 +133,7 @@ def test_random_teams_never_share_or_crowd_targets(seed):
 
 
 # ---------------------------------------------------------------------------------------
-# Ground only teammates have seen
+# Teammates' ground
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("seed", range(3))
 def test_teammates_share_counts_the_disc_cell_by_cell(seed):
@@ -158,18 +158,29 @@ def test_teammates_share_counts_the_disc_cell_by_cell(seed):
         teammates_share(points, mask.ravel(), lo, voxel, radius)
 
 
-def test_observed_columns_keep_each_robots_ground_apart():
+def test_observed_columns_give_each_cell_to_the_robot_that_brought_it_most_information():
     grid = Grid((0.0, 0.0, 0.0), 0.1, (10, 6, 3))
     cols = ObservedColumns(grid.shape)
-    flat = np.ravel_multi_index(([2, 2, 7], [1, 1, 4], [0, 2, 1]), grid.shape)
-    cols.add("a", flat[:2])  # two voxels of column (2, 1)
-    cols.add("b", flat)  # column (2, 1) and column (7, 4)
-    only_b = np.zeros((10, 6), dtype=bool)
-    only_b[7, 4] = True
-    assert np.array_equal(cols.teammates_only("a"), only_b)  # (2, 1) is a's own
-    assert not cols.teammates_only("b").any()
-    assert np.array_equal(cols.teammates_only("c"), only_b | (np.arange(60).reshape(10, 6) == 2 * 6 + 1))
+    flat = np.ravel_multi_index(([2, 2, 7, 5], [1, 1, 4, 0], [0, 2, 1, 1]), grid.shape)
+    cols.add("a", flat[:2], [2.0, 3.0])  # column (2, 1): 5 from a
+    cols.add("b", flat[:3], [1.0, 1.0, 4.0])  # column (2, 1): 2 from b; column (7, 4): 4
+    cols.add("a", flat[2:], [0.5, 1.0])  # a glances at (7, 4) and sees (5, 0)
+    cols.add("b", flat[3:], [np.nan])  # a malformed figure counts as nothing
+    cell = {(2, 1): 2 * 6 + 1, (7, 4): 7 * 6 + 4, (5, 0): 5 * 6 + 0}
+
+    def cells(*names):
+        out = np.zeros(60, dtype=bool)
+        out[[cell[n] for n in names]] = True
+        return out.reshape(10, 6)
+
+    # each cell goes to its largest contributor, whatever else glanced at it
+    assert np.array_equal(cols.teammates_ground("a"), cells((7, 4)))
+    assert np.array_equal(cols.teammates_ground("b"), cells((2, 1), (5, 0)))
+    # a robot with no deltas: every observed cell is teammates' ground
+    assert np.array_equal(cols.teammates_ground("c"), cells((2, 1), (7, 4), (5, 0)))
     assert cols.robots() == ["a", "b"]
+    with pytest.raises(ValueError):
+        cols.add("a", flat[:2], [1.0])
 
 
 def test_teammates_ground_lowers_a_target_but_never_hides_it():

@@ -123,8 +123,8 @@ def test_state_spreads_three_robots_and_gives_a_released_target_back():
     assert state.counts["released"] == 2  # r1 (silent) and r4's first target (asked again)
 
 
-@pytest.mark.parametrize("weight", [1.0, 0.0])
-def test_a_robot_is_sent_to_extend_its_own_ground(weight):
+@pytest.mark.parametrize(("weight", "glance"), [(1.0, False), (1.0, True), (0.0, False)])
+def test_a_robot_is_sent_to_extend_its_own_ground(weight, glance):
     # r1 mapped the corridor's west part, r2 its east part; r1 stands just inside r2's part.
     # Frontiers line the whole corridor. With the overlap weight r1 is sent back west, to
     # the edge of its own ground; with Burgard's rule alone it takes one near where it stands.
@@ -133,6 +133,12 @@ def test_a_robot_is_sent_to_extend_its_own_ground(weight):
     for rid, (x_lo, x_hi) in {"r1": (0.3, 4.0), "r2": (4.0, 7.7)}.items():
         for msg in deltas_of(m, corridor_map(m, x_lo, x_hi), rid, 1, 2):
             assert state.team.apply_payload(msg.encode()) == "applied"
+    if glance:
+        # r1 also saw all of r2's part, faintly (a hundredth of r2's information): the part
+        # stays r2's ground, so r1 is still sent west
+        (faint,) = deltas_of(m, corridor_map(m, 4.0, 7.7), "r1", 2, 1)
+        faint = dataclasses.replace(faint, dlam=faint.dlam / 100, deta=faint.deta / 100)
+        assert state.team.apply_payload(faint.encode()) == "applied"
     here = Pose((4.8, 2.0, 0.4), (0.0, 0.0, 0.0))
     x = state.answer(AssignRequest("r1", here), now=0.0).reply.target[0]
     if weight:
@@ -148,7 +154,7 @@ def test_wander_keeps_off_teammates_ground_and_stops_when_nothing_is_unknown():
     here = (4.05, 2.05, 0.0)
     cost = GridPlanner(trav).cost_map(tuple(int(c) for c in trav.cell_of(np.array(here[:2]))))
     theirs = np.zeros(trav.shape, dtype=bool)
-    theirs[:40] = True  # x < 4 m: only teammates have seen it
+    theirs[:40] = True  # x < 4 m: teammates' ground
     rng = np.random.default_rng(0)
     xs = []
     for _ in range(40):
