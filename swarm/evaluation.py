@@ -120,6 +120,27 @@ def overlap_fraction(observed_by: Mapping[str, np.ndarray]) -> float:
     return int(np.count_nonzero(count >= 2)) / seen if seen else 0.0
 
 
+def overlap_by_time(first_seen: Mapping[str, np.ndarray], t: float) -> float:
+    """:func:`overlap_fraction` of what each robot had shared by sim time ``t``.
+
+    ``first_seen`` maps robot id -> the sim time of the first of its deltas that carried
+    each voxel (inf: none did).
+    """
+    masks = {}
+    for robot, times in first_seen.items():
+        times = np.ravel(times)
+        masks[robot] = np.isfinite(times) & (times <= t)
+    return overlap_fraction(masks)
+
+
+def halfway_time(entropy_curve: Sequence[Sequence[float]], threshold: float) -> float | None:
+    """Time of the first sample (t, H) with H at or below halfway from the first sample's
+    entropy to ``threshold``: the mission's halfway mark in information; None if never."""
+    if not entropy_curve:
+        return None
+    return mission_time(entropy_curve, 0.5 * (float(entropy_curve[0][1]) + threshold))
+
+
 def entropy_split(
     entropy_per_voxel: np.ndarray, observable_mask: np.ndarray, initial_per_voxel: float | np.ndarray
 ) -> dict[str, float]:

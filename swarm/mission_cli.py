@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm import evaluation
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
 from swarm.map.entropy import EntropyCache, default_table
 from swarm.map_file import save_map
@@ -96,6 +97,12 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     metrics = compute_metrics(record, monitor.cmap, truth, monitor.observed_by)
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
+    first_seen = monitor.first_seen_copy()
+    t_half = evaluation.halfway_time(metrics["entropy_curve"], metrics["threshold_bits"])
+    metrics["halfway_time_s"] = t_half
+    metrics["overlap_halfway"] = (
+        None if t_half is None or not first_seen else evaluation.overlap_by_time(first_seen, t_half)
+    )
     server_map = facts["server_map"]
     if server_map is not None:
         # The server merged the same deltas the monitor saw: its map must be the same.
@@ -106,6 +113,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     write_run_folder(out, metrics, monitor.cmap, mission.to_yaml(), record)
     if server_map is not None:
         save_map(out / "server_map.npz", server_map)
+    np.savez_compressed(out / "observed_by.npz", **{f"first_seen_{r}": t for r, t in first_seen.items()})
     keys = (
         "reached_threshold",
         "mission_time_s",

@@ -59,7 +59,7 @@ class TeamMonitor:
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     states: dict[str, str] = field(default_factory=dict)
     bytes_shared: dict[str, int] = field(default_factory=dict)
-    observed_by: dict[str, np.ndarray] = field(default_factory=dict)
+    first_seen: dict[str, np.ndarray] = field(default_factory=dict)  # robot -> sim time per voxel
     sim_time: float = 0.0
     dead: list[str] = field(default_factory=list)
     rejected: int = 0
@@ -88,8 +88,10 @@ class TeamMonitor:
                 idx = msg.idx.astype(np.int64)
                 self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
                 self.curve.append((float(msg.t), float(self.entropy.total)))
-                mask = self.observed_by.setdefault(msg.robot, np.zeros(self.cmap.grid.size, bool))
-                mask[idx] = True
+                first = self.first_seen.get(msg.robot)
+                if first is None:
+                    first = self.first_seen[msg.robot] = np.full(self.cmap.grid.size, np.inf, np.float32)
+                first[idx] = np.minimum(first[idx], np.float32(msg.t))
                 self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
         except (WireError, ValueError) as exc:
             self.rejected += 1
@@ -114,6 +116,17 @@ class TeamMonitor:
             self.rejected += 1
             return
         self.states[status.robot] = status.state
+
+    @property
+    def observed_by(self) -> dict[str, np.ndarray]:
+        """Robot id -> bool mask of the voxels in any of its deltas (DESIGN.md section 7)."""
+        with self._lock:
+            return {r: np.isfinite(t) for r, t in self.first_seen.items()}
+
+    def first_seen_copy(self) -> dict[str, np.ndarray]:
+        """Robot id -> sim time of the first of its deltas that carried each voxel (inf: none)."""
+        with self._lock:
+            return {r: t.copy() for r, t in self.first_seen.items()}
 
     @property
     def team_entropy(self) -> float:

@@ -478,6 +478,7 @@ RESULT_COLUMNS = (
     "coverage_mae_observed",
     "explored_fraction",
     "overlap_fraction",
+    "overlap_halfway",
     "distance_total_m",
     "distance_mean_m",
     "distance_max_m",
@@ -502,6 +503,7 @@ _COPIED = (
     "coverage_mae_observed",
     "explored_fraction",
     "overlap_fraction",
+    "overlap_halfway",
     "stop_reason",
 )
 
@@ -568,6 +570,7 @@ class SettingSummary:
     reached_time_std_s: float | None = None
     final_entropy_mean_bits: float | None = None
     overlap_mean: float | None = None
+    overlap_halfway_mean: float | None = None
     f1_mean: float | None = None
     f1_observed_mean: float | None = None
     explored_mean: float | None = None
@@ -623,6 +626,7 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SettingSummary]:
         s.reached_time_mean_s, s.reached_time_std_s = _mean(reached_times), _std(reached_times)
         s.final_entropy_mean_bits = _mean(r["final_entropy_bits"] for r in done)
         s.overlap_mean = _mean(r["overlap_fraction"] for r in done)
+        s.overlap_halfway_mean = _mean(r.get("overlap_halfway") for r in done)
         s.f1_mean = _mean(r["occupancy_f1"] for r in done)
         s.f1_observed_mean = _mean(r["occupancy_f1_observed"] for r in done)
         s.explored_mean = _mean(r["explored_fraction"] for r in done)
@@ -703,9 +707,10 @@ def summary_markdown(
         + ("; INTERRUPTED: incomplete" if interrupted else ""),
         "",
         "| config | robots | strategy | coordination | runs | reached H_th | time to H_th, all runs (s) "
-        "| time, reached runs (s) | final H (bits) | overlap | F1 | F1 observed | distance, team (m) "
+        "| time, reached runs (s) | final H (bits) | overlap | overlap halfway | F1 | F1 observed "
+        "| distance, team (m) "
         "| speed-up |",
-        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in summary:
         runs = f"{s.n_runs}" + (f" (+{s.n_failed} failed)" if s.n_failed else "")
@@ -725,6 +730,7 @@ def summary_markdown(
             t_reached,
             _num(s.final_entropy_mean_bits, ",.0f"),
             _num(s.overlap_mean, ".3f"),
+            _num(s.overlap_halfway_mean, ".3f"),
             _num(s.f1_mean, ".3f"),
             _num(s.f1_observed_mean, ".3f"),
             _num(s.distance_total_mean_m, ".1f"),
@@ -741,7 +747,9 @@ def summary_markdown(
         "- speed-up = time of 1 robot (same config and strategy) / time of the row, both over all runs; "
         '">=" when only the 1-robot time is a lower bound, "<=" when only the row\'s is, "?" when both are.',
         "- final H: map entropy at the end of the run; overlap: fraction of observed voxels seen by 2+ "
-        "robots; F1: occupancy F1 over observable voxels (F1 observed: over the voxels the team saw).",
+        "robots (DESIGN.md section 7: every delta, the agents' last flush included); overlap halfway: "
+        "the same over what the robots had shared when the entropy was halfway from its start to "
+        "H_th; F1: occupancy F1 over observable voxels (F1 observed: over the voxels the team saw).",
     ]
     if failed:
         lines += ["", "## Failed runs", ""]

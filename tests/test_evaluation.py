@@ -9,9 +9,11 @@ from swarm.evaluation import (
     coverage_mae,
     entropy_split,
     explored_fraction,
+    halfway_time,
     mission_time,
     observable_mask,
     occupancy_f1,
+    overlap_by_time,
     overlap_fraction,
     path_length,
 )
@@ -94,6 +96,30 @@ def test_overlap_fraction():
     assert overlap_fraction({"a": a}) == 0.0
     assert overlap_fraction({"a": np.zeros(6, bool)}) == 0.0
     assert overlap_fraction({}) == 0.0
+
+
+def test_overlap_by_time_counts_what_was_shared_by_then():
+    inf = np.inf
+    first_seen = {
+        "a": np.array([1.0, 2.0, inf, inf, 9.0]),
+        "b": np.array([inf, 5.0, 3.0, inf, 9.0]),
+    }
+    # by t = 3: a has voxels 0, 1; b has voxel 2 -> no overlap yet
+    assert overlap_by_time(first_seen, 3.0) == 0.0
+    # by t = 5: voxel 1 is both robots' -> 1 of 3
+    assert overlap_by_time(first_seen, 5.0) == pytest.approx(1 / 3)
+    # at the end: voxels 1 and 4 of 4 observed ones, the same as overlap_fraction of the masks
+    masks = {r: np.isfinite(t) for r, t in first_seen.items()}
+    assert overlap_fraction(masks) == pytest.approx(2 / 4)
+    assert overlap_by_time(first_seen, inf) == pytest.approx(2 / 4)
+
+
+def test_halfway_time_is_the_first_sample_halfway_to_the_threshold():
+    curve = [(0.0, 100.0), (1.0, 80.0), (2.0, 59.0), (3.0, 50.0), (4.0, 20.0)]
+    assert halfway_time(curve, 20.0) == 2.0  # halfway from 100 to 20 is 60
+    assert halfway_time(curve, 0.0) == 3.0  # 50 counts
+    assert halfway_time(curve[:2], 0.0) is None
+    assert halfway_time([], 10.0) is None
 
 
 def test_mission_time_first_crossing():
