@@ -94,10 +94,11 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         floor_plan=plan,
         height_band=(0.1, mission.rig.camera_height + 0.1),
     )
-    metrics = compute_metrics(record, monitor.cmap, truth, monitor.observed_by)
+    first_seen = monitor.first_seen_copy()  # one snapshot for both overlaps and observed_by.npz
+    observed_by = {r: np.isfinite(t) for r, t in first_seen.items()}
+    metrics = compute_metrics(record, monitor.cmap, truth, observed_by)
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
-    first_seen = monitor.first_seen_copy()
     t_half = evaluation.halfway_time(metrics["entropy_curve"], metrics["threshold_bits"])
     metrics["halfway_time_s"] = t_half
     metrics["overlap_halfway"] = (

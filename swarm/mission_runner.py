@@ -117,12 +117,6 @@ class TeamMonitor:
             return
         self.states[status.robot] = status.state
 
-    @property
-    def observed_by(self) -> dict[str, np.ndarray]:
-        """Robot id -> bool mask of the voxels in any of its deltas (DESIGN.md section 7)."""
-        with self._lock:
-            return {r: np.isfinite(t) for r, t in self.first_seen.items()}
-
     def first_seen_copy(self) -> dict[str, np.ndarray]:
         """Robot id -> sim time of the first of its deltas that carried each voxel (inf: none)."""
         with self._lock:
