@@ -120,25 +120,60 @@ def overlap_fraction(observed_by: Mapping[str, np.ndarray]) -> float:
     return int(np.count_nonzero(count >= 2)) / seen if seen else 0.0
 
 
-def overlap_by_time(first_seen: Mapping[str, np.ndarray], t: float) -> float:
-    """:func:`overlap_fraction` of what each robot had shared by sim time ``t``.
+def overlap_up_to(first_delta: Mapping[str, np.ndarray], n: int) -> float:
+    """:func:`overlap_fraction` of what each robot had shared by the team's delta number ``n``.
 
-    ``first_seen`` maps robot id -> the sim time of the first of its deltas that carried
-    each voxel (inf: none did).
+    ``first_delta`` maps robot id -> per voxel the number (1, 2, ... in the order the deltas
+    of all robots were applied) of the first of the robot's deltas that carried it; a voxel
+    whose number is above ``n`` (or a "never" marker above every n) was not shared by then.
     """
-    masks = {}
-    for robot, times in first_seen.items():
-        times = np.ravel(times)
-        masks[robot] = np.isfinite(times) & (times <= t)
-    return overlap_fraction(masks)
+    return overlap_fraction({robot: np.ravel(first) <= n for robot, first in first_delta.items()})
 
 
-def halfway_time(entropy_curve: Sequence[Sequence[float]], threshold: float) -> float | None:
-    """Time of the first sample (t, H) with H at or below halfway from the first sample's
-    entropy to ``threshold``: the mission's halfway mark in information; None if never."""
+def first_seen_times(first_delta: np.ndarray, curve_t: np.ndarray, never: int) -> np.ndarray:
+    """Sim time of each voxel's first delta, from its delta number and the curve's sample
+    times (``curve_t[n]``: the time of delta n); inf where the number is ``never``."""
+    first_delta = np.asarray(first_delta)
+    seen = first_delta != never
+    times = np.full(first_delta.shape, np.inf, np.float32)
+    times[seen] = np.asarray(curve_t, np.float64)[first_delta[seen]]
+    return times
+
+
+def first_sample_at_or_below(entropy_curve: Sequence[Sequence[float]], level: float) -> int | None:
+    """Index of the first sample (t, H) of the curve with H <= ``level``; None if none is."""
+    for i, (_t, h) in enumerate(entropy_curve):
+        if h <= level:
+            return i
+    return None
+
+
+def halfway_level(entropy_curve: Sequence[Sequence[float]], threshold: float) -> float | None:
+    """The entropy halfway from the curve's first sample to ``threshold``; None for no curve."""
     if not entropy_curve:
         return None
-    return mission_time(entropy_curve, 0.5 * (float(entropy_curve[0][1]) + threshold))
+    return 0.5 * (float(entropy_curve[0][1]) + threshold)
+
+
+def overlaps_during_mission(
+    first_delta: Mapping[str, np.ndarray], entropy_curve: Sequence[Sequence[float]], threshold: float
+) -> dict[str, float | None]:
+    """DESIGN.md's overlap over what the robots had shared at two moments of the mission.
+
+    ``halfway``: when the team entropy was first halfway from its start to H_th;
+    ``at_threshold``: when it first reached H_th (eq. 36), so before the agents' shutdown
+    flush. Both count deltas in the order the monitor applied them: ``first_delta`` as in
+    :func:`overlap_up_to`, delta n being the one after which ``entropy_curve[n]`` was sampled.
+    Also the halfway time; each figure None if its moment never came.
+    """
+    half = halfway_level(entropy_curve, threshold)
+    n_half = None if half is None else first_sample_at_or_below(entropy_curve, half)
+    n_th = first_sample_at_or_below(entropy_curve, threshold)
+    return {
+        "halfway_time_s": None if n_half is None else float(entropy_curve[n_half][0]),
+        "overlap_halfway": None if n_half is None else overlap_up_to(first_delta, n_half),
+        "overlap_at_threshold": None if n_th is None else overlap_up_to(first_delta, n_th),
+    }
 
 
 def entropy_split(
@@ -173,10 +208,8 @@ def entropy_split(
 
 def mission_time(entropy_curve: Sequence[Sequence[float]], threshold: float) -> float | None:
     """Time t of the first sample (t, H) with H <= ``threshold`` (paper eq. 36); None if never."""
-    for t, h in entropy_curve:
-        if h <= threshold:
-            return float(t)
-    return None
+    i = first_sample_at_or_below(entropy_curve, threshold)
+    return None if i is None else float(entropy_curve[i][0])
 
 
 def path_length(trajectory: Sequence[Sequence[float]]) -> float:

@@ -38,7 +38,7 @@ def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
 
 def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     from sim2d.ground_truth import coverage as true_coverage_of
-    from swarm.mission_runner import MissionOptions, run_mission
+    from swarm.mission_runner import NEVER, MissionOptions, run_mission
     from swarm.run_report import RunRecord, compute_metrics, write_run_folder
 
     try:
@@ -94,15 +94,13 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         floor_plan=plan,
         height_band=(0.1, mission.rig.camera_height + 0.1),
     )
-    first_seen = monitor.first_seen_copy()  # one snapshot for both overlaps and observed_by.npz
-    observed_by = {r: np.isfinite(t) for r, t in first_seen.items()}
+    first_delta = monitor.first_delta_copy()  # one snapshot for the overlaps and observed_by.npz
+    observed_by = {r: n != NEVER for r, n in first_delta.items()}
     metrics = compute_metrics(record, monitor.cmap, truth, observed_by)
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
-    t_half = evaluation.halfway_time(metrics["entropy_curve"], metrics["threshold_bits"])
-    metrics["halfway_time_s"] = t_half
-    metrics["overlap_halfway"] = (
-        None if t_half is None or not first_seen else evaluation.overlap_by_time(first_seen, t_half)
+    metrics.update(
+        evaluation.overlaps_during_mission(first_delta, metrics["entropy_curve"], metrics["threshold_bits"])
     )
     server_map = facts["server_map"]
     if server_map is not None:
@@ -114,7 +112,12 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     write_run_folder(out, metrics, monitor.cmap, mission.to_yaml(), record)
     if server_map is not None:
         save_map(out / "server_map.npz", server_map)
-    np.savez_compressed(out / "observed_by.npz", **{f"first_seen_{r}": t for r, t in first_seen.items()})
+    curve_t = np.array([t for t, _h in monitor.curve])
+    arrays = {}
+    for r, n in first_delta.items():
+        arrays[f"first_delta_{r}"] = n
+        arrays[f"first_seen_{r}"] = evaluation.first_seen_times(n, curve_t, never=NEVER)
+    np.savez_compressed(out / "observed_by.npz", **arrays)
     keys = (
         "reached_threshold",
         "mission_time_s",

@@ -35,6 +35,8 @@ from swarm.map.entropy import EntropyCache, default_table
 from swarm.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.wire import DeltaMessage, Status, TruthPoses, WireError
 
+NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
+
 
 @dataclass
 class MissionOptions:
@@ -59,7 +61,9 @@ class TeamMonitor:
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     states: dict[str, str] = field(default_factory=dict)
     bytes_shared: dict[str, int] = field(default_factory=dict)
-    first_seen: dict[str, np.ndarray] = field(default_factory=dict)  # robot -> sim time per voxel
+    # robot -> per voxel, the number of the first of its deltas that carried it (NEVER: none
+    # did); delta n is the one after which curve[n] was sampled, so its sim time is curve[n][0]
+    first_delta: dict[str, np.ndarray] = field(default_factory=dict)
     sim_time: float = 0.0
     dead: list[str] = field(default_factory=list)
     rejected: int = 0
@@ -88,10 +92,10 @@ class TeamMonitor:
                 idx = msg.idx.astype(np.int64)
                 self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
                 self.curve.append((float(msg.t), float(self.entropy.total)))
-                first = self.first_seen.get(msg.robot)
+                first = self.first_delta.get(msg.robot)
                 if first is None:
-                    first = self.first_seen[msg.robot] = np.full(self.cmap.grid.size, np.inf, np.float32)
-                first[idx] = np.minimum(first[idx], np.float32(msg.t))
+                    first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
+                first[idx] = np.minimum(first[idx], self.applied)
                 self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
         except (WireError, ValueError) as exc:
             self.rejected += 1
@@ -117,10 +121,10 @@ class TeamMonitor:
             return
         self.states[status.robot] = status.state
 
-    def first_seen_copy(self) -> dict[str, np.ndarray]:
-        """Robot id -> sim time of the first of its deltas that carried each voxel (inf: none)."""
+    def first_delta_copy(self) -> dict[str, np.ndarray]:
+        """Robot id -> number of the first of its deltas that carried each voxel (NEVER: none)."""
         with self._lock:
-            return {r: t.copy() for r, t in self.first_seen.items()}
+            return {r: n.copy() for r, n in self.first_delta.items()}
 
     @property
     def team_entropy(self) -> float:

@@ -9,12 +9,13 @@ from swarm.evaluation import (
     coverage_mae,
     entropy_split,
     explored_fraction,
-    halfway_time,
+    first_seen_times,
     mission_time,
     observable_mask,
     occupancy_f1,
-    overlap_by_time,
     overlap_fraction,
+    overlap_up_to,
+    overlaps_during_mission,
     path_length,
 )
 from swarm.map.grid import Grid
@@ -98,28 +99,52 @@ def test_overlap_fraction():
     assert overlap_fraction({}) == 0.0
 
 
-def test_overlap_by_time_counts_what_was_shared_by_then():
-    inf = np.inf
-    first_seen = {
-        "a": np.array([1.0, 2.0, inf, inf, 9.0]),
-        "b": np.array([inf, 5.0, 3.0, inf, 9.0]),
+NEVER = np.iinfo(np.int32).max
+
+
+def test_overlap_up_to_counts_what_was_shared_by_then():
+    first_delta = {
+        "a": np.array([1, 2, NEVER, NEVER, 9]),
+        "b": np.array([NEVER, 5, 3, NEVER, 9]),
     }
-    # by t = 3: a has voxels 0, 1; b has voxel 2 -> no overlap yet
-    assert overlap_by_time(first_seen, 3.0) == 0.0
-    # by t = 5: voxel 1 is both robots' -> 1 of 3
-    assert overlap_by_time(first_seen, 5.0) == pytest.approx(1 / 3)
+    # by delta 3: a has voxels 0, 1; b has voxel 2 -> no overlap yet
+    assert overlap_up_to(first_delta, 3) == 0.0
+    # by delta 5: voxel 1 is both robots' -> 1 of 3
+    assert overlap_up_to(first_delta, 5) == pytest.approx(1 / 3)
     # at the end: voxels 1 and 4 of 4 observed ones, the same as overlap_fraction of the masks
-    masks = {r: np.isfinite(t) for r, t in first_seen.items()}
+    masks = {r: n != NEVER for r, n in first_delta.items()}
     assert overlap_fraction(masks) == pytest.approx(2 / 4)
-    assert overlap_by_time(first_seen, inf) == pytest.approx(2 / 4)
+    assert overlap_up_to(first_delta, NEVER - 1) == pytest.approx(2 / 4)
 
 
-def test_halfway_time_is_the_first_sample_halfway_to_the_threshold():
-    curve = [(0.0, 100.0), (1.0, 80.0), (2.0, 59.0), (3.0, 50.0), (4.0, 20.0)]
-    assert halfway_time(curve, 20.0) == 2.0  # halfway from 100 to 20 is 60
-    assert halfway_time(curve, 0.0) == 3.0  # 50 counts
-    assert halfway_time(curve[:2], 0.0) is None
-    assert halfway_time([], 10.0) is None
+def test_first_seen_times_reads_each_voxels_first_delta_off_the_curve():
+    curve_t = np.array([0.0, 0.5, 0.5, 1.0, 7.5])  # delta n was applied at curve_t[n]
+    times = first_seen_times(np.array([1, 4, NEVER, 3]), curve_t, never=NEVER)
+    assert times.tolist() == [0.5, 7.5, np.inf, 1.0]
+
+
+def test_overlaps_during_mission_stop_at_the_crossings_not_at_the_flush():
+    # deltas 1-4 during the mission, H_th (20) first reached at delta 4; delta 5 is r2's
+    # shutdown flush, stamped with the same sim time as delta 4
+    curve = [(0.0, 100.0), (1.0, 80.0), (2.0, 59.0), (3.0, 30.0), (4.0, 20.0), (4.0, 19.0)]
+    first_delta = {
+        "r1": np.array([1, 3, 4, NEVER, 4]),
+        "r2": np.array([NEVER, 2, 5, 5, NEVER]),
+    }
+    out = overlaps_during_mission(first_delta, curve, threshold=20.0)
+    # halfway from 100 to 20 is 60: first reached at delta 2 (t = 2); by then r1 had voxel 0,
+    # r2 voxel 1 -> no overlap
+    assert out["halfway_time_s"] == 2.0
+    assert out["overlap_halfway"] == 0.0
+    # at H_th (delta 4): r1 has 0, 1, 2, 4 and r2 has 1 -> 1 of 4; the flush (delta 5) would
+    # make voxel 2 shared as well: 2 of 5
+    assert out["overlap_at_threshold"] == pytest.approx(1 / 4)
+    assert overlap_up_to(first_delta, 5) == pytest.approx(2 / 5)
+    # a mission that never got halfway, or never reached H_th
+    assert overlaps_during_mission(first_delta, curve, threshold=0.0)["overlap_at_threshold"] is None
+    never_half = overlaps_during_mission(first_delta, curve[:2], threshold=0.0)
+    assert never_half == {"halfway_time_s": None, "overlap_halfway": None, "overlap_at_threshold": None}
+    assert overlaps_during_mission(first_delta, [], threshold=0.0)["halfway_time_s"] is None
 
 
 def test_mission_time_first_crossing():

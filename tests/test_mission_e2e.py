@@ -63,9 +63,11 @@ def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
         assert data["mu"].shape == (24, 24, 8)
     # who observed what, and when: every voxel the map knows came in one of r1's deltas
     with np.load(out / "observed_by.npz") as data:
-        first_seen = data["first_seen_r1"]
+        first_seen, first_delta = data["first_seen_r1"], data["first_delta_r1"]
     seen = np.isfinite(first_seen)
+    assert np.array_equal(seen, first_delta < len(curve))
     assert metrics["known_voxels"] <= np.count_nonzero(seen) <= 24 * 24 * 8
     assert 0 <= first_seen[seen].min() and first_seen[seen].max() <= metrics["sim_time_s"] + 1.0
     assert 0 < metrics["halfway_time_s"] <= metrics["mission_time_s"]
     assert metrics["overlap_halfway"] == 0.0 == metrics["overlap_fraction"]  # one robot
+    assert metrics["overlap_at_threshold"] == 0.0
