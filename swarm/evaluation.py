@@ -160,9 +160,12 @@ def overlaps_during_mission(
 ) -> dict[str, float | None]:
     """DESIGN.md's overlap over what the robots had shared at two moments of the mission.
 
-    ``halfway``: when the team entropy was first halfway from its start to H_th;
-    ``at_threshold``: when it first reached H_th (eq. 36), so before the agents' shutdown
-    flush. Both count deltas in the order the monitor applied them: ``first_delta`` as in
+    ``overlap_halfway``: up to the delta that first brought the team entropy halfway from
+    its start to H_th. ``overlap_before_threshold``: up to the delta before the one that
+    first brought it to H_th (eq. 36). An agent whose own map, with what it has not shared,
+    is below H_th flushes all it holds; that flush is what usually brings the team map to
+    H_th, and leaving it out leaves what the agents shared through their utility filter.
+    Deltas count in the order the monitor applied them: ``first_delta`` as in
     :func:`overlap_up_to`, delta n being the one after which ``entropy_curve[n]`` was sampled.
     Also the halfway time; each figure None if its moment never came.
     """
@@ -172,7 +175,7 @@ def overlaps_during_mission(
     return {
         "halfway_time_s": None if n_half is None else float(entropy_curve[n_half][0]),
         "overlap_halfway": None if n_half is None else overlap_up_to(first_delta, n_half),
-        "overlap_at_threshold": None if n_th is None else overlap_up_to(first_delta, n_th),
+        "overlap_before_threshold": None if n_th is None else overlap_up_to(first_delta, n_th - 1),
     }
 
 

@@ -479,7 +479,7 @@ RESULT_COLUMNS = (
     "explored_fraction",
     "overlap_fraction",
     "overlap_halfway",
-    "overlap_at_threshold",
+    "overlap_before_threshold",
     "distance_total_m",
     "distance_mean_m",
     "distance_max_m",
@@ -505,7 +505,7 @@ _COPIED = (
     "explored_fraction",
     "overlap_fraction",
     "overlap_halfway",
-    "overlap_at_threshold",
+    "overlap_before_threshold",
     "stop_reason",
 )
 
@@ -573,7 +573,7 @@ class SettingSummary:
     final_entropy_mean_bits: float | None = None
     overlap_mean: float | None = None
     overlap_halfway_mean: float | None = None
-    overlap_at_threshold_mean: float | None = None
+    overlap_before_threshold_mean: float | None = None
     f1_mean: float | None = None
     f1_observed_mean: float | None = None
     explored_mean: float | None = None
@@ -630,7 +630,7 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SettingSummary]:
         s.final_entropy_mean_bits = _mean(r["final_entropy_bits"] for r in done)
         s.overlap_mean = _mean(r["overlap_fraction"] for r in done)
         s.overlap_halfway_mean = _mean(r.get("overlap_halfway") for r in done)
-        s.overlap_at_threshold_mean = _mean(r.get("overlap_at_threshold") for r in done)
+        s.overlap_before_threshold_mean = _mean(r.get("overlap_before_threshold") for r in done)
         s.f1_mean = _mean(r["occupancy_f1"] for r in done)
         s.f1_observed_mean = _mean(r["occupancy_f1_observed"] for r in done)
         s.explored_mean = _mean(r["explored_fraction"] for r in done)
@@ -711,7 +711,7 @@ def summary_markdown(
         + ("; INTERRUPTED: incomplete" if interrupted else ""),
         "",
         "| config | robots | strategy | coordination | runs | reached H_th | time to H_th, all runs (s) "
-        "| time, reached runs (s) | final H (bits) | overlap | overlap halfway | overlap at H_th "
+        "| time, reached runs (s) | final H (bits) | overlap | overlap halfway | overlap before H_th "
         "| F1 | F1 observed "
         "| distance, team (m) "
         "| speed-up |",
@@ -736,7 +736,7 @@ def summary_markdown(
             _num(s.final_entropy_mean_bits, ",.0f"),
             _num(s.overlap_mean, ".3f"),
             _num(s.overlap_halfway_mean, ".3f"),
-            _num(s.overlap_at_threshold_mean, ".3f"),
+            _num(s.overlap_before_threshold_mean, ".3f"),
             _num(s.f1_mean, ".3f"),
             _num(s.f1_observed_mean, ".3f"),
             _num(s.distance_total_mean_m, ".1f"),
@@ -753,10 +753,11 @@ def summary_markdown(
         "- speed-up = time of 1 robot (same config and strategy) / time of the row, both over all runs; "
         '">=" when only the 1-robot time is a lower bound, "<=" when only the row\'s is, "?" when both are.',
         "- final H: map entropy at the end of the run; overlap: fraction of observed voxels seen by 2+ "
-        "robots (DESIGN.md section 7: every delta, the agents' last flush included); overlap halfway "
-        "and overlap at H_th: the same over what the robots had shared when the team entropy was "
-        "first halfway from its start to H_th, and when it first reached H_th (before the agents' "
-        "shutdown flush, which sends what each had judged not worth sharing); "
+        "robots (DESIGN.md section 7: every delta, the agents' flushes included); overlap halfway: "
+        "the same over what the robots had shared when the team entropy was first halfway from its "
+        "start to H_th; overlap before H_th: over what they had shared before the delta that brought "
+        "the team map to H_th (usually the first agent's end-of-work flush, so: what the agents shared "
+        "through their utility filter); "
         "F1: occupancy F1 over observable voxels (F1 observed: over the voxels the team saw).",
     ]
     if failed:

@@ -123,9 +123,9 @@ def test_first_seen_times_reads_each_voxels_first_delta_off_the_curve():
     assert times.tolist() == [0.5, 7.5, np.inf, 1.0]
 
 
-def test_overlaps_during_mission_stop_at_the_crossings_not_at_the_flush():
-    # deltas 1-4 during the mission, H_th (20) first reached at delta 4; delta 5 is r2's
-    # shutdown flush, stamped with the same sim time as delta 4
+def test_overlaps_during_mission_leave_out_the_flush_that_reaches_the_threshold():
+    # deltas 1-3 pass the agents' utility filter; delta 4 is r1's end-of-work flush, which
+    # brings the team entropy to H_th (20); delta 5 is r2's shutdown flush, at the same time
     curve = [(0.0, 100.0), (1.0, 80.0), (2.0, 59.0), (3.0, 30.0), (4.0, 20.0), (4.0, 19.0)]
     first_delta = {
         "r1": np.array([1, 3, 4, NEVER, 4]),
@@ -136,14 +136,16 @@ def test_overlaps_during_mission_stop_at_the_crossings_not_at_the_flush():
     # r2 voxel 1 -> no overlap
     assert out["halfway_time_s"] == 2.0
     assert out["overlap_halfway"] == 0.0
-    # at H_th (delta 4): r1 has 0, 1, 2, 4 and r2 has 1 -> 1 of 4; the flush (delta 5) would
-    # make voxel 2 shared as well: 2 of 5
-    assert out["overlap_at_threshold"] == pytest.approx(1 / 4)
+    # before H_th (deltas 1-3): r1 has voxels 0 and 1, r2 has 1 -> 1 of 2
+    assert out["overlap_before_threshold"] == pytest.approx(1 / 2)
+    # the flushes would add voxel 2 (both robots'), 3 and 4 -> 2 of 5, as the headline counts
     assert overlap_up_to(first_delta, 5) == pytest.approx(2 / 5)
-    # a mission that never got halfway, or never reached H_th
-    assert overlaps_during_mission(first_delta, curve, threshold=0.0)["overlap_at_threshold"] is None
+    masks = {r: n != NEVER for r, n in first_delta.items()}
+    assert overlap_fraction(masks) == pytest.approx(2 / 5)
+    # a mission that never reached H_th, or never got halfway
+    assert overlaps_during_mission(first_delta, curve, threshold=0.0)["overlap_before_threshold"] is None
     never_half = overlaps_during_mission(first_delta, curve[:2], threshold=0.0)
-    assert never_half == {"halfway_time_s": None, "overlap_halfway": None, "overlap_at_threshold": None}
+    assert never_half == {"halfway_time_s": None, "overlap_halfway": None, "overlap_before_threshold": None}
     assert overlaps_during_mission(first_delta, [], threshold=0.0)["halfway_time_s"] is None
 
 

@@ -70,4 +70,4 @@ def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
     assert 0 <= first_seen[seen].min() and first_seen[seen].max() <= metrics["sim_time_s"] + 1.0
     assert 0 < metrics["halfway_time_s"] <= metrics["mission_time_s"]
     assert metrics["overlap_halfway"] == 0.0 == metrics["overlap_fraction"]  # one robot
-    assert metrics["overlap_at_threshold"] == 0.0
+    assert metrics["overlap_before_threshold"] == 0.0
