@@ -176,6 +176,38 @@ def test_wander_keeps_off_teammates_ground_and_stops_when_nothing_is_unknown():
     assert wander_target(known, here, 0.4, trav_k, cost_k, 3.0, rng) is None
 
 
+def test_a_robot_whose_only_targets_are_taken_wanders_and_one_with_nothing_unknown_is_told_so():
+    # a pocket of known floor 0.4 m x 1 m gives three eq. 35 targets from two standing
+    # points; once r1 and r2 hold them, the third is at a held target (U' = 0), so the
+    # coordinator sends r3 to wander instead of telling it nothing is left
+    m = mission()
+    state = CoordinatorState(m, params_from_mission(m))
+    for msg in deltas_of(m, corridor_map(m, 0.8, 1.2), "r9", 1, 2):
+        assert state.team.apply_payload(msg.encode()) == "applied"
+    here = Pose((1.0, 2.0, 0.4), (0.0, 0.0, 0.0))
+    first = state.answer(AssignRequest("r1", here), now=0.0)
+    second = state.answer(AssignRequest("r2", here), now=0.1)
+    assert first.candidate is not None and second.candidate is not None
+    third = state.answer(AssignRequest("r3", here), now=0.2)
+    assert (third.candidates, third.held_by_others) == (3, 2)
+    assert third.candidate is None and third.wander is not None and third.wander.kind == "wander"
+    assert third.reply.utility == 0.0 and third.reply.target is not None
+    x, y, _ = third.reply.target
+    assert 0.8 <= x <= 1.2 and 1.5 <= y <= 2.5  # known free floor: reachable
+    assert np.linalg.norm(third.reply.gaze) == pytest.approx(1.0)
+    assert (state.counts["assigned"], state.counts["wander"]) == (2, 1)
+    # a map with nothing unknown left: no target, no wander, and the robot is told so
+    done = CoordinatorState(m, params_from_mission(m))
+    known = corridor_map(m, 0.0, 8.0)
+    known.lam[:] = known.lam.max()
+    known.eta[:] = 0.0
+    for msg in deltas_of(m, known, "r9", 1, 2):
+        assert done.team.apply_payload(msg.encode()) == "applied"
+    nothing = done.answer(AssignRequest("r1", here), now=0.0)
+    assert nothing.reply.target is None and nothing.candidate is None and nothing.wander is None
+    assert done.counts["nothing_left"] == 1
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_random_maps_never_crowd_robots_while_room_is_left(seed):
     rng = np.random.default_rng(seed)
