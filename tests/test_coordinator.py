@@ -72,6 +72,14 @@ def corridor_map(m, x_lo=0.3, x_hi=7.7) -> CoverageMap:
     return cmap
 
 
+def known_everywhere(m) -> CoverageMap:
+    """Every voxel known and free: nothing left to explore."""
+    cmap = corridor_map(m, 0.0, 8.0)
+    cmap.lam[:] = cmap.lam.max()
+    cmap.eta[:] = 0.0
+    return cmap
+
+
 def deltas_of(m, cmap: CoverageMap, robot: str, epoch: int, chunks: int) -> list[DeltaMessage]:
     prior = CoverageMap(cmap.grid, cmap.sensor)
     idx = np.flatnonzero(cmap.lam != prior.lam)
@@ -168,9 +176,7 @@ def test_wander_keeps_off_teammates_ground_and_stops_when_nothing_is_unknown():
     # when every reachable cell is teammates' ground, it still wanders
     assert wander_target(cmap, here, 0.4, trav, cost, 3.0, rng, avoid=~theirs | theirs) is not None
     # nothing unknown in view of reachable space: nothing to wander for
-    known = corridor_map(m, 0.0, 8.0)
-    known.lam[:] = known.lam.max()
-    known.eta[:] = 0.0
+    known = known_everywhere(m)
     trav_k = build_traversability(known, robot_height=0.5, robot_radius=m.robot.radius)
     cost_k = GridPlanner(trav_k).cost_map(tuple(int(c) for c in trav_k.cell_of(np.array(here[:2]))))
     assert wander_target(known, here, 0.4, trav_k, cost_k, 3.0, rng) is None
@@ -198,10 +204,7 @@ def test_a_robot_whose_only_targets_are_taken_wanders_and_one_with_nothing_unkno
     assert (state.counts["assigned"], state.counts["wander"]) == (2, 1)
     # a map with nothing unknown left: no target, no wander, and the robot is told so
     done = CoordinatorState(m, params_from_mission(m))
-    known = corridor_map(m, 0.0, 8.0)
-    known.lam[:] = known.lam.max()
-    known.eta[:] = 0.0
-    for msg in deltas_of(m, known, "r9", 1, 2):
+    for msg in deltas_of(m, known_everywhere(m), "r9", 1, 2):
         assert done.team.apply_payload(msg.encode()) == "applied"
     nothing = done.answer(AssignRequest("r1", here), now=0.0)
     assert nothing.reply.target is None and nothing.candidate is None and nothing.wander is None
