@@ -19,7 +19,7 @@ import msgpack
 import numpy as np
 
 from swarm.map.grid import Grid
-from swarm.wire import VERSION, DeltaMessage, WireError
+from swarm.protocol.wire import VERSION, DeltaMessage, WireError
 
 #: Why a delta payload is refused, as counted in ``map/stats`` ``rejected``.
 REJECT_KINDS = (

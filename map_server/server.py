@@ -26,9 +26,9 @@ import zenoh
 from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector
-from swarm import bus
 from swarm.config import Mission
-from swarm.wire import DeltaMessage
+from swarm.protocol import bus
+from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
 

@@ -21,7 +21,7 @@ from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table, expected_coverage
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from swarm.wire import DeltaMessage, Region, Snapshot
+from swarm.protocol.wire import DeltaMessage, Region, Snapshot
 
 #: A region query may ask for this many voxels at most.
 MAX_REGION_VOXELS = 2_000_000

@@ -28,14 +28,14 @@ import zenoh
 
 from robot_agent.explorer import Explorer
 from robot_agent.sharing import DeltaOutbox
-from swarm import bus
-from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
-from swarm.coordinator import ask_for_target
 from swarm.map.delta import Delta
-from swarm.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.navigation.exploration import ExplorationTarget
-from swarm.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
+from swarm.protocol import bus
+from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.coord_client import ask_for_target
+from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
+from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
 

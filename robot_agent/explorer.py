@@ -31,7 +31,7 @@ from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability
-from swarm.wire import Frame
+from swarm.protocol.wire import Frame
 
 STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)

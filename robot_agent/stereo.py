@@ -12,7 +12,7 @@ Conventions
   point (Z, -(u - cx) Z / fx, -(v - cy) Z / fy).
 * Pose: camera position ``pose_xyz`` in the world and ``pose_ypr`` = (yaw, pitch, roll) in
   radians, world_R_camera = Rz(yaw) Ry(pitch) Rx(roll) (so positive pitch looks down),
-  the convention of ``swarm.wire.Pose``.
+  the convention of ``swarm.protocol.wire.Pose``.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any, Literal, Protocol
 import cv2
 import numpy as np
 
-from swarm.rotation import rotation_zyx
+from swarm.map.rotation import rotation_zyx
 
 SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -36,7 +36,7 @@ SGBM_MODES = {
 class RectifiedRig(Protocol):
     """Anything with rectified intrinsics: ``fx``, ``cx``, ``baseline`` and optionally ``cx_right``.
 
-    ``robot_agent.calibration.StereoCalibration`` and ``swarm.wire.Camera`` both qualify.
+    ``robot_agent.calibration.StereoCalibration`` and ``swarm.protocol.wire.Camera`` both qualify.
     """
 
     fx: float

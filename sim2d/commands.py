@@ -109,7 +109,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
 def run_sim(args: argparse.Namespace) -> int:
     """Run the lockstep simulator until the mission's stop condition; returns an exit code."""
     from sim2d.simulator import Simulator
-    from swarm import bus
+    from swarm.protocol import bus
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:

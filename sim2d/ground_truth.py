@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarm.floor_plan import FloorPlan
+from swarm.formats.floor_plan import FloorPlan
 from swarm.map.grid import Grid
 
 

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarm.floor_plan import FloorPlan
-from swarm.wire import Camera, Pose
+from swarm.formats.floor_plan import FloorPlan
+from swarm.protocol.wire import Camera, Pose
 
 FACE_NONE, FACE_FLOOR, FACE_SIDE, FACE_TOP = 0, 1, 2, 3
 SKY_GREY = 30.0

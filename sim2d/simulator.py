@@ -28,10 +28,10 @@ import zenoh
 
 from sim2d.render import Renderer, camera_pose
 from sim2d.world import World
-from swarm import bus
 from swarm.config import Mission, RigConfig
-from swarm.floor_plan import FloorPlan
-from swarm.wire import Cmd, Frame, TruthPoses, WireError
+from swarm.formats.floor_plan import FloorPlan
+from swarm.protocol import bus
+from swarm.protocol.wire import Cmd, Frame, TruthPoses, WireError
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import pymunk
 
-from swarm.floor_plan import FloorPlan
+from swarm.formats.floor_plan import FloorPlan
 
 #: Physics sub-step (s). Contacts are found after a sub-step's motion, so a robot can
 #: overlap a wall by at most one sub-step of travel (2.5 mm at 0.5 m/s) before the solver

@@ -8,10 +8,10 @@ import time
 import numpy as np
 
 from robot_agent.agent import Agent
-from swarm import bus
 from swarm.map.coverage_map import CoverageMap
-from swarm.map_client import MapClient
-from swarm.wire import DeltaMessage
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient
+from swarm.protocol.wire import DeltaMessage
 from tests.test_server_merge import (
     assert_maps_equal,
     central_fusion,

@@ -8,7 +8,7 @@ import queue
 import pytest
 import zenoh
 
-from swarm import bus
+from swarm.protocol import bus
 
 
 def test_keys():

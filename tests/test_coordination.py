@@ -1,4 +1,4 @@
-"""Burgard-style coordination (swarm.coordination) and the ranked entropy targets it scores."""
+"""Burgard-style coordination (coordinator.assignment) and the ranked entropy targets it scores."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from swarm.coordination import (
+from coordinator.assignment import (
     AssignmentBook,
     CoordinationParams,
     ObservedColumns,

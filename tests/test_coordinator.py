@@ -17,24 +17,21 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from coordinator.assignment import CoordinationParams
+from coordinator.command import add_arguments
+from coordinator.replica import TeamMap
+from coordinator.role import Coordinator
+from coordinator.state import CoordinatorState, params_from_mission
 from map_server.team_map import TeamMap as ServerTeamMap
-from swarm import bus
 from swarm.config import mission_from_dict
-from swarm.coordination import CoordinationParams
-from swarm.coordinator import (
-    Coordinator,
-    CoordinatorState,
-    TeamMap,
-    add_arguments,
-    ask_for_target,
-    params_from_mission,
-)
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import wander_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
-from swarm.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status
+from swarm.protocol import bus
+from swarm.protocol.coord_client import ask_for_target
+from swarm.protocol.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status
 
 MISSION = {
     "mission": "coordtest",
@@ -418,7 +415,7 @@ def test_command_line_runs_without_a_map_server_and_stops_on_sigterm(tmp_path: P
     router = bus.open_session(listen=[endpoint])
     code = (
         "import argparse, sys\n"
-        "from swarm.coordinator import add_arguments, run\n"
+        "from coordinator.command import add_arguments, run\n"
         "p = argparse.ArgumentParser(); add_arguments(p)\n"
         "sys.exit(run(p.parse_args(sys.argv[1:])))\n"
     )

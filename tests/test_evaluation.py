@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm.evaluation import (
+from swarm.map.grid import Grid
+from swarm.mission.evaluation import (
     coverage_mae,
     entropy_split,
     explored_fraction,
@@ -18,7 +19,6 @@ from swarm.evaluation import (
     overlaps_during_mission,
     path_length,
 )
-from swarm.map.grid import Grid
 
 
 def test_occupancy_f1_hand_example():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm.floor_plan import (
+from swarm.formats.floor_plan import (
     FloorPlanError,
     load_floor_plan,
     load_ros_map,

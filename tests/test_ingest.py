@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from swarm.cli import main
-from swarm.map_file import load_map
-from swarm.point_cloud_file import read_point_cloud, write_ply_points
+from swarm.formats.map_file import load_map
+from swarm.formats.point_cloud_file import read_point_cloud, write_ply_points
 
 BUNDLED_SCAN = Path(__file__).resolve().parent.parent / "data" / "octomap" / "scan.dat.bz2"
 

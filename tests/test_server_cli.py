@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarm import bus, cli
+from swarm import cli
+from swarm.formats.map_file import load_map
+from swarm.formats.point_cloud_file import read_point_cloud
 from swarm.map.entropy import default_table, expected_coverage
-from swarm.map_client import MapClient
-from swarm.map_file import load_map
-from swarm.point_cloud_file import read_point_cloud
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient
 from tests.test_server_merge import (
     MISSION_YAML,
     all_acked,

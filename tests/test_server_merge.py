@@ -19,7 +19,6 @@ import yaml
 from map_server.ledger import Ledger
 from map_server.server import MapServer, ServerOptions
 from map_server.team_map import TeamMap
-from swarm import bus
 from swarm.config import Mission, mission_from_dict
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
@@ -27,8 +26,9 @@ from swarm.map.entropy import default_table
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from swarm.map_client import MapClient
-from swarm.wire import DeltaMessage
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient
+from swarm.protocol.wire import DeltaMessage
 
 MISSION_YAML = """
 mission: srvtest

@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 
 from map_server.store import WAL_HEADER
-from swarm import bus
-from swarm.map_client import MapClient
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient
 from tests.test_server_merge import (
     EPOCH,
     MISSION_YAML,

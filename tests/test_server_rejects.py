@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from map_server.ledger import REJECT_KINDS, Rejected, validate_delta
-from swarm import bus
 from swarm.map.grid import Grid
-from swarm.map_client import MapClient, MapQueryError
-from swarm.wire import DeltaMessage
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient, MapQueryError
+from swarm.protocol.wire import DeltaMessage
 from tests.test_server_merge import (
     EPOCH,
     client_session,

@@ -11,7 +11,7 @@ import numpy as np
 from sim2d.commands import add_render_arguments, run_render
 from sim2d.render import Renderer, camera_pose
 from swarm.config import RigConfig
-from swarm.floor_plan import load_floor_plan
+from swarm.formats.floor_plan import load_floor_plan
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 

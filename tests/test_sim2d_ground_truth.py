@@ -9,7 +9,7 @@ import pytest
 
 from sim2d.ground_truth import coverage
 from swarm.config import load_mission
-from swarm.floor_plan import FloorPlan, load_floor_plan, rectangle
+from swarm.formats.floor_plan import FloorPlan, load_floor_plan, rectangle
 from swarm.map.grid import Grid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

@@ -10,8 +10,8 @@ import pytest
 
 from sim2d.render import FACE_FLOOR, FACE_NONE, FACE_SIDE, FACE_TOP, Renderer, camera_pose
 from swarm.config import RigConfig
-from swarm.floor_plan import FloorPlan, load_floor_plan, rectangle, wall_segment
-from swarm.wire import Camera
+from swarm.formats.floor_plan import FloorPlan, load_floor_plan, rectangle, wall_segment
+from swarm.protocol.wire import Camera
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 CAMERA = RigConfig().camera()  # 160 x 120, 60 degrees, 9 cm

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from sim2d.simulator import Simulator
-from swarm import bus
 from swarm.config import Mission, mission_from_dict
-from swarm.wire import Cmd, Frame, TruthPoses
+from swarm.protocol import bus
+from swarm.protocol.wire import Cmd, Frame, TruthPoses
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 

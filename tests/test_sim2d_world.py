@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sim2d.world import SUBSTEP, World
-from swarm.floor_plan import FloorPlan, rectangle, wall_segment
+from swarm.formats.floor_plan import FloorPlan, rectangle, wall_segment
 
 #: The most a disc can overlap an obstacle: one physics sub-step of travel, plus the slop.
 OVERLAP = 0.5 * SUBSTEP + 1e-3

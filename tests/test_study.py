@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from swarm import study
-from swarm.study import Cell, Skipped, StudySpec, expand_grid, summarize
+from swarm.mission import study
+from swarm.mission.study import Cell, Skipped, StudySpec, expand_grid, summarize
 from tests.test_mission_e2e import PLAN
 
 # The mission of tests/test_mission_e2e.py with a second robot.

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from swarm.map.grid import Grid
-from swarm.wire import (
+from swarm.protocol.wire import (
     AssignReply,
     AssignRequest,
     Camera,

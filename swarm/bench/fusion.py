@@ -87,7 +87,7 @@ def measure(name: str, points: np.ndarray, max_range: float, voxel: float, repea
 
 def run(scan: Path | None, voxel: float = 0.1, repeat: int = 3) -> list[FusionFigures]:
     """Figures for the real scan (if found) and a synthetic 160x120 frame, at 5 m and unlimited range."""
-    from swarm.point_cloud_file import read_point_cloud  # noqa: PLC0415
+    from swarm.formats.point_cloud_file import read_point_cloud  # noqa: PLC0415
 
     clouds = []
     if scan is not None and scan.exists():

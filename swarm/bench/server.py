@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import bus
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from swarm.wire import DeltaMessage
+from swarm.protocol import bus
+from swarm.protocol.wire import DeltaMessage
 
 WORKSPACE = ((0.0, 0.0, 0.0), (20.0, 10.0, 2.0))
 VOXEL = 0.1

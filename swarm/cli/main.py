@@ -66,10 +66,10 @@ def _add_ingest(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_ingest(args: argparse.Namespace) -> int:
-    from swarm.ingest import ingest_cloud
+    from swarm.formats.map_file import save_map
+    from swarm.formats.point_cloud_file import read_point_cloud
+    from swarm.map.ingest import ingest_cloud
     from swarm.map.sensor_model import SensorModel
-    from swarm.map_file import save_map
-    from swarm.point_cloud_file import read_point_cloud
 
     if not (args.voxel > 0 and np.isfinite(args.voxel)):
         return _fail(f"--voxel must be a positive number, got {args.voxel}")
@@ -164,8 +164,8 @@ def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_map_info(args: argparse.Namespace) -> int:
-    from swarm.map_file import MapFileError, load_map
-    from swarm.map_summary import summarize
+    from swarm.formats.map_file import MapFileError, load_map
+    from swarm.map.summary import summarize
 
     try:
         summary = summarize(load_map(args.map))
@@ -180,7 +180,7 @@ def _run_map_info(args: argparse.Namespace) -> int:
 
 
 def _run_map_stats(args: argparse.Namespace) -> int:
-    from swarm.map_client import MapClient, MapQueryError
+    from swarm.protocol.map_client import MapClient, MapQueryError
 
     try:
         with MapClient.connect(args.connect, args.mission, args.timeout) as client:
@@ -191,7 +191,7 @@ def _run_map_stats(args: argparse.Namespace) -> int:
 
 
 def _run_map_get(args: argparse.Namespace) -> int:
-    from swarm.map_client import MapClient, MapQueryError, format_region, region_rows
+    from swarm.protocol.map_client import MapClient, MapQueryError, format_region, region_rows
 
     try:
         values = [float(v) for v in (args.point or args.box).split(",")]
@@ -209,7 +209,7 @@ def _run_map_get(args: argparse.Namespace) -> int:
 
 
 def _run_map_export(args: argparse.Namespace) -> int:
-    from swarm.map_client import MapClient, MapQueryError, export_map
+    from swarm.protocol.map_client import MapClient, MapQueryError, export_map
 
     try:
         with MapClient.connect(args.connect, args.mission, args.timeout) as client:
@@ -436,8 +436,8 @@ def _run_agent(args: argparse.Namespace) -> int:
     import signal
 
     from robot_agent.agent import Agent
-    from swarm import bus
     from swarm.config import ConfigError, load_mission
+    from swarm.protocol import bus
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
@@ -468,7 +468,7 @@ def _run_agent(args: argparse.Namespace) -> int:
 
 # -- swarm study --------------------------------------------------------------------------
 def _add_study(sub: argparse._SubParsersAction) -> None:
-    from swarm import study
+    from swarm.mission import study
 
     p = sub.add_parser(
         "study",
@@ -483,7 +483,7 @@ def _add_study(sub: argparse._SubParsersAction) -> None:
 
 # -- swarm coordinator --------------------------------------------------------------------
 def _add_coordinator(sub: argparse._SubParsersAction) -> None:
-    from swarm import coordinator
+    from coordinator import command as coordinator
 
     p = sub.add_parser(
         "coordinator",
@@ -528,8 +528,8 @@ def _run_server(args: argparse.Namespace) -> int:
 
     from map_server.server import ServerOptions, serve
     from map_server.store import StoreError
-    from swarm import bus
     from swarm.config import ConfigError, load_mission
+    from swarm.protocol import bus
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
@@ -587,7 +587,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_sim_mission(args: argparse.Namespace) -> int:
-    from swarm.mission_cli import run_sim_mission
+    from swarm.mission.simulated_mission import run_sim_mission
 
     return run_sim_mission(args, DEFAULT_MISSION)
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import evaluation
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
+from swarm.formats.map_file import save_map
 from swarm.map.entropy import EntropyCache, default_table
-from swarm.map_file import save_map
+from swarm.mission import evaluation
 
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
@@ -38,8 +38,8 @@ def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
 
 def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     from sim2d.ground_truth import coverage as true_coverage_of
-    from swarm.mission_runner import NEVER, MissionOptions, run_mission
-    from swarm.run_report import RunRecord, compute_metrics, write_run_folder
+    from swarm.mission.run_report import RunRecord, compute_metrics, write_run_folder
+    from swarm.mission.runner import NEVER, MissionOptions, run_mission
 
     try:
         mission = resolve_mission(args, default_config)

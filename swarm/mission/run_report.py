@@ -1,7 +1,7 @@
 """The run folder of DESIGN.md section 6: ``metrics.json``, ``map.npz``, ``config.yaml`` and plots.
 
 A finished mission is described by a :class:`RunRecord`; :func:`compute_metrics` turns it
-into the ``metrics.json`` dictionary (measures of :mod:`swarm.evaluation`) and
+into the ``metrics.json`` dictionary (measures of :mod:`swarm.mission.evaluation`) and
 :func:`write_run_folder` writes the folder::
 
     record = RunRecord(config="configs/lab.yaml", robots=["r1"], ...)
@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from swarm import evaluation
-from swarm.floor_plan import FloorPlan
+from swarm.formats.floor_plan import FloorPlan
+from swarm.formats.map_file import save_map
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import default_table, expected_coverage
-from swarm.map_file import save_map
+from swarm.mission import evaluation
 
 #: Keys that ``metrics.json`` always has (DESIGN.md section 6, plus our additions).
 METRIC_KEYS = (

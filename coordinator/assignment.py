@@ -1,7 +1,7 @@
 """Coordinated target assignment for a team (Burgard et al. 2005) over eq. 35 targets.
 
 Pure numpy, no I/O and no clock of its own (times are arguments). The coordinator role
-(``swarm.coordinator``) feeds it the entropy targets of the team map (paper eq. 30-35, from
+(``coordinator.role``) feeds it the entropy targets of the team map (paper eq. 30-35, from
 ``swarm.navigation.exploration.rank_entropy_targets``) and the path cost of each robot to
 each of them; docs/coordinator.md has the rule with examples.
 

@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import bus
-from swarm.applied_deltas import AppliedDeltas
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy import EntropyCache, default_table
-from swarm.map_client import MapClient, MapQueryError, MapServerUnavailable
-from swarm.wire import DeltaMessage, Status, TruthPoses, WireError
+from swarm.protocol import bus
+from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
+from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
 
 NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
 

@@ -1092,7 +1092,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m swarm.study``: the same as ``swarm study``."""
+    """``python -m swarm.mission.study``: the same as ``swarm study``."""
     parser = argparse.ArgumentParser(prog="swarm study")
     add_arguments(parser)
     return run(parser.parse_args(argv))

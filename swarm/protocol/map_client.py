@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from swarm import bus
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.sensor_model import SensorModel
-from swarm.wire import Region, Snapshot, WireError
+from swarm.protocol import bus
+from swarm.protocol.wire import Region, Snapshot, WireError
 
 DEFAULT_TIMEOUT_S = 5.0
 
@@ -182,8 +182,8 @@ def sensor_from_stats(stats: dict) -> SensorModel:
 def export_map(client: MapClient, out: str | Path, threshold: float = 0.5) -> str:
     """Fetch the team map and write ``out``: a ``.npz`` map file (as ``swarm map info`` reads)
     or a ``.ply`` of the centres of voxels with E[C] > ``threshold``. Returns what was written."""
-    from swarm.map_file import save_map
-    from swarm.point_cloud_file import write_ply_points
+    from swarm.formats.map_file import save_map
+    from swarm.formats.point_cloud_file import write_ply_points
 
     out = Path(out)
     suffix = out.suffix.lower()

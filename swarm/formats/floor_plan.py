@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
 
-from swarm.yaml_file import read_yaml
+from swarm.formats.validation_errors import describe_validation_error
+from swarm.formats.yaml_file import read_yaml
 
 DEFAULT_WALL_HEIGHT = 2.0
 
@@ -399,7 +400,6 @@ def _read_yaml(path: Path) -> object:
 
 
 def _validate(model: type[BaseModel], data: object, path: Path):
-    from swarm.config import describe_validation_error
 
     try:
         return model.model_validate(data)

@@ -1,0 +1,240 @@
+"""The coordinator role (``swarm coordinator``): entropy targets for the team, spread out.
+
+It keeps a replica of the team map from the map server's ``merged`` stream (starting from
+``map/snapshot`` when a server answers), follows every robot's ``robot/<rid>/status``, and
+answers ``coord/assign``: the requesting robot gets the eq. 35 target of the team map that
+maximises utility minus path cost, with the targets other robots hold discounted and kept
+one sensor footprint away, and its teammates' ground lowered (Burgard et al.
+2005 and our addition; the rule is in ``coordinator.assignment`` and docs/coordinator.md).
+When no eq. 35 target is left it wanders the robot on its own ground, as long as anything
+unknown is in view.
+
+Layers: :class:`TeamMap` (the replica: idempotent merged deltas), :class:`CoordinatorState`
+(the replica, who holds what, and the planning of one answer; no I/O, callable from tests)
+and :class:`Coordinator` (the Zenoh side: one worker thread applies merged deltas and
+statuses in arrival order, one thread answers queries one at a time). An agent asks with
+:func:`swarm.protocol.coord_client.ask_for_target`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import zenoh
+
+from coordinator.assignment import (
+    CoordinationParams,
+)
+from coordinator.state import Answer, CoordinatorState
+from swarm.config import Mission
+from swarm.protocol import bus
+from swarm.protocol.coord_client import reply_text
+from swarm.protocol.wire import Snapshot, WireError
+
+log = logging.getLogger("coordinator")
+
+#: Seconds to wait for a map server's snapshot at start.
+SNAPSHOT_TIMEOUT_S = 3.0
+
+
+# ---------------------------------------------------------------------------------------
+# The Zenoh role
+# ---------------------------------------------------------------------------------------
+class Coordinator:
+    """The coordinator on a Zenoh session: ``start()``, then ``stop()`` (or ``wait()``).
+
+    ``mission_name`` overrides the mission's name in the keys (``swarm/<mission>/...``);
+    ``clock`` gives seconds (monotonic) for liveness.
+    """
+
+    def __init__(
+        self,
+        mission: Mission,
+        session: zenoh.Session,
+        params: CoordinationParams | None = None,
+        *,
+        mission_name: str | None = None,
+        snapshot_timeout: float = SNAPSHOT_TIMEOUT_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.state = CoordinatorState(mission, params)
+        self.session = session
+        self.name = mission_name or mission.mission
+        self.snapshot_timeout = snapshot_timeout
+        self.clock = clock
+        self.started_from_snapshot = False
+        self._inbox: queue.Queue = queue.Queue()
+        self._queries: queue.Queue = queue.Queue()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._declared: list = []
+
+    @property
+    def counts(self) -> Counter[str]:
+        """Every counter: requests, merged deltas (``merged_*``), statuses, releases."""
+        out = Counter(self.state.counts)
+        out.update({f"merged_{k}": v for k, v in self.state.team.counts.items()})
+        return out
+
+    def start(self) -> None:
+        """Subscribe, load a snapshot if a map server answers, and start answering."""
+        name, s = self.name, self.session
+        # subscribe before the snapshot so no merged delta falls between the two
+        self._declared.append(bus.subscribe(s, bus.key(name, "merged"), self._on_merged))
+        self._declared.append(
+            bus.subscribe(s, bus.key_pattern(name, "robot", "*", "status"), self._on_status)
+        )
+        self._load_snapshot()
+        self._threads = [
+            threading.Thread(target=self._work, name="coordinator-map", daemon=True),
+            threading.Thread(target=self._answer_queries, name="coordinator-assign", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+        self._declared.append(s.declare_queryable(bus.key(name, "coord", "assign"), self._queries.put))
+        p = self.state.params
+        log.info(
+            "coordinator for mission %s: footprint %.2f m, beta %.3f/m, robot timeout %.1f s, map %s",
+            name,
+            p.footprint_radius,
+            p.beta,
+            p.robot_timeout_s,
+            "from a snapshot" if self.started_from_snapshot else "from the prior",
+        )
+
+    def _load_snapshot(self) -> None:
+        try:
+            replies = self.session.get(bus.key(self.name, "map", "snapshot"), timeout=self.snapshot_timeout)
+            for reply in replies:
+                if reply.ok is None:
+                    log.warning("map/snapshot answered an error: %s", reply_text(reply.err.payload))
+                    continue
+                self.state.team.load_snapshot(Snapshot.decode(reply.ok.payload.to_bytes()))
+                self.started_from_snapshot = True
+                return
+        except (zenoh.ZError, ValueError) as exc:  # WireError is a ValueError
+            log.warning("no usable map snapshot (%s); starting from the prior", exc)
+
+    def _on_merged(self, _key: str, payload: bytes) -> None:
+        self._inbox.put(("merged", payload))
+
+    def _on_status(self, _key: str, payload: bytes) -> None:
+        self._inbox.put(("status", payload))
+
+    def _work(self) -> None:
+        """The one thread that changes the replica and the book from the streams, in order."""
+        last_expiry = self.clock()
+        while not self._stop.is_set():
+            try:
+                kind, payload = self._inbox.get(timeout=0.2)
+            except queue.Empty:
+                kind = None
+            now = self.clock()
+            try:
+                if kind == "merged":
+                    self.state.team.apply_payload(payload)
+                elif kind == "status":
+                    for robot, reason in self.state.on_status(payload, now):
+                        log.info("released the target of %s: %s", robot, reason)
+                if now - last_expiry >= 0.5:
+                    last_expiry = now
+                    for robot, reason in self.state.expire(now):
+                        log.info("released the target of %s: %s", robot, reason)
+            except WireError as exc:
+                log.warning("rejected %s message: %s", kind, exc)
+            except Exception:  # never die of one message
+                self.state.counts["worker_errors"] += 1
+                log.exception("error handling a %s message", kind)
+
+    def _answer_queries(self) -> None:
+        while not self._stop.is_set():
+            try:
+                query = self._queries.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                self._answer(query)
+            finally:
+                query.drop()
+
+    def _answer(self, query: zenoh.Query) -> None:
+        payload = b"" if query.payload is None else query.payload.to_bytes()
+        try:
+            answer = self.state.handle_request(payload, self.clock())
+        except WireError as exc:
+            log.warning("rejected assign request: %s", exc)
+            query.reply_err(f"coord/assign: {exc}".encode())
+            return
+        except Exception as exc:  # never die of one request
+            self.state.counts["requests_failed"] += 1
+            log.exception("assign request failed")
+            query.reply_err(f"coord/assign: internal error: {exc}".encode())
+            return
+        query.reply(query.key_expr, answer.reply.encode())
+        _log_answer(answer)
+
+    def stop(self) -> None:
+        """Stop answering and join the threads (the session stays open: the caller owns it)."""
+        self._stop.set()
+        for declared in self._declared:
+            try:
+                declared.undeclare()
+            except zenoh.ZError:
+                pass
+        self._declared = []
+        for t in self._threads:
+            t.join(timeout=5.0)
+        self._threads = []
+
+    def request_stop(self) -> None:
+        """Make ``wait()`` return (safe from a signal handler); ``stop()`` then cleans up."""
+        self._stop.set()
+
+    def wait(self) -> None:
+        """Block until ``stop()`` or ``request_stop()`` is called."""
+        while not self._stop.wait(0.5):
+            pass
+
+
+def _log_answer(answer: Answer) -> None:
+    robot = answer.robot
+    c = answer.candidate
+    if c is None and answer.wander is not None:
+        w = answer.wander
+        log.info(
+            "assign %s -> wander to (%.2f, %.2f) gaze %+.0f deg: no eq. 35 target left (%d held by others)",
+            robot,
+            w.xy[0],
+            w.xy[1],
+            math.degrees(w.gaze_yaw),
+            answer.held_by_others,
+        )
+        return
+    if c is None:
+        log.info(
+            "assign %s -> nothing left (%d candidates, %d held by others)",
+            robot,
+            answer.candidates,
+            answer.held_by_others,
+        )
+        return
+    log.info(
+        "assign %s -> stand (%.2f, %.2f) gaze %+.0f deg, looking at (%.2f, %.2f): eq. 35 %.1f bits/m, "
+        "path %.2f m (%d candidates, %d held by others)",
+        robot,
+        c.xy[0],
+        c.xy[1],
+        math.degrees(c.gaze_yaw),
+        c.point[0],
+        c.point[1],
+        c.utility,
+        c.path_cost,
+        answer.candidates,
+        answer.held_by_others,
+    )

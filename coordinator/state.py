@@ -1,0 +1,285 @@
+"""The coordinator's state without I/O: the replica, who holds what, and the planning of one answer.
+
+Callable from tests; :class:`coordinator.role.Coordinator` drives it from Zenoh.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from coordinator.assignment import (
+    AssignmentBook,
+    CoordinationParams,
+    best_target,
+    teammates_share,
+)
+from coordinator.replica import TeamMap
+from swarm.config import Mission
+from swarm.map.coverage_map import CoverageMap
+from swarm.navigation.exploration import (
+    EntropyCandidate,
+    ExplorationTarget,
+    rank_entropy_targets,
+    wander_target,
+)
+from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.traversability import build_traversability
+from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError
+
+log = logging.getLogger("coordinator")
+
+#: A released target is not handed back to the same robot while it is among its last few
+#: releases and another candidate exists: standing points within this distance (m) are
+#: skipped (choose_target's own exclusion radius).
+RECENT_RADIUS = 1.0
+#: Robot positions kept as swept (known empty) floor, and the spacing between them (m).
+MAX_SWEPT = 50_000
+SWEPT_STEP = 0.05
+
+
+def params_from_mission(mission: Mission) -> CoordinationParams:
+    """The assignment parameters of a mission's ``coordination`` section.
+
+    The footprint radius defaults to min(2 xi, sensor max range): two robots whose targets
+    are at least 2 xi apart choose their next targets (within xi of where they stand, eq. 30)
+    from disjoint neighbourhoods, and nothing beyond the sensor's range is seen from a target.
+    """
+    c = mission.coordination
+    footprint = c.footprint_radius
+    if footprint is None:
+        footprint = min(2.0 * mission.exploration.radius, mission.sensor.max_range)
+    return CoordinationParams(
+        beta=c.beta,
+        footprint_radius=footprint,
+        overlap_weight=c.overlap_weight,
+        robot_timeout_s=c.robot_timeout_s,
+    )
+
+
+# ---------------------------------------------------------------------------------------
+# Answers, without I/O
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Answer:
+    """One request's outcome: the reply, the chosen candidate (None: nothing left) and the
+    figures of the log line."""
+
+    robot: str
+    reply: AssignReply
+    candidate: EntropyCandidate | None
+    candidates: int
+    held_by_others: int
+    wander: ExplorationTarget | None = None  # the wander target, when no eq. 35 one was left
+
+
+class CoordinatorState:
+    """The replica, who holds what, and the planning of one answer (no I/O, no threads).
+
+    ``now`` arguments are the caller's clock in seconds (monotonic). Safe to call from
+    several threads: answers are computed one at a time; statuses and merged deltas may
+    arrive meanwhile.
+    """
+
+    def __init__(self, mission: Mission, params: CoordinationParams | None = None) -> None:
+        self.mission = mission
+        self.params = params or params_from_mission(mission)
+        self.team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+        self.book = AssignmentBook(self.params)
+        self.counts: Counter[str] = Counter()
+        self._book_lock = threading.Lock()
+        self._answer_lock = threading.Lock()
+        self._swept: list[tuple[float, float]] = []
+        self._last_xy: dict[str, np.ndarray] = {}
+        self._rng = np.random.default_rng(mission.sim.seed)
+
+    # -- inputs ---------------------------------------------------------------------------
+    def _moved(self, robot: str, xy) -> None:
+        xy = np.asarray(xy, dtype=np.float64)[:2]
+        last = self._last_xy.get(robot)
+        if last is None or np.hypot(*(xy - last)) > SWEPT_STEP:
+            self._last_xy[robot] = xy
+            self._swept.append((float(xy[0]), float(xy[1])))
+            if len(self._swept) > MAX_SWEPT:
+                del self._swept[: len(self._swept) - MAX_SWEPT]
+
+    def on_status(self, payload: bytes, now: float) -> list[tuple[str, str]]:
+        """A ``robot/<rid>/status`` payload; returns released (robot, reason). WireError if malformed."""
+        try:
+            status = Status.decode(payload)
+        except WireError:
+            self.counts["status_rejected"] += 1
+            raise
+        with self._book_lock:
+            self._moved(status.robot, status.pose.xyz)
+            released = self.book.note_status(
+                status.robot, now, status.pose.xyz, status.state, status.target
+            ) + self.book.expire(now)
+            self.counts["released"] += len(released)
+        return released
+
+    def expire(self, now: float) -> list[tuple[str, str]]:
+        """Release the targets of silent robots (also done on every status and request)."""
+        with self._book_lock:
+            released = self.book.expire(now)
+            self.counts["released"] += len(released)
+        return released
+
+    # -- answers ----------------------------------------------------------------------------
+    def _reach(self, robot: str, pose: Pose, cmap: CoverageMap):
+        """(rig, traversability, planner cost map from the robot's cell) on ``cmap``."""
+        rig = self.mission.rig_for(robot) if robot in self.mission.robot_ids else self.mission.rig
+        self._check_pose(pose)
+        with self._book_lock:
+            swept = np.array(self._swept, dtype=np.float64).reshape(-1, 2)
+        trav = build_traversability(
+            cmap,
+            robot_height=max(rig.camera_height + 0.1, 0.3),
+            robot_radius=self.mission.robot.radius,
+            swept=swept,
+        )
+        cell = tuple(int(c) for c in trav.cell_of(np.array(pose.xyz[:2])))
+        if not trav.is_free(np.array(cell)):
+            cell = nearest_free_cell(trav, cell) or cell
+        return rig, trav, GridPlanner(trav).cost_map(cell)
+
+    def candidates_for(self, robot: str, pose: Pose, cmap: CoverageMap, entropy: np.ndarray, reach=None):
+        """Eq. 35 candidates of the team map with ``robot``'s path costs (whole map, spread out).
+
+        ``reach``: what :meth:`_reach` gives for this robot and map, if already computed."""
+        rig, trav, cost = reach or self._reach(robot, pose, cmap)
+        grid = cmap.grid
+        whole_map = float(np.linalg.norm(grid.hi[:2] - grid.lo[:2])) + grid.voxel
+        c = self.mission.coordination
+        return rank_entropy_targets(
+            cmap,
+            entropy,
+            (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
+            rig.camera_height,
+            trav,
+            cost,
+            whole_map,
+            limit=c.max_candidates,
+            min_separation=c.candidate_spacing,
+            max_rejects=c.max_candidates,
+        )
+
+    def _check_pose(self, pose: Pose) -> None:
+        grid = self.team.grid
+        x, y = pose.xyz[0], pose.xyz[1]
+        if not (grid.lo[0] <= x < grid.hi[0] and grid.lo[1] <= y < grid.hi[1]):
+            raise WireError(
+                f"assign request: pose ({x:g}, {y:g}) is outside the workspace x [{grid.lo[0]:g}, "
+                f"{grid.hi[0]:g}), y [{grid.lo[1]:g}, {grid.hi[1]:g})"
+            )
+
+    def answer(self, request: AssignRequest, now: float) -> Answer:
+        """The reply to one request (see the module doc); the robot then holds its target.
+
+        WireError (nothing changed) when the pose is outside the workspace."""
+        self._check_pose(request.pose)
+        with self._answer_lock:
+            with self._book_lock:
+                self._moved(request.robot, request.pose.xyz)
+                released = self.book.note_request(request.robot, now, request.pose.xyz)
+                released += self.book.expire(now)
+                recent = self.book.recent_releases(request.robot)
+                self.counts["released"] += len(released)
+            for robot, reason in released:
+                log.info("released the target of %s: %s", robot, reason)
+            cmap, entropy = self.team.copy()
+            reach = self._reach(request.robot, request.pose, cmap)
+            found = self.candidates_for(request.robot, request.pose, cmap, entropy, reach)
+            pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
+            # teammates' ground: one mask for the scores and the wander
+            theirs = self.team.teammates_ground(request.robot) if self.params.overlap_weight > 0 else None
+            shares = self._teammates_shares(pool, theirs)
+            with self._book_lock:
+                released = self.book.expire(now)
+                held = self.book.held_by_others(request.robot)
+                best = None
+                if pool:
+                    best = best_target(
+                        [c.utility for c in pool],
+                        np.array([c.xy for c in pool]),
+                        [c.path_cost for c in pool],
+                        held,
+                        self.params,
+                        shares,
+                    )
+                chosen = None if best is None else pool[best]
+                wander = None
+                if chosen is None:
+                    wander = self._wander(request.pose, cmap, reach, held, theirs)
+                goal = chosen.xy if chosen is not None else None if wander is None else wander.xy
+                if goal is not None:
+                    self.book.hold(request.robot, goal, now)
+                self.counts["released"] += len(released)
+            for robot, reason in released:
+                log.info("released the target of %s: %s", robot, reason)
+        z = request.pose.xyz[2]
+        if chosen is None and wander is None:
+            self.counts["nothing_left"] += 1
+            return Answer(request.robot, AssignReply(None, None, 0.0), None, len(found), len(held))
+        self.counts["assigned" if chosen is not None else "wander"] += 1
+        xy, yaw = (chosen.xy, chosen.gaze_yaw) if chosen is not None else (wander.xy, wander.gaze_yaw)
+        reply = AssignReply(
+            target=(float(xy[0]), float(xy[1]), float(z)),
+            gaze=(math.cos(yaw), math.sin(yaw), 0.0),
+            utility=float(chosen.utility) if chosen is not None else 0.0,
+        )
+        return Answer(request.robot, reply, chosen, len(found), len(held), wander)
+
+    def _wander(self, pose: Pose, cmap: CoverageMap, reach, held: np.ndarray, theirs: np.ndarray | None):
+        """When no eq. 35 target is left: the agent's wander (``wander_target``), kept off
+        ``theirs`` (teammates' ground; None: anywhere) and away from the others'
+        targets while it can be."""
+        rig, trav, cost = reach
+        return wander_target(
+            cmap,
+            (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
+            rig.camera_height,
+            trav,
+            cost,
+            2.0 * self.mission.exploration.radius,
+            self._rng,
+            avoid=theirs,
+            exclude=list(held),
+            exclude_radius=self.params.footprint_radius,
+        )
+
+    def _teammates_shares(self, pool: list[EntropyCandidate], theirs: np.ndarray | None) -> np.ndarray | None:
+        """f_r(t) of each candidate's standing point over ``theirs`` (None when it is None)."""
+        if not pool or theirs is None:
+            return None
+        grid = self.team.grid
+        return teammates_share(
+            np.array([c.xy for c in pool]),
+            theirs,
+            grid.lo[:2],
+            grid.voxel,
+            self.params.footprint_radius,
+        )
+
+    def handle_request(self, payload: bytes, now: float) -> Answer:
+        """Decode and answer a ``coord/assign`` payload; WireError (counted) if it is malformed."""
+        self.counts["requests"] += 1
+        try:
+            request = AssignRequest.decode(payload)
+        except WireError:
+            self.counts["requests_rejected"] += 1
+            raise
+        try:
+            return self.answer(request, now)
+        except WireError:
+            self.counts["requests_rejected"] += 1
+            raise
+
+
+def _near(xy: np.ndarray, points: list[np.ndarray], radius: float) -> bool:
+    return any(np.hypot(*(np.asarray(xy)[:2] - p[:2])) < radius for p in points)

@@ -1,0 +1,287 @@
+"""Mission configuration models: the sections of a mission YAML file, validated by pydantic.
+
+Rigs: the top-level ``rig`` is the default; ``rigs`` holds named variants (each a set of
+overrides of the default rig); a robot's ``rig`` is a name from ``rigs``, a path to a
+rig YAML file (overrides too) or an inline mapping of overrides.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    PrivateAttr,
+    model_validator,
+)
+
+from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
+from swarm.protocol.wire import Camera
+
+#: Entropy of one voxel under the near-uniform prior (128 bins), in bits.
+PRIOR_BITS_PER_VOXEL = 7.0
+#: Default stopping threshold H_th as a fraction of the initial map entropy.
+DEFAULT_THRESHOLD_FRACTION = 0.25
+
+_NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
+
+
+class ConfigError(ValueError):
+    """An invalid mission file: the message names the file, the field and the problem."""
+
+
+# -- sections --------------------------------------------------------------------------
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+
+
+class WorkspaceConfig(_Section):
+    """The mapped box [lo, hi] (metres) and the voxel edge."""
+
+    lo: Vec3
+    hi: Vec3
+    voxel: FiniteFloat = Field(default=0.1, gt=0)
+
+    @model_validator(mode="after")
+    def _hi_above_lo(self) -> WorkspaceConfig:
+        if not all(h > lo for lo, h in zip(self.lo, self.hi, strict=True)):
+            raise ValueError(f"hi {list(self.hi)} must be above lo {list(self.lo)} on every axis")
+        return self
+
+    def grid(self) -> Grid:
+        """The voxel grid covering the workspace."""
+        return Grid.from_bounds(np.array(self.lo), np.array(self.hi), self.voxel)
+
+
+class Pose2D(_Section):
+    """A pose on the floor: position (m) and yaw (radians, counter-clockwise from +x)."""
+
+    x: FiniteFloat
+    y: FiniteFloat
+    yaw: FiniteFloat = 0.0
+
+
+class RigConfig(_Section):
+    """A rectified stereo rig (or, in ``range`` mode, a depth camera) on a robot.
+
+    The left camera is the reference, on the robot's centre at ``camera_height``; the right
+    one is ``baseline`` metres to its right. ``noise_std`` is image noise in grey levels;
+    ``range_noise`` is the depth noise standard deviation per metre of range (range mode);
+    ``max_range`` (m) turns farther returns into no return (None: unlimited).
+    ``pitch_deg`` is the mounting pitch (positive looks down); ``tilt_range_deg`` > 0 puts
+    the camera on a tilt head that commands can point up to that many degrees up or down
+    from the mounting pitch (0: a fixed camera).
+    """
+
+    width: int = Field(default=160, ge=8)
+    height: int = Field(default=120, ge=8)
+    hfov_deg: FiniteFloat = Field(default=60.0, gt=0, lt=170)
+    baseline: FiniteFloat = Field(default=0.09, ge=0)
+    camera_height: FiniteFloat = Field(default=0.4, gt=0)
+    pitch_deg: FiniteFloat = Field(default=0.0, ge=-80, le=80)
+    tilt_range_deg: FiniteFloat = Field(default=0.0, ge=0, le=80)
+    noise_std: FiniteFloat = Field(default=0.0, ge=0)
+    mode: Literal["stereo", "range"] = "stereo"
+    range_noise: FiniteFloat = Field(default=0.01, ge=0)
+    max_range: FiniteFloat | None = Field(default=None, gt=0)
+
+    @model_validator(mode="after")
+    def _stereo_needs_baseline(self) -> RigConfig:
+        if self.mode == "stereo" and self.baseline <= 0:
+            raise ValueError("baseline must be > 0 in stereo mode")
+        return self
+
+    @property
+    def fx(self) -> float:
+        """Focal length in pixels from the horizontal field of view."""
+        return 0.5 * self.width / math.tan(math.radians(self.hfov_deg) / 2)
+
+    def camera(self) -> Camera:
+        """Pinhole intrinsics (square pixels, principal point at the image centre)."""
+        return Camera(
+            width=self.width,
+            height=self.height,
+            fx=self.fx,
+            fy=self.fx,
+            cx=(self.width - 1) / 2,
+            cy=(self.height - 1) / 2,
+            baseline=self.baseline,
+        )
+
+
+class SensorConfig(_Section):
+    """Parameters of the Gaussian sensor model (DESIGN.md section 3)."""
+
+    sigma_min: FiniteFloat = Field(default=0.06, gt=0)
+    zeta: FiniteFloat = Field(default=0.0375, ge=0)
+    tau: FiniteFloat = Field(default=2.0, gt=0)
+    max_range: FiniteFloat = Field(default=5.0, gt=0)
+
+    def model(self) -> SensorModel:
+        return SensorModel(self.sigma_min, self.zeta, self.tau, self.max_range)
+
+
+class ExplorationConfig(BaseModel):
+    """Entropy-gradient exploration; other keys are kept for the roles that read them."""
+
+    model_config = ConfigDict(extra="allow")
+
+    radius: FiniteFloat = Field(default=1.5, gt=0, description="candidate radius xi (m)")
+    gaze: bool = Field(default=True, description="on arrival, look along the entropy gradient")
+    random_wander_steps: int = Field(default=20, ge=0)
+
+
+class SharingConfig(_Section):
+    share_min_bits: FiniteFloat = Field(default=0.5, ge=0)
+
+
+class CoordinationConfig(_Section):
+    """The coordinator's Burgard-style assignment (docs/coordinator.md).
+
+    ``footprint_radius`` None: min(2 * exploration.radius, sensor.max_range).
+    """
+
+    beta: FiniteFloat = Field(default=0.1, ge=0, description="utility lost per metre of path (1/m)")
+    footprint_radius: FiniteFloat | None = Field(default=None, gt=0)
+    overlap_weight: FiniteFloat = Field(
+        default=1.0, ge=0, le=1, description="utility lost per share of a footprint that is teammates' ground"
+    )
+    robot_timeout_s: FiniteFloat = Field(default=10.0, gt=0)
+    max_candidates: int = Field(default=200, ge=1)
+    candidate_spacing: FiniteFloat = Field(default=0.5, ge=0)
+
+
+class RobotBodyConfig(_Section):
+    """The simulated robot: a disc with differential-drive limits."""
+
+    radius: FiniteFloat = Field(default=0.18, gt=0)
+    max_speed: FiniteFloat = Field(default=0.5, gt=0)
+    max_turn_rate: FiniteFloat = Field(default=1.5, gt=0)
+
+
+class StopConfig(_Section):
+    """Stop when the map entropy reaches H_th (bits) or after ``max_time_s`` of sim time."""
+
+    entropy_threshold_bits: FiniteFloat | None = Field(default=None, ge=0)
+    max_time_s: FiniteFloat = Field(default=600.0, gt=0)
+
+
+class SimConfig(_Section):
+    """Simulator clock: physics step ``dt``, one frame every ``frame_period_s``."""
+
+    dt: FiniteFloat = Field(default=0.1, gt=0)
+    frame_period_s: FiniteFloat = Field(default=0.5, gt=0)
+    seed: int = 0
+    agent_timeout_s: FiniteFloat = Field(default=10.0, gt=0)
+
+    @model_validator(mode="after")
+    def _frame_after_step(self) -> SimConfig:
+        if self.frame_period_s < self.dt:
+            raise ValueError(f"frame_period_s ({self.frame_period_s}) must be >= dt ({self.dt})")
+        return self
+
+
+class FloorPlanRef(_Section):
+    """A floor plan file (project YAML or ROS map.yaml) and the height of ROS-map walls."""
+
+    path: str
+    wall_height: FiniteFloat = Field(default=2.0, gt=0)
+
+
+class RobotSpec(_Section):
+    id: str = Field(pattern=_NAME_PATTERN)
+    start: Pose2D
+    rig: str | dict[str, Any] | None = None
+
+
+class Mission(_Section):
+    """A whole mission file. Use ``load_mission`` to read and check one."""
+
+    mission: str = Field(default="default", pattern=_NAME_PATTERN)
+    workspace: WorkspaceConfig
+    floor_plan: str | FloorPlanRef | None = None
+    robots: list[RobotSpec] = Field(min_length=1)
+    rig: RigConfig = RigConfig()
+    rigs: dict[str, dict[str, Any]] = {}
+    sensor: SensorConfig = SensorConfig()
+    exploration: ExplorationConfig = ExplorationConfig()
+    sharing: SharingConfig = SharingConfig()
+    coordination: CoordinationConfig = CoordinationConfig()
+    robot: RobotBodyConfig = RobotBodyConfig()
+    stop: StopConfig = StopConfig()
+    sim: SimConfig = SimConfig()
+
+    _source: Path | None = PrivateAttr(default=None)
+    _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
+    _robot_rigs: dict[str, RigConfig] = PrivateAttr(default_factory=dict)
+    _plan: Any = PrivateAttr(default=None)
+
+    # -- accessors -----------------------------------------------------------------------
+    @property
+    def source(self) -> Path | None:
+        """The file this mission was loaded from, if any."""
+        return self._source
+
+    @property
+    def robot_ids(self) -> list[str]:
+        return [r.id for r in self.robots]
+
+    def robot_spec(self, robot_id: str) -> RobotSpec:
+        for spec in self.robots:
+            if spec.id == robot_id:
+                return spec
+        raise KeyError(f"no robot {robot_id!r} in mission {self.mission!r}")
+
+    def rig_for(self, robot_id: str) -> RigConfig:
+        """The resolved rig of a robot (its own overrides applied to the default rig)."""
+        self.robot_spec(robot_id)
+        return self._robot_rigs.get(robot_id, self.rig)
+
+    def floor_plan_ref(self) -> FloorPlanRef | None:
+        """The floor plan reference with its path made absolute."""
+        if self.floor_plan is None:
+            return None
+        ref = self.floor_plan
+        if isinstance(ref, str):
+            ref = FloorPlanRef(path=ref)
+        return ref.model_copy(update={"path": str((self._base_dir / ref.path).resolve())})
+
+    def load_floor_plan(self):
+        """The mission's ``swarm.formats.floor_plan.FloorPlan`` (cached), or None without one."""
+        if self._plan is None and self.floor_plan is not None:
+            from swarm.formats.floor_plan import load_floor_plan
+
+            ref = self.floor_plan_ref()
+            self._plan = load_floor_plan(ref.path, ref.wall_height)
+        return self._plan
+
+    def threshold_bits(self) -> float:
+        """H_th: the configured threshold, else 25% of the prior entropy (7 bits per voxel)."""
+        if self.stop.entropy_threshold_bits is not None:
+            return float(self.stop.entropy_threshold_bits)
+        return DEFAULT_THRESHOLD_FRACTION * PRIOR_BITS_PER_VOXEL * self.workspace.grid().size
+
+    def to_yaml(self) -> str:
+        """The mission as YAML, with file paths made absolute (for run folders)."""
+        data = self.model_dump(mode="json", exclude_none=True)
+        ref = self.floor_plan_ref()
+        if ref is not None:
+            data["floor_plan"] = ref.model_dump(mode="json")
+        for robot in data["robots"]:
+            rig = robot.get("rig")
+            if isinstance(rig, str) and rig.endswith((".yaml", ".yml")):
+                robot["rig"] = str((self._base_dir / rig).resolve())
+        return yaml.safe_dump(data, sort_keys=False)

@@ -1,0 +1,1 @@
+"""The files users hand us and take away: maps, point clouds, floor plans, YAML."""

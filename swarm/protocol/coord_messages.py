@@ -1,0 +1,70 @@
+"""Messages of the coordinator: the ``coord/assign`` request and reply."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from swarm.protocol.codec import (
+    number,
+    pack,
+    require,
+    text,
+    unpack,
+    vec3,
+)
+from swarm.protocol.robot_messages import Pose
+
+# -- coord/assign -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AssignRequest:
+    """A robot asks the coordinator for a target."""
+
+    robot: str
+    pose: Pose
+
+    KIND = "assign request"
+
+    def encode(self) -> bytes:
+        return pack(self.KIND, {"robot": self.robot, "pose": self.pose.to_wire()})
+
+    @classmethod
+    def decode(cls, payload: Any) -> AssignRequest:
+        msg = unpack(payload, cls.KIND)
+        return cls(
+            robot=text(require(msg, "robot", cls.KIND), "robot", cls.KIND),
+            pose=Pose.from_wire(require(msg, "pose", cls.KIND), cls.KIND),
+        )
+
+
+@dataclass(frozen=True)
+class AssignReply:
+    """The coordinator's answer: a target point and gaze direction (None: no target)."""
+
+    target: tuple[float, float, float] | None
+    gaze: tuple[float, float, float] | None
+    utility: float
+
+    KIND = "assign reply"
+
+    def encode(self) -> bytes:
+        def vec(v):
+            return None if v is None else [float(x) for x in v]
+
+        return pack(
+            self.KIND,
+            {"target": vec(self.target), "gaze": vec(self.gaze), "utility": float(self.utility)},
+        )
+
+    @classmethod
+    def decode(cls, payload: Any) -> AssignReply:
+        kind = cls.KIND
+        msg = unpack(payload, kind)
+        target, gaze = require(msg, "target", kind), require(msg, "gaze", kind)
+        return cls(
+            target=None if target is None else vec3(target, "target", kind),
+            gaze=None if gaze is None else vec3(gaze, "gaze", kind),
+            utility=number(require(msg, "utility", kind), "utility", kind),
+        )

@@ -1,0 +1,220 @@
+"""Messages of the map server: ``delta/<rid>`` (and ``merged``), ``map/snapshot``, ``map/region``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from swarm.map.grid import Grid
+from swarm.protocol.codec import (
+    WireError,
+    indices,
+    integer,
+    le,
+    number,
+    pack,
+    raw,
+    require,
+    text,
+    unpack,
+    vec3,
+)
+
+# -- delta/<rid> and merged ---------------------------------------------------------------
+
+
+def _grid(value: Any, kind: str) -> Grid:
+    if not isinstance(value, dict):
+        raise WireError(f"{kind}: grid must be a map with origin, voxel, shape")
+    origin = vec3(require(value, "origin", kind), "grid.origin", kind)
+    voxel = number(require(value, "voxel", kind), "grid.voxel", kind)
+    shape = require(value, "shape", kind)
+    if not isinstance(shape, list | tuple) or len(shape) != 3:
+        raise WireError(f"{kind}: grid.shape must be 3 integers, got {shape!r}")
+    shape = tuple(integer(n, f"grid.shape[{i}]", kind, 1) for i, n in enumerate(shape))
+    if voxel <= 0:
+        raise WireError(f"{kind}: grid.voxel must be > 0, got {voxel}")
+    return Grid(origin, voxel, shape)
+
+
+def _information(dlam: np.ndarray, deta: np.ndarray, kind: str, names: tuple[str, str]) -> None:
+    if not np.all(np.isfinite(dlam)) or not np.all(np.isfinite(deta)):
+        raise WireError(f"{kind}: {names[0]}/{names[1]} must be finite")
+    if np.any(dlam < 0):
+        raise WireError(f"{kind}: {names[0]} must be >= 0 (information cannot be negative)")
+
+
+@dataclass
+class DeltaMessage:
+    """``delta/<rid>`` and ``merged``: information gathered by ``robot`` since its last delta,
+    per flat voxel ``idx`` (dlam, deta); ``swarm.map.delta.Delta`` holds the same arrays.
+
+    ``(robot, epoch, seq)`` identifies a delta once: epoch is the agent process's start time
+    in ns, seq counts 1, 2, 3 within it.
+    """
+
+    robot: str
+    epoch: int
+    seq: int
+    t: float
+    grid: Grid
+    idx: np.ndarray
+    dlam: np.ndarray
+    deta: np.ndarray
+
+    KIND = "delta"
+
+    def encode(self) -> bytes:
+        n = len(self.idx)
+        if len(self.dlam) != n or len(self.deta) != n:
+            raise WireError("delta: idx, dlam and deta must have the same length")
+        return pack(
+            self.KIND,
+            {
+                "robot": self.robot,
+                "epoch": int(self.epoch),
+                "seq": int(self.seq),
+                "t": float(self.t),
+                "grid": self.grid.to_dict(),
+                "idx": le(self.idx, "<u4"),
+                "dlam": le(self.dlam, "<f4"),
+                "deta": le(self.deta, "<f4"),
+            },
+        )
+
+    @classmethod
+    def decode(cls, payload: Any) -> DeltaMessage:
+        kind = cls.KIND
+        msg = unpack(payload, kind)
+        grid = _grid(require(msg, "grid", kind), kind)
+        idx = indices(require(msg, "idx", kind), kind, grid.size)
+        n = len(idx)
+        dlam = raw(require(msg, "dlam", kind), "<f4", n, "dlam", kind)
+        deta = raw(require(msg, "deta", kind), "<f4", n, "deta", kind)
+        _information(dlam, deta, kind, ("dlam", "deta"))
+        return cls(
+            robot=text(require(msg, "robot", kind), "robot", kind),
+            epoch=integer(require(msg, "epoch", kind), "epoch", kind),
+            seq=integer(require(msg, "seq", kind), "seq", kind, 1),
+            t=number(require(msg, "t", kind), "t", kind),
+            grid=grid,
+            idx=idx,
+            dlam=dlam,
+            deta=deta,
+        )
+
+
+# -- map/snapshot reply -------------------------------------------------------------------
+
+
+@dataclass
+class Snapshot:
+    """The whole team map in information form (prior included) and the deltas it holds.
+
+    ``acks`` is the contiguous prefix per (robot, epoch), as ``map/acks``; ``above`` lists
+    the seqs applied beyond that prefix (optional on the wire, empty when absent), so that a
+    replica started from the snapshot counts every delta in it as applied, not only the
+    prefix, and never adds one twice.
+    """
+
+    grid: Grid
+    lam: np.ndarray
+    eta: np.ndarray
+    acks: dict[str, dict[int, int]] = field(default_factory=dict)
+    above: dict[str, dict[int, list[int]]] = field(default_factory=dict)
+
+    KIND = "snapshot"
+
+    def encode(self) -> bytes:
+        return pack(
+            self.KIND,
+            {
+                "grid": self.grid.to_dict(),
+                "lam": le(np.ravel(self.lam), "<f4"),
+                "eta": le(np.ravel(self.eta), "<f4"),
+                "acks": {
+                    str(r): {int(e): int(s) for e, s in by_epoch.items()} for r, by_epoch in self.acks.items()
+                },
+                "above": {
+                    str(r): {int(e): sorted(int(s) for s in seqs) for e, seqs in by_epoch.items()}
+                    for r, by_epoch in self.above.items()
+                },
+            },
+        )
+
+    @classmethod
+    def decode(cls, payload: Any) -> Snapshot:
+        kind = cls.KIND
+        msg = unpack(payload, kind)
+        grid = _grid(require(msg, "grid", kind), kind)
+        lam = raw(require(msg, "lam", kind), "<f4", grid.size, "lam", kind)
+        eta = raw(require(msg, "eta", kind), "<f4", grid.size, "eta", kind)
+        if not np.all(np.isfinite(lam)) or not np.all(np.isfinite(eta)) or np.any(lam <= 0):
+            raise WireError(f"{kind}: lam must be finite and > 0, eta finite")
+        acks = require(msg, "acks", kind)
+        if not isinstance(acks, dict) or not all(isinstance(v, dict) for v in acks.values()):
+            raise WireError(f"{kind}: acks must be a map robot -> {{epoch: seq}}")
+        acks = {
+            str(r): {int(e): integer(s, f"acks.{r}", kind) for e, s in by_epoch.items()}
+            for r, by_epoch in acks.items()
+        }
+        above = msg.get("above", {})
+        if not (
+            isinstance(above, dict)
+            and all(isinstance(v, dict) for v in above.values())
+            and all(isinstance(seqs, list) for v in above.values() for seqs in v.values())
+        ):
+            raise WireError(f"{kind}: above must be a map robot -> {{epoch: [seq, ...]}}")
+        above = {
+            str(r): {int(e): [integer(s, f"above.{r}", kind) for s in seqs] for e, seqs in by_epoch.items()}
+            for r, by_epoch in above.items()
+        }
+        return cls(grid, lam, eta, acks, above)
+
+
+# -- map/region reply ---------------------------------------------------------------------
+
+
+@dataclass
+class Region:
+    """The beliefs of the voxels of a box: flat ``idx`` (uint32, ascending) in ``grid`` and,
+    per voxel, ``mu``, ``sigma`` (untruncated Gaussian), ``expected_coverage`` (E[C] of the
+    belief truncated to [0, 1]) and ``entropy`` (bits), all float32.
+    """
+
+    grid: Grid
+    idx: np.ndarray
+    mu: np.ndarray
+    sigma: np.ndarray
+    expected_coverage: np.ndarray
+    entropy: np.ndarray
+
+    KIND = "region"
+    _VALUES = ("mu", "sigma", "expected_coverage", "entropy")
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def centres(self) -> np.ndarray:
+        """World centres (N, 3) of the voxels."""
+        return self.grid.centre(self.grid.unflat(self.idx))
+
+    def encode(self) -> bytes:
+        n = len(self.idx)
+        if any(len(getattr(self, name)) != n for name in self._VALUES):
+            raise WireError("region: idx and every value array must have the same length")
+        fields = {"grid": self.grid.to_dict(), "idx": le(self.idx, "<u4")}
+        fields |= {name: le(getattr(self, name), "<f4") for name in self._VALUES}
+        return pack(self.KIND, fields)
+
+    @classmethod
+    def decode(cls, payload: Any) -> Region:
+        kind = cls.KIND
+        msg = unpack(payload, kind)
+        grid = _grid(require(msg, "grid", kind), kind)
+        idx = indices(require(msg, "idx", kind), kind, grid.size)
+        n = len(idx)
+        values = {name: raw(require(msg, name, kind), "<f4", n, name, kind) for name in cls._VALUES}
+        return cls(grid, idx, **values)
