@@ -12,7 +12,8 @@ from coordinator.assignment import (
 )
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy import EntropyCache, default_table
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol.applied_deltas import AppliedDeltas

@@ -18,7 +18,9 @@ import numpy as np
 from map_server.ledger import REJECT_KINDS, DeltaId, Ledger
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits, prior_information
 from swarm.map.delta import Delta
-from swarm.map.entropy import EntropyCache, default_table, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol.wire import DeltaMessage, Region, Snapshot

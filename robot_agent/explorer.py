@@ -25,7 +25,8 @@ from robot_agent.stereo import StereoMatcher, points_from_depth
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy import EntropyCache, default_table
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle

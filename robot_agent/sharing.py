@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm.map.delta import Delta
-from swarm.map.entropy import EntropyTable
+from swarm.map.entropy_table import EntropyTable
 
 
 @dataclass

@@ -4,19 +4,9 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from swarm.map.entropy import (
-    BINS,
-    MU_LIM,
-    SIGMA_MAX,
-    SIGMA_MIN,
-    EntropyCache,
-    EntropyTable,
-    default_table,
-    entropy_exact,
-    entropy_info,
-    expected_coverage,
-    moments,
-)
+from swarm.map.entropy import BINS, MU_LIM, SIGMA_MAX, SIGMA_MIN, entropy_exact, expected_coverage, moments
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import EntropyTable, default_table, entropy_info
 
 W = 1.0 / BINS
 

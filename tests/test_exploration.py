@@ -9,7 +9,8 @@ import pytest
 from scipy import ndimage
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import EntropyCache, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_cache import EntropyCache
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import ExplorationTarget, choose_target, frontier_cells
 from swarm.navigation.planner import GridPlanner

@@ -11,7 +11,8 @@ import pytest
 from swarm import cli
 from swarm.formats.map_file import load_map
 from swarm.formats.point_cloud_file import read_point_cloud
-from swarm.map.entropy import default_table, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_table import default_table
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from tests.test_server_merge import (

@@ -22,7 +22,7 @@ from map_server.team_map import TeamMap
 from swarm.config import Mission, mission_from_dict
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy import default_table
+from swarm.map.entropy_table import default_table
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel

@@ -5,7 +5,7 @@ import numpy as np
 from robot_agent.sharing import DeltaOutbox
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy import default_table
+from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 
 GRID = Grid((0, 0, 0), 0.1, (10, 10, 4))

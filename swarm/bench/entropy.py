@@ -11,7 +11,9 @@ import time
 import numpy as np
 
 from swarm.bench import best_seconds
-from swarm.map.entropy import EntropyCache, EntropyTable, entropy_exact
+from swarm.map.entropy import entropy_exact
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import EntropyTable
 
 
 def run(voxels: int = 1_000_000, repeat: int = 5, seed: int = 0) -> dict:

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import default_table, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from swarm.map.delta import Delta
-from swarm.map.entropy import default_table
+from swarm.map.entropy_table import default_table
 from swarm.map.fusion import BatchResult, batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel

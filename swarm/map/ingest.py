@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
-from swarm.map.entropy import default_table
+from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
-from swarm.map.entropy import default_table, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_table import default_table
 
 
 def summarize(cmap: CoverageMap) -> dict:

@@ -29,7 +29,8 @@ import numpy as np
 from swarm.formats.floor_plan import FloorPlan
 from swarm.formats.map_file import save_map
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import default_table, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation
 
 #: Keys that ``metrics.json`` always has (DESIGN.md section 6, plus our additions).

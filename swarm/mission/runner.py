@@ -29,7 +29,8 @@ import numpy as np
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy import EntropyCache, default_table
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import default_table
 from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable

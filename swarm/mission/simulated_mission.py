@@ -12,7 +12,8 @@ import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
 from swarm.formats.map_file import save_map
-from swarm.map.entropy import EntropyCache, default_table
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation
 
 

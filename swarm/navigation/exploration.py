@@ -38,11 +38,12 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import ndimage
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import expected_coverage
 from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_plane, robot_axes, target_scores
+from swarm.navigation.baselines import frontier_cells, frontier_target, random_cell_target, random_target
+from swarm.navigation.search_context import SearchContext
+from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
 
 __all__ = [
@@ -62,30 +63,8 @@ STRATEGIES = ("entropy", "frontier", "random")
 #: conclusive when it beats a 2-bit step (per voxel edge) at a surely empty voxel, or a
 #: 4-bit step at an unknown one (E[C] = 1/2); tuned on the office simulation.
 DEFAULT_MIN_STEP_BITS = 2.0
-#: Known slab voxels with E[C] at least this block the view: the traversability grid's
-#: free threshold, so that ambiguous surface voxels do not let the view leak into solids.
-OPAQUE_COVERAGE = 0.2
 #: Candidates the standing-point check rejects before the radius is widened anyway.
-_MAX_TRIES = 64
-
-
-@dataclass(frozen=True, eq=False)
-class ExplorationTarget:
-    """A goal for the navigator: stand at ``xy``, face ``gaze_yaw`` (radians, world frame).
-
-    ``xy`` is the centre of a reachable free cell, or of the robot's own cell (turn in place;
-    the robot's cell always counts as reachable, even when inflation marks it blocked).
-
-    ``utility`` is the eq. 35 score for ``"entropy"``, the unknown floor area (m^2) within
-    viewing range for ``"frontier"`` and ``"random"``, 0 for ``"wander"``; ``voxel`` is the
-    flat index of l_s (entropy targets only).
-    """
-
-    xy: np.ndarray
-    gaze_yaw: float
-    utility: float
-    voxel: int | None
-    kind: str
+MAX_TRIES = 64
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,13 +132,13 @@ def choose_target(
     the robot may stand to look at an entropy target; ``widen=False`` keeps the paper's
     fixed radius (then wander, then None).
     """
-    ctx = _Context.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     if strategy == "entropy":
         return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen)
     if strategy == "frontier":
-        return _frontier_target(ctx, view.far)
+        return frontier_target(ctx, view.far)
     if strategy == "random":
-        return _random_target(ctx, 2.0 * radius, rng, view.far)
+        return random_target(ctx, 2.0 * radius, rng, view.far)
     raise ValueError(f"unknown exploration strategy {strategy!r}; expected one of {STRATEGIES}")
 
 
@@ -179,7 +158,7 @@ def rank_entropy_targets(
     widen: bool = True,
     limit: int | None = None,
     min_separation: float = 0.0,
-    max_rejects: int = _MAX_TRIES,
+    max_rejects: int = MAX_TRIES,
 ) -> list[EntropyCandidate]:
     """Entropy targets (eq. 30-35) in the order ``choose_target("entropy", ...)`` tries them.
 
@@ -197,7 +176,7 @@ def rank_entropy_targets(
         raise ValueError(f"limit must be >= 1, got {limit}")
     if max_rejects < 1:
         raise ValueError(f"max_rejects must be >= 1, got {max_rejects}")
-    ctx = _Context.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     found = _entropy_candidates(ctx, entropy, radius, min_score, view, widen, max_rejects, min_separation)
     out: list[EntropyCandidate] = []
     for candidate in found:
@@ -228,7 +207,7 @@ def wander_target(
     also kept out of ``avoid`` ((nx, ny) bool) and away from the ``exclude`` points (within
     ``exclude_radius``) while any other reachable cell is left.
     """
-    ctx = _Context.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     if not ctx.reach.any() or not ctx.unknown_in_view():
         return None
     allowed = ctx.allowed if avoid is None else ctx.allowed & ~np.asarray(avoid, dtype=bool)
@@ -236,144 +215,14 @@ def wander_target(
     pool[ctx.start] = False
     if not pool.any():
         allowed = ctx.allowed if (ctx.reach & ctx.allowed).any() else np.ones_like(ctx.allowed)
-    return _random_cell_target(replace(ctx, allowed=allowed), radius, rng, "wander", 0.0)
-
-
-# ---------------------------------------------------------------------------------------
-# Shared state of one call
-# ---------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class _Context:
-    """Everything the strategies share, computed once per call (2-D arrays are (nx, ny))."""
-
-    cmap: CoverageMap
-    trav: TraversabilityGrid
-    position: np.ndarray  # sensor position x (3,), eq. 30
-    yaw: float
-    k0: int  # slab layer holding the sensor
-    cost: np.ndarray
-    reach: np.ndarray  # reachable free cells and the robot's own cell
-    start: tuple[int, int]  # the robot's cell
-    cx: np.ndarray  # column centre x (nx,)
-    cy: np.ndarray  # column centre y (ny,)
-    allowed: np.ndarray  # columns farther than exclude_radius from every excluded point
-    slab_known: np.ndarray
-    slab_cov: np.ndarray  # E[C] of slab voxels (unknown: prior mean)
-    opaque: np.ndarray  # known slab voxels with E[C] >= OPAQUE_COVERAGE
-
-    @classmethod
-    def build(
-        cls,
-        cmap: CoverageMap,
-        pose: tuple[float, float, float],
-        sensor_height: float,
-        trav: TraversabilityGrid,
-        planner_cost: np.ndarray,
-        exclude: Sequence[np.ndarray],
-        exclude_radius: float,
-    ) -> _Context:
-        grid = cmap.grid
-        nx, ny, nz = grid.shape
-        e = grid.voxel
-        if trav.shape != (nx, ny) or not (
-            math.isclose(trav.resolution, e) and np.allclose(trav.origin, grid.lo[:2], atol=1e-9)
-        ):
-            raise ValueError("traversability grid must cover the map's x-y columns (origin, voxel, shape)")
-        cost = np.asarray(planner_cost, dtype=np.float64)
-        if cost.shape != (nx, ny):
-            raise ValueError(f"planner_cost has shape {cost.shape}, expected {(nx, ny)}")
-        k0 = int(np.floor((float(sensor_height) - grid.lo[2]) / e))
-        if not 0 <= k0 < nz:
-            raise ValueError(f"sensor height {sensor_height} m is outside the map's z range")
-        x, y, yaw = (float(v) for v in pose)
-        cx = grid.lo[0] + (np.arange(nx) + 0.5) * e
-        cy = grid.lo[1] + (np.arange(ny) + 0.5) * e
-        allowed = np.ones((nx, ny), dtype=bool)
-        for p in exclude:
-            p = np.asarray(p, dtype=np.float64)
-            allowed &= (cx[:, None] - p[0]) ** 2 + (cy[None, :] - p[1]) ** 2 > exclude_radius**2
-        # reachable: free cells the planner reaches, and the cell the robot stands on
-        reach = trav.free & np.isfinite(cost)
-        own = trav.cell_of(np.array([x, y]))
-        if trav.contains(own):
-            start = (int(own[0]), int(own[1]))
-            reach[start] = True
-        else:
-            start = np.unravel_index(int(np.argmin(cost)), cost.shape)
-        slab = np.arange(nx * ny, dtype=np.int64) * nz + k0
-        known = cmap.known_mask()[slab].reshape(nx, ny)
-        cov = expected_coverage(cmap.mean(slab), cmap.sigma(slab)).reshape(nx, ny)
-        return cls(
-            cmap=cmap,
-            trav=trav,
-            position=np.array([x, y, float(sensor_height)]),
-            yaw=yaw,
-            k0=k0,
-            cost=cost,
-            reach=reach,
-            start=(int(start[0]), int(start[1])),
-            cx=cx,
-            cy=cy,
-            allowed=allowed,
-            slab_known=known,
-            slab_cov=cov,
-            opaque=known & (cov >= OPAQUE_COVERAGE),
-        )
-
-    @property
-    def voxel(self) -> float:
-        return self.cmap.grid.voxel
-
-    def centre(self, i: int, j: int) -> np.ndarray:
-        return np.array([self.cx[i], self.cy[j]])
-
-    def in_view(self, max_range: float) -> np.ndarray:
-        """Slab columns in view of reachable space within ``max_range`` (see the module doc)."""
-        return _in_view(self.reach, ~self.opaque, int(math.ceil(max_range / self.voxel - 1e-9)))
-
-    def unknown_in_view(self) -> bool:
-        """Is any unknown slab voxel that borders known free space (4-neighbours) in view of
-        reachable space within the sensor's range? (Unknown voxels enclosed by surfaces or
-        by other unknown voxels alone do not count: no view would reach them.)"""
-        border = ~self.slab_known & _grow(self.slab_known & ~self.opaque, square=False)
-        if not border.any():
-            return False
-        return bool(np.any(self.in_view(self.cmap.sensor.max_range) & border))
-
-    def unknown_area(self, i: int, j: int, max_range: float) -> float:
-        """Unknown floor area (m^2, traversability columns) within ``max_range`` of cell (i, j)."""
-        unk = self.trav.unknown & ~self.trav.occupied
-        d2 = (self.cx[:, None] - self.cx[i]) ** 2 + (self.cy[None, :] - self.cy[j]) ** 2
-        return float(np.count_nonzero(unk & (d2 <= max_range**2))) * self.voxel**2
-
-
-def _grow(mask: np.ndarray, square: bool) -> np.ndarray:
-    """One dilation step of a 2-D mask: 8-neighbour (``square``) or 4-neighbour."""
-    out = mask.copy()
-    out[1:] |= mask[:-1]
-    out[:-1] |= mask[1:]
-    src = out.copy() if square else mask
-    out[:, 1:] |= src[:, :-1]
-    out[:, :-1] |= src[:, 1:]
-    return out
-
-
-def _in_view(sources: np.ndarray, transparent: np.ndarray, steps: int) -> np.ndarray:
-    """Cells within ``steps`` of ``sources`` through transparent cells (octagonal metric).
-
-    Opaque cells are reached (their surface is seen) but never passed through.
-    """
-    seen = sources.copy()
-    for s in range(steps):
-        seen |= _grow(seen & transparent, square=s % 2 == 1)
-    return seen
+    return random_cell_target(replace(ctx, allowed=allowed), radius, rng, "wander", 0.0)
 
 
 # ---------------------------------------------------------------------------------------
 # Entropy gradient (the paper)
 # ---------------------------------------------------------------------------------------
 def _entropy_target(
-    ctx: _Context,
+    ctx: SearchContext,
     entropy: np.ndarray,
     radius: float,
     rng: np.random.Generator,
@@ -387,17 +236,17 @@ def _entropy_target(
         return best.as_target()
     if not ctx.reach.any() or not ctx.unknown_in_view():
         return None
-    return _random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)
+    return random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)
 
 
 def _entropy_candidates(
-    ctx: _Context,
+    ctx: SearchContext,
     entropy: np.ndarray,
     radius: float,
     min_score: float | None = None,
     view: ViewGeometry = ViewGeometry(),
     widen: bool = True,
-    max_rejects: int = _MAX_TRIES,
+    max_rejects: int = MAX_TRIES,
     min_separation: float = 0.0,
 ) -> Iterator[EntropyCandidate]:
     """Eq. 35 candidates with a standing point, best first within xi, then 2 xi, 4 xi, ...
@@ -466,7 +315,7 @@ def _entropy_candidates(
 
 
 def _standing_cell(
-    ctx: _Context, i: int, j: int, g: np.ndarray, view: ViewGeometry
+    ctx: SearchContext, i: int, j: int, g: np.ndarray, view: ViewGeometry
 ) -> tuple[int, int] | None:
     """Where to stand to view voxel column (i, j) looking along the unit gradient ``g``.
 
@@ -505,103 +354,3 @@ def _standing_cell(
     ideal = target - 0.5 * (lo + hi) * g
     k = int(np.argmin(np.linalg.norm(pts - ideal, axis=1)))
     return int(ii[k]), int(jj[k])
-
-
-# ---------------------------------------------------------------------------------------
-# Frontier baseline (Yamauchi 1997)
-# ---------------------------------------------------------------------------------------
-def frontier_cells(trav: TraversabilityGrid) -> np.ndarray:
-    """Frontier cells (nx, ny) bool: free cells 8-adjacent to cells blocked only by unknown.
-
-    Yamauchi's frontier (known free next to unknown) in the robot's configuration space: a
-    free cell borders a non-free cell that would be free if the unknown (not occupied)
-    columns were free, i.e. one farther than the inflation distance from every occupied
-    column. With build_traversability (unknown columns blocked but not inflated) these
-    are the unknown columns clear of the walls' inflation, so this is "free cells
-    8-adjacent to unknown cells"; with a grid that also inflates unknown columns
-    (TraversabilityGrid.from_blocked) it is the ring of free cells around their inflation.
-    Unknown space behind a known wall gives no frontier.
-    """
-    unknown = trav.unknown & ~trav.occupied
-    if not unknown.any():
-        return np.zeros(trav.shape, dtype=bool)
-    nonfree = ~trav.free
-    # inflation distance (cells): that of the robot's radius, or more if a margin was added
-    d_blocked = _distance_to(trav.occupied | unknown)
-    threshold = max(trav.robot_radius / trav.resolution + 0.5, float(d_blocked[nonfree].max()))
-    shadow = nonfree & (_distance_to(trav.occupied) > threshold + 1e-9)
-    return trav.free & _grow(shadow, square=True)
-
-
-def _distance_to(mask: np.ndarray) -> np.ndarray:
-    """Distance (cells) from each cell centre to the nearest ``mask`` cell, the outside counting."""
-    padded = np.pad(mask, 1, constant_values=True)
-    return ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
-
-
-def _frontier_target(
-    ctx: _Context, view_range: float = 1.0, min_travel: float = 0.5
-) -> ExplorationTarget | None:
-    """The reachable frontier cell of least path cost (ignoring ones nearer than ``min_travel``
-    unless only those remain); gaze at the mean direction of the nearest unknown columns."""
-    front = frontier_cells(ctx.trav) & ctx.reach & ctx.allowed
-    if not front.any():
-        return None
-    far = front & (ctx.cost >= min_travel)
-    pool = far if far.any() else front
-    i, j = np.unravel_index(int(np.argmin(np.where(pool, ctx.cost, np.inf))), pool.shape)
-    unk = np.argwhere(ctx.trav.unknown & ~ctx.trav.occupied)
-    vec = (unk - np.array([i, j])).astype(np.float64)
-    d = np.linalg.norm(vec, axis=1)
-    near = d <= d.min() + 1.0  # the nearest unknown columns, within one cell of the nearest
-    direction = (vec[near] / d[near, None]).mean(axis=0)
-    if np.linalg.norm(direction) < 1e-9:
-        direction = vec[int(np.argmin(d))]
-    return ExplorationTarget(
-        xy=ctx.centre(i, j),
-        gaze_yaw=math.atan2(direction[1], direction[0]),
-        utility=ctx.unknown_area(i, j, view_range),
-        voxel=None,
-        kind="frontier",
-    )
-
-
-# ---------------------------------------------------------------------------------------
-# Random baseline and wandering
-# ---------------------------------------------------------------------------------------
-def _random_target(
-    ctx: _Context, radius: float, rng: np.random.Generator, view_range: float = 1.0
-) -> ExplorationTarget | None:
-    """A uniformly random reachable cell within ``radius`` (not the robot's own), random gaze.
-
-    None when no unknown slab voxel is in view (sensor range) of reachable space, so
-    missions stop; the robot's own cell (turn in place) when it has nowhere else to go.
-    """
-    if not ctx.reach.any() or not ctx.unknown_in_view():
-        return None
-    return _random_cell_target(ctx, radius, rng, "random", None, view_range)
-
-
-def _random_cell_target(
-    ctx: _Context,
-    radius: float,
-    rng: np.random.Generator,
-    kind: str,
-    utility: float | None,
-    view_range: float = 1.0,
-) -> ExplorationTarget:
-    """Uniform reachable cell within ``radius`` of the robot, else any reachable one, else its own."""
-    x, y = ctx.position[:2]
-    pool = ctx.reach & ctx.allowed
-    pool[ctx.start] = False
-    near = pool & ((ctx.cx[:, None] - x) ** 2 + (ctx.cy[None, :] - y) ** 2 <= radius**2)
-    if near.any():
-        pool = near
-    elif not pool.any():  # nowhere else to go: turn in place
-        pool[ctx.start] = True
-    cells = np.flatnonzero(pool)
-    i, j = np.unravel_index(int(cells[rng.integers(cells.size)]), pool.shape)
-    yaw = float(rng.uniform(-math.pi, math.pi))
-    if utility is None:
-        utility = ctx.unknown_area(int(i), int(j), view_range)
-    return ExplorationTarget(xy=ctx.centre(i, j), gaze_yaw=yaw, utility=utility, voxel=None, kind=kind)

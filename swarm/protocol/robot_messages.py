@@ -138,7 +138,11 @@ class Frame:
             _check_shape(self.left, shape, "left")
             _check_shape(self.right, shape, "right")
             encode_image = _png if self.encoding == "png" else (lambda img: le(img, "u1"))
-            fields |= {"encoding": self.encoding, "left": encode_image(self.left), "right": encode_image(self.right)}
+            fields |= {
+                "encoding": self.encoding,
+                "left": encode_image(self.left),
+                "right": encode_image(self.right),
+            }
         else:
             raise WireError("frame: needs depth, or left and right with encoding raw8/png")
         return pack(self.KIND, fields)

@@ -1,0 +1,116 @@
+"""``swarm bench``: the benchmarks (fusion, entropy, agent frame, server)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from swarm.cli.common import fail
+
+BUNDLED_SCAN = Path("data") / "octomap" / "scan.dat.bz2"
+# The bundled scan, from the project folder or beside an editable install.
+DEFAULT_SCAN = next(
+    (p for p in (BUNDLED_SCAN, Path(__file__).resolve().parents[2] / BUNDLED_SCAN) if p.exists()),
+    BUNDLED_SCAN,
+)
+
+
+# -- swarm bench --------------------------------------------------------------------------
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="benchmarks that print their figures",
+        description="Benchmarks that print their figures.",
+    )
+    bsub = p.add_subparsers(dest="bench_command", required=True, metavar="COMMAND")
+    fusion = bsub.add_parser(
+        "fusion",
+        help="rays/s of our fusion beside OctoMap's insertPointCloud",
+        description="Rays/s and voxel updates/s of our fusion on the real OctoMap scan and a "
+        "synthetic 160x120 frame, with OctoMap's insertPointCloud (octomap-python, "
+        "pip install '.[bench]') on the same clouds, resolution and max range, single-threaded.",
+    )
+    fusion.add_argument(
+        "--scan",
+        type=Path,
+        default=DEFAULT_SCAN,
+        help=f"real scan to use (default: {DEFAULT_SCAN})",
+    )
+    fusion.add_argument("--voxel", type=float, default=0.1, help="voxel edge (default 0.1 m)")
+    fusion.add_argument("--repeat", type=int, default=3, help="take the best of N runs (default 3)")
+    fusion.set_defaults(run=_run_bench_fusion)
+    entropy = bsub.add_parser(
+        "entropy",
+        help="entropy of a 1,000,000-voxel map",
+        description="Time the lookup-table entropy of a 1,000,000-voxel map, "
+        "the exact formula on a sample, and an incremental update.",
+    )
+    entropy.add_argument("--voxels", type=int, default=1_000_000)
+    entropy.add_argument("--repeat", type=int, default=5)
+    entropy.set_defaults(run=_run_bench_entropy)
+    agent = bsub.add_parser(
+        "agent",
+        help="time per frame of stereo, fusion and planning",
+        description="Time per frame of the agent's stages (stereo: SGBM + depth + points; fusion; "
+        "planning: traversability + Dijkstra + one path) on frames rendered from a mission, at "
+        "160x120 and 640x480 by default.",
+    )
+    agent.add_argument("--config", type=Path, default=Path("configs/office.yaml"), help="mission to render")
+    agent.add_argument("--sizes", nargs="+", default=["160x120", "640x480"], help="image sizes WxH")
+    agent.add_argument("--repeat", type=int, default=5)
+    agent.set_defaults(run=_run_bench_agent)
+    server = bsub.add_parser(
+        "server",
+        help="map server: voxel updates merged per second, publish-to-acked latency",
+        description="Voxel updates merged per second by the map server's merge path (apply alone, "
+        "with decoding, with the write-ahead log fsynced), then a swarm server process with "
+        "--agents sessions publishing deltas on loopback: throughput and the latency from "
+        "publish until map/acks shows the delta.",
+    )
+    server.add_argument("--agents", type=int, default=8, help="agent sessions (default 8)")
+    server.add_argument("--deltas", type=int, default=25, help="deltas per agent (default 25)")
+    server.add_argument("--min-voxels", type=int, default=2000, help="smallest delta (default 2000)")
+    server.add_argument("--max-voxels", type=int, default=20000, help="largest delta (default 20000)")
+    server.add_argument(
+        "--period", type=float, default=0.25, help="paced latency: seconds between an agent's deltas"
+    )
+    server.set_defaults(run=_run_bench_server)
+
+
+def _run_bench_fusion(args: argparse.Namespace) -> int:
+    from swarm.bench import fusion
+
+    if not args.scan.exists():
+        print(f"note: {args.scan} not found; measuring the synthetic frame only", file=sys.stderr)
+    figures = fusion.run(args.scan, args.voxel, args.repeat)
+    print(fusion.format_table(figures))
+    return 0
+
+
+def _run_bench_entropy(args: argparse.Namespace) -> int:
+    from swarm.bench import entropy
+
+    print(entropy.format_figures(entropy.run(args.voxels, args.repeat)))
+    return 0
+
+
+def _run_bench_agent(args: argparse.Namespace) -> int:
+    from swarm.bench import agent_frame
+
+    try:
+        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes]
+    except ValueError:
+        return fail(f"--sizes takes WxH values like 160x120, got {args.sizes}")
+    print(agent_frame.format_table(agent_frame.run(args.config, sizes, args.repeat)))
+    return 0
+
+
+def _run_bench_server(args: argparse.Namespace) -> int:
+    from swarm.bench import server
+
+    if args.agents < 1 or args.deltas < 1 or not 1 <= args.min_voxels <= args.max_voxels or args.period <= 0:
+        return fail("--agents, --deltas, --period must be positive, and --min-voxels <= --max-voxels")
+    figures = server.run(args.agents, args.deltas, args.min_voxels, args.max_voxels, args.period)
+    print(server.format_table(figures))
+    return 0

@@ -1,0 +1,122 @@
+"""``swarm map``: inspect coverage map files and query a running map server."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from swarm.cli.common import fail
+
+
+# -- swarm map info -----------------------------------------------------------------------
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("map", help="inspect coverage maps", description="Inspect coverage maps.")
+    msub = p.add_subparsers(dest="map_command", required=True, metavar="COMMAND")
+    info = msub.add_parser(
+        "info",
+        help="summary of a map.npz",
+        description="Print a summary of a map.npz: shape, voxel size, known "
+        "fraction, entropy and occupied voxels (E[C] > 0.5).",
+    )
+    info.add_argument("map", type=Path, help="map.npz file")
+    info.add_argument("--json", action="store_true", help="print JSON")
+    info.set_defaults(run=_run_map_info)
+    stats = msub.add_parser(
+        "stats",
+        help="a running map server's figures (map/stats JSON)",
+        description="Ask a running map server (swarm server) for map/stats and print the JSON: "
+        "entropy, known fraction, deltas applied per robot, rejected and duplicate counts, log size.",
+    )
+    _add_map_query_arguments(stats)
+    stats.set_defaults(run=_run_map_stats)
+    get = msub.add_parser(
+        "get",
+        help="beliefs of a point's voxel or of a box, from a running map server",
+        description="Ask a running map server (map/region) for the beliefs of the voxel holding "
+        "--point, or of every voxel that the box --box touches: index, centre, mu, sigma, E[C] "
+        "and entropy in bits.",
+    )
+    _add_map_query_arguments(get)
+    where = get.add_mutually_exclusive_group(required=True)
+    where.add_argument("--point", metavar="X,Y,Z", help="world point in metres")
+    where.add_argument("--box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="world box in metres (min and max corners)")
+    get.add_argument("--json", action="store_true", help="print JSON, one object per voxel")
+    get.set_defaults(run=_run_map_get)
+    export = msub.add_parser(
+        "export",
+        help="fetch the team map from a running map server and write map.npz or a PLY",
+        description="Fetch map/snapshot from a running map server and write --out: a .npz map file "
+        "(as swarm map info reads) or a .ply of the centres of voxels with E[C] > --threshold.",
+    )
+    _add_map_query_arguments(export)
+    export.add_argument("--out", type=Path, required=True, help="output file: *.npz or *.ply")
+    export.add_argument("--threshold", type=float, default=0.5, help="PLY: E[C] above this (default 0.5)")
+    export.set_defaults(run=_run_map_export)
+
+
+def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint of the map server (default tcp/127.0.0.1:7447); repeatable",
+    )
+    p.add_argument("--mission", default="default", help="mission name, the key prefix (default: default)")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for an answer (default 5)")
+
+
+def _run_map_info(args: argparse.Namespace) -> int:
+    from swarm.formats.map_file import MapFileError, load_map
+    from swarm.map.summary import summarize
+
+    try:
+        summary = summarize(load_map(args.map))
+    except (MapFileError, FileNotFoundError) as exc:
+        return fail(str(exc))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for key, value in summary.items():
+            print(f"{key:>22}: {value}")
+    return 0
+
+
+def _run_map_stats(args: argparse.Namespace) -> int:
+    from swarm.protocol.map_client import MapClient, MapQueryError
+
+    try:
+        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+            print(json.dumps(client.stats(), indent=1))
+    except (ConnectionError, MapQueryError) as exc:
+        return fail(str(exc))
+    return 0
+
+
+def _run_map_get(args: argparse.Namespace) -> int:
+    from swarm.protocol.map_client import MapClient, MapQueryError, format_region, region_rows
+
+    try:
+        values = [float(v) for v in (args.point or args.box).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != (3 if args.point else 6):
+        return fail(f"--point takes X,Y,Z and --box X0,Y0,Z0,X1,Y1,Z1, got {args.point or args.box!r}")
+    try:
+        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+            region = client.point(values) if args.point else client.region(values[:3], values[3:])
+    except (ConnectionError, MapQueryError) as exc:
+        return fail(str(exc))
+    print(json.dumps(region_rows(region)) if args.json else format_region(region))
+    return 0
+
+
+def _run_map_export(args: argparse.Namespace) -> int:
+    from swarm.protocol.map_client import MapClient, MapQueryError, export_map
+
+    try:
+        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+            print(export_map(client, args.out, args.threshold))
+    except (ConnectionError, MapQueryError, ValueError, OSError) as exc:
+        return fail(str(exc))
+    return 0

@@ -1,0 +1,150 @@
+"""``swarm agent``, ``swarm coordinator``, ``swarm server``: each role on its own, as on real robots."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from swarm.cli.common import fail
+
+
+# -- swarm agent --------------------------------------------------------------------------
+def register_agent(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "agent",
+        help="run one robot's agent: stereo -> map -> exploration, over Zenoh",
+        description="Run one robot's agent: take its frames (robot/<id>/frame), fuse them into a "
+        "local coverage map, share voxel deltas (delta/<id>), choose targets and send velocity "
+        "commands (robot/<id>/cmd). Stops on SIGINT/SIGTERM after flushing its pending deltas.",
+    )
+    p.add_argument("--id", required=True, dest="robot_id", help="robot id, as in the mission config")
+    p.add_argument("--config", required=True, type=Path, help="mission YAML file")
+    p.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447); repeatable",
+    )
+    p.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on as well; repeatable",
+    )
+    p.add_argument(
+        "--strategy",
+        choices=["entropy", "frontier", "random"],
+        default="entropy",
+        help="exploration: entropy gradient (the paper, default), nearest frontier, or random",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--coordination",
+        choices=["auto", "none"],
+        default="auto",
+        help="auto (default): ask the coordinator (coord/assign) for targets and choose alone when it "
+        "does not answer; none: always choose alone (eq. 35 on the shared map)",
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+    p.set_defaults(run=_run_agent)
+
+
+def _run_agent(args: argparse.Namespace) -> int:
+    import logging
+    import signal
+
+    from robot_agent.agent import Agent
+    from swarm.config import ConfigError, load_mission
+    from swarm.protocol import bus
+
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
+    )
+    try:
+        mission = load_mission(args.config)
+        session = bus.open_session(args.listen, args.connect)
+        coordinated = args.coordination == "auto"
+        agent = Agent(mission, args.robot_id, session, args.strategy, args.seed, coordination=coordinated)
+    except (ConfigError, ValueError, ConnectionError) as exc:
+        return fail(str(exc))
+    signal.signal(signal.SIGTERM, lambda *_: agent.stop())
+    signal.signal(signal.SIGINT, lambda *_: agent.stop())
+    try:
+        agent.run()
+    finally:
+        stats = agent.outbox.stats
+        print(
+            f"{args.robot_id}: {stats.deltas_sent} deltas, {stats.voxels_sent} voxels, "
+            f"{stats.bytes_sent} bytes sent, {stats.resent} resent; "
+            f"merged {dict(agent.merged_counts)}; coordinator {dict(agent.coordinator_counts)}; "
+            f"map entropy {agent.explorer.map_entropy:,.0f} bits",
+            flush=True,
+        )
+        session.close()
+    return 0
+
+
+# -- swarm coordinator --------------------------------------------------------------------
+def register_coordinator(sub: argparse._SubParsersAction) -> None:
+    from coordinator import command as coordinator
+
+    p = sub.add_parser(
+        "coordinator",
+        help="run the coordinator: eq. 35 targets for the robots, spread apart (Burgard et al.)",
+        description="Run the coordinator of a mission: keep a replica of the team map from merged, "
+        "answer coord/assign with the eq. 35 target that maximises utility minus path cost, lowering "
+        "the utility of targets near those other robots hold. See docs/coordinator.md.",
+    )
+    coordinator.add_arguments(p)
+    p.set_defaults(run=coordinator.run)
+
+
+# -- swarm server -------------------------------------------------------------------------
+def register_server(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "server",
+        help="run the map server: merge every robot's deltas, persist, answer queries",
+        description="Run the map server of a mission: listen on --listen (agents and tools connect "
+        "there), apply each delta/<rid> exactly once, log it durably in --store before acking it, "
+        "republish it on merged, and answer map/stats, map/acks, map/snapshot and map/region. "
+        "On start it recovers the map and acks from the store; SIGINT/SIGTERM compact it and exit.",
+    )
+    p.add_argument("--config", required=True, type=Path, help="mission YAML file (grid, sensor model)")
+    p.add_argument("--store", required=True, type=Path, help="store folder (snapshot + write-ahead log)")
+    p.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on (default tcp/127.0.0.1:7447); repeatable",
+    )
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="also connect here")
+    p.add_argument("--mission", help="mission name, the key prefix (default: the config's mission)")
+    p.add_argument("--compact-mb", type=float, default=256, help="compact when the log reaches this (MB)")
+    p.add_argument("--compact-records", type=int, default=20000, help="... or this many deltas")
+    p.add_argument("--log-every", type=float, default=10.0, help="seconds between progress lines")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+    p.set_defaults(run=_run_server)
+
+
+def _run_server(args: argparse.Namespace) -> int:
+    import logging
+
+    from map_server.server import ServerOptions, serve
+    from map_server.store import StoreError
+    from swarm.config import ConfigError, load_mission
+    from swarm.protocol import bus
+
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
+    )
+    if args.compact_mb <= 0 or args.compact_records < 1 or args.log_every <= 0:
+        return fail("--compact-mb, --compact-records and --log-every must be positive")
+    options = ServerOptions(int(args.compact_mb * 2**20), args.compact_records, log_every_s=args.log_every)
+    try:
+        mission = load_mission(args.config)
+        serve(mission, args.listen or [bus.DEFAULT_ENDPOINT], args.store, args.mission, options, args.connect)
+    except (ConfigError, StoreError, ValueError, OSError) as exc:
+        return fail(str(exc))
+    return 0

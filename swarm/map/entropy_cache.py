@@ -1,0 +1,80 @@
+"""Per-voxel entropies of one map, updated only where voxels changed (paper eq. 31: the map's sum)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarm.map.entropy import moments
+from swarm.map.entropy_table import EntropyTable, default_table
+
+
+# ---------------------------------------------------------------------------------------
+# Per-voxel cache
+# ---------------------------------------------------------------------------------------
+class EntropyCache:
+    """Per-voxel entropies of one map (float32, flat) and their total (float64).
+
+    ``update`` recomputes only the given voxels and adjusts the total by (new - old);
+    after ``resum_every`` recomputed voxels in all (by default the map size) the total is
+    summed again from scratch, so rounding drift stays bounded.
+    """
+
+    def __init__(self, values, table: EntropyTable | None = None, resum_every: int | None = None) -> None:
+        self.values = np.array(values, dtype=np.float32).ravel()
+        self.table = table
+        self.resum_every = int(resum_every) if resum_every else max(self.values.size, 1)
+        self._since = 0
+        self.total = self.resum()
+
+    @classmethod
+    def from_beliefs(cls, mu, sigma, table: EntropyTable | None = None, **kw) -> EntropyCache:
+        tab = table or default_table()
+        return cls(tab(mu, sigma), table=tab, **kw)
+
+    @classmethod
+    def from_information(cls, lam, eta, table=None, **kw) -> EntropyCache:
+        mu, sigma = moments(lam, eta)
+        return cls.from_beliefs(mu, sigma, table=table, **kw)
+
+    def resum(self) -> float:
+        """Recompute the total exactly from the cached values and return it."""
+        self.total = float(np.sum(self.values, dtype=np.float64))
+        self._since = 0
+        return self.total
+
+    def update(self, flat_idx, mu, sigma) -> float:
+        """Recompute the entropy of voxels ``flat_idx`` from their new beliefs; return the total.
+
+        A voxel listed twice takes its last belief (as numpy assignment does).
+        """
+        idx = np.asarray(flat_idx, dtype=np.int64).ravel()
+        if idx.size == 0:
+            return self.total
+        mu = np.broadcast_to(np.asarray(mu), idx.shape)
+        sigma = np.broadcast_to(np.asarray(sigma), idx.shape)
+        if idx.size > 1:
+            order = np.argsort(idx, kind="stable")
+            sidx = idx[order]
+            last = np.ones(sidx.size, dtype=bool)
+            last[:-1] = sidx[1:] != sidx[:-1]
+            if not last.all():
+                keep = order[last]
+                idx, mu, sigma = idx[keep], mu[keep], sigma[keep]
+        if idx.min() < 0 or idx.max() >= self.values.size:
+            raise IndexError(f"voxel index out of range for a cache of {self.values.size} voxels")
+        new = (self.table or default_table())(mu, sigma)
+        old = self.values[idx]
+        self.total += float(np.sum(new, dtype=np.float64) - np.sum(old, dtype=np.float64))
+        self.values[idx] = new
+        self._since += idx.size
+        if self._since >= self.resum_every:
+            self.resum()
+        return self.total
+
+    def update_information(self, flat_idx, lam, eta) -> float:
+        """:meth:`update` from information-form beliefs."""
+        mu, sigma = moments(lam, eta)
+        return self.update(flat_idx, mu, sigma)
+
+    def __len__(self) -> int:
+        return self.values.size

@@ -1,0 +1,148 @@
+"""What one target search shares: the robot, its reachable floor, the slab at sensor height, and
+what it can see from where (line of sight through known-transparent voxels)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
+from swarm.navigation.traversability import TraversabilityGrid
+
+#: Known slab voxels with E[C] at least this block the view: the traversability grid's
+#: free threshold, so that ambiguous surface voxels do not let the view leak into solids.
+OPAQUE_COVERAGE = 0.2
+
+
+# ---------------------------------------------------------------------------------------
+# Shared state of one call
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class SearchContext:
+    """Everything the strategies share, computed once per call (2-D arrays are (nx, ny))."""
+
+    cmap: CoverageMap
+    trav: TraversabilityGrid
+    position: np.ndarray  # sensor position x (3,), eq. 30
+    yaw: float
+    k0: int  # slab layer holding the sensor
+    cost: np.ndarray
+    reach: np.ndarray  # reachable free cells and the robot's own cell
+    start: tuple[int, int]  # the robot's cell
+    cx: np.ndarray  # column centre x (nx,)
+    cy: np.ndarray  # column centre y (ny,)
+    allowed: np.ndarray  # columns farther than exclude_radius from every excluded point
+    slab_known: np.ndarray
+    slab_cov: np.ndarray  # E[C] of slab voxels (unknown: prior mean)
+    opaque: np.ndarray  # known slab voxels with E[C] >= OPAQUE_COVERAGE
+
+    @classmethod
+    def build(
+        cls,
+        cmap: CoverageMap,
+        pose: tuple[float, float, float],
+        sensor_height: float,
+        trav: TraversabilityGrid,
+        planner_cost: np.ndarray,
+        exclude: Sequence[np.ndarray],
+        exclude_radius: float,
+    ) -> SearchContext:
+        grid = cmap.grid
+        nx, ny, nz = grid.shape
+        e = grid.voxel
+        if trav.shape != (nx, ny) or not (
+            math.isclose(trav.resolution, e) and np.allclose(trav.origin, grid.lo[:2], atol=1e-9)
+        ):
+            raise ValueError("traversability grid must cover the map's x-y columns (origin, voxel, shape)")
+        cost = np.asarray(planner_cost, dtype=np.float64)
+        if cost.shape != (nx, ny):
+            raise ValueError(f"planner_cost has shape {cost.shape}, expected {(nx, ny)}")
+        k0 = int(np.floor((float(sensor_height) - grid.lo[2]) / e))
+        if not 0 <= k0 < nz:
+            raise ValueError(f"sensor height {sensor_height} m is outside the map's z range")
+        x, y, yaw = (float(v) for v in pose)
+        cx = grid.lo[0] + (np.arange(nx) + 0.5) * e
+        cy = grid.lo[1] + (np.arange(ny) + 0.5) * e
+        allowed = np.ones((nx, ny), dtype=bool)
+        for p in exclude:
+            p = np.asarray(p, dtype=np.float64)
+            allowed &= (cx[:, None] - p[0]) ** 2 + (cy[None, :] - p[1]) ** 2 > exclude_radius**2
+        # reachable: free cells the planner reaches, and the cell the robot stands on
+        reach = trav.free & np.isfinite(cost)
+        own = trav.cell_of(np.array([x, y]))
+        if trav.contains(own):
+            start = (int(own[0]), int(own[1]))
+            reach[start] = True
+        else:
+            start = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        slab = np.arange(nx * ny, dtype=np.int64) * nz + k0
+        known = cmap.known_mask()[slab].reshape(nx, ny)
+        cov = expected_coverage(cmap.mean(slab), cmap.sigma(slab)).reshape(nx, ny)
+        return cls(
+            cmap=cmap,
+            trav=trav,
+            position=np.array([x, y, float(sensor_height)]),
+            yaw=yaw,
+            k0=k0,
+            cost=cost,
+            reach=reach,
+            start=(int(start[0]), int(start[1])),
+            cx=cx,
+            cy=cy,
+            allowed=allowed,
+            slab_known=known,
+            slab_cov=cov,
+            opaque=known & (cov >= OPAQUE_COVERAGE),
+        )
+
+    @property
+    def voxel(self) -> float:
+        return self.cmap.grid.voxel
+
+    def centre(self, i: int, j: int) -> np.ndarray:
+        return np.array([self.cx[i], self.cy[j]])
+
+    def in_view(self, max_range: float) -> np.ndarray:
+        """Slab columns in view of reachable space within ``max_range`` (see the module doc)."""
+        return in_view(self.reach, ~self.opaque, int(math.ceil(max_range / self.voxel - 1e-9)))
+
+    def unknown_in_view(self) -> bool:
+        """Is any unknown slab voxel that borders known free space (4-neighbours) in view of
+        reachable space within the sensor's range? (Unknown voxels enclosed by surfaces or
+        by other unknown voxels alone do not count: no view would reach them.)"""
+        border = ~self.slab_known & grow(self.slab_known & ~self.opaque, square=False)
+        if not border.any():
+            return False
+        return bool(np.any(self.in_view(self.cmap.sensor.max_range) & border))
+
+    def unknown_area(self, i: int, j: int, max_range: float) -> float:
+        """Unknown floor area (m^2, traversability columns) within ``max_range`` of cell (i, j)."""
+        unk = self.trav.unknown & ~self.trav.occupied
+        d2 = (self.cx[:, None] - self.cx[i]) ** 2 + (self.cy[None, :] - self.cy[j]) ** 2
+        return float(np.count_nonzero(unk & (d2 <= max_range**2))) * self.voxel**2
+
+
+def grow(mask: np.ndarray, square: bool) -> np.ndarray:
+    """One dilation step of a 2-D mask: 8-neighbour (``square``) or 4-neighbour."""
+    out = mask.copy()
+    out[1:] |= mask[:-1]
+    out[:-1] |= mask[1:]
+    src = out.copy() if square else mask
+    out[:, 1:] |= src[:, :-1]
+    out[:, :-1] |= src[:, 1:]
+    return out
+
+
+def in_view(sources: np.ndarray, transparent: np.ndarray, steps: int) -> np.ndarray:
+    """Cells within ``steps`` of ``sources`` through transparent cells (octagonal metric).
+
+    Opaque cells are reached (their surface is seen) but never passed through.
+    """
+    seen = sources.copy()
+    for s in range(steps):
+        seen |= grow(seen & transparent, square=s % 2 == 1)
+    return seen
