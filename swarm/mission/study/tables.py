@@ -9,11 +9,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm.mission.run_report import METRIC_KEYS
 from swarm.mission.study.grid import COORDINATIONS, STRATEGIES, Skipped, StudySpec, unique
 from swarm.mission.study.runner import RunResult
 
 # -- tables ----------------------------------------------------------------------------------------
 
+#: The figures every run's metrics.json has, from the first to the map-quality ones.
+_RUN_FIGURES = METRIC_KEYS[
+    METRIC_KEYS.index("reached_threshold") : METRIC_KEYS.index("explored_fraction") + 1
+]
 RESULT_COLUMNS = (
     "name",
     "status",
@@ -23,20 +28,9 @@ RESULT_COLUMNS = (
     "strategy",
     "coordination",
     "seed",
-    "reached_threshold",
-    "mission_time_s",
-    "sim_time_s",
+    *_RUN_FIGURES,
     "time_to_threshold_s",
     "time_is_lower_bound",
-    "wall_time_s",
-    "initial_entropy_bits",
-    "final_entropy_bits",
-    "threshold_bits",
-    "occupancy_f1",
-    "occupancy_f1_observed",
-    "coverage_mae",
-    "coverage_mae_observed",
-    "explored_fraction",
     "overlap_fraction",
     "overlap_halfway",
     "overlap_before_threshold",
@@ -50,24 +44,21 @@ RESULT_COLUMNS = (
     "log",
     "note",
 )
-_COPIED = (
-    "reached_threshold",
-    "mission_time_s",
-    "sim_time_s",
-    "wall_time_s",
-    "initial_entropy_bits",
-    "final_entropy_bits",
-    "threshold_bits",
-    "occupancy_f1",
-    "occupancy_f1_observed",
-    "coverage_mae",
-    "coverage_mae_observed",
-    "explored_fraction",
-    "overlap_fraction",
-    "overlap_halfway",
-    "overlap_before_threshold",
-    "stop_reason",
+#: Columns computed from the metrics or the run rather than copied from metrics.json.
+_DERIVED = (
+    "time_to_threshold_s",
+    "time_is_lower_bound",
+    "distance_total_m",
+    "distance_mean_m",
+    "distance_max_m",
+    "bytes_total",
+    "bytes_mean",
+    "run_dir",
+    "log",
+    "note",
 )
+#: Columns copied as they are from metrics.json: those after the cell's own.
+_COPIED = tuple(k for k in RESULT_COLUMNS[RESULT_COLUMNS.index("reached_threshold") :] if k not in _DERIVED)
 
 
 def result_row(result: RunResult) -> dict[str, Any]:
