@@ -36,7 +36,7 @@ SGBM_MODES = {
 class RectifiedRig(Protocol):
     """Anything with rectified intrinsics: ``fx``, ``cx``, ``baseline`` and optionally ``cx_right``.
 
-    ``robot_agent.calibration.StereoCalibration`` and ``swarm.protocol.wire.Camera`` both qualify.
+    ``swarm.formats.stereo_calibration.StereoCalibration`` and ``swarm.protocol.wire.Camera`` both qualify.
     """
 
     fx: float
@@ -50,16 +50,17 @@ def _disparity_offset(calib: RectifiedRig) -> float:
 
 
 def disparity_range(
-    calib: RectifiedRig, min_depth: float = 0.3, max_depth: float = math.inf
+    calib: RectifiedRig, min_depth: float = 0.3, max_depth: float = math.inf, scale: float = 1.0
 ) -> tuple[int, int]:
     """(min_disparity, num_disparities) for SGBM covering depths [min_depth, max_depth] of a rig.
 
-    num_disparities is rounded up to a multiple of 16 as OpenCV requires.
+    ``scale`` is the matching scale (disparities shrink with the image). num_disparities is
+    rounded up to a multiple of 16 as OpenCV requires.
     """
     if not (min_depth > 0 and max_depth > min_depth):
         raise ValueError(f"need 0 < min_depth < max_depth, got {min_depth}, {max_depth}")
-    fb = float(calib.fx) * float(calib.baseline)
-    offset = _disparity_offset(calib)
+    fb = float(calib.fx) * float(calib.baseline) * scale
+    offset = _disparity_offset(calib) * scale
     d_hi = fb / min_depth - offset
     d_lo = (fb / max_depth if math.isfinite(max_depth) else 0.0) - offset
     min_disp = math.floor(d_lo)
@@ -112,13 +113,14 @@ class StereoMatcher:
         block_size: int = 5,
         min_disparity: int = 0,
         uniqueness_ratio: int = 10,
-        speckle_window_size: int = 50,
+        speckle_window_size: int = 100,
         speckle_range: int = 2,
         disp12_max_diff: int = 1,
         pre_filter_cap: int = 63,
-        mode: Literal["sgbm", "hh", "3way", "hh4"] = "hh",
+        mode: Literal["sgbm", "hh", "3way", "hh4"] = "3way",
         pad_border: bool = True,
-        min_texture: float = 4.0,
+        min_texture: float = 1.0,
+        scale: float = 1.0,
     ) -> None:
         if num_disparities < 16 or num_disparities % 16:
             raise ValueError(f"num_disparities must be a positive multiple of 16, got {num_disparities}")
@@ -130,6 +132,9 @@ class StereoMatcher:
         self.min_disparity = int(min_disparity)
         self.block_size = int(block_size)
         self.mode = mode
+        if not 0 < scale <= 1:
+            raise ValueError(f"scale must be in (0, 1], got {scale}")
+        self.scale = float(scale)
         if not min_texture >= 0:
             raise ValueError(f"min_texture must be >= 0, got {min_texture}")
         self.min_texture = float(min_texture)
@@ -156,30 +161,50 @@ class StereoMatcher:
         cls, calib: RectifiedRig, min_depth: float = 0.3, max_depth: float = math.inf, **kwargs: Any
     ) -> StereoMatcher:
         """A matcher whose disparity range covers depths [min_depth, max_depth] of ``calib``."""
-        min_disp, num = disparity_range(calib, min_depth, max_depth)
+        scale = float(kwargs.get("scale", 1.0))
+        min_disp, num = disparity_range(calib, min_depth, max_depth, scale)
         return cls(num_disparities=num, min_disparity=min_disp, **kwargs)
 
     def disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-        """Float32 disparity (pixels) of a rectified pair, NaN where invalid; left is the reference."""
+        """Float32 disparity (pixels) of a rectified pair, NaN where invalid; left is the reference.
+
+        With ``scale`` < 1 the pair is matched at that scale (INTER_AREA) and the disparity is
+        brought back to full size (nearest neighbour, values divided by ``scale``).
+        """
         gl = to_gray(left, "left image")
         gr = to_gray(right, "right image")
         if gl.shape != gr.shape:
             raise ValueError(
                 f"left image is {gl.shape[1]}x{gl.shape[0]}, right is {gr.shape[1]}x{gr.shape[0]}"
             )
+        if self.scale == 1.0:
+            return self._disparity(gl, gr)
+        h, w = gl.shape
+        size = (max(round(w * self.scale), 1), max(round(h * self.scale), 1))
+        small = self._disparity(
+            cv2.resize(gl, size, interpolation=cv2.INTER_AREA),
+            cv2.resize(gr, size, interpolation=cv2.INTER_AREA),
+        )
+        small *= np.float32(w / size[0])
+        return cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST)
+
+    def _disparity(self, gl: np.ndarray, gr: np.ndarray) -> np.ndarray:
         h, w = gl.shape
         pl, pr = self._pad_left, self._pad_right
         if pl or pr:
-            gl = cv2.copyMakeBorder(gl, 0, 0, pl, pr, cv2.BORDER_CONSTANT, value=0)
-            gr = cv2.copyMakeBorder(gr, 0, 0, pl, pr, cv2.BORDER_CONSTANT, value=0)
-        raw = self._sgbm.compute(gl, gr)[:, pl : pl + w]
+            raw = self._sgbm.compute(
+                cv2.copyMakeBorder(gl, 0, 0, pl, pr, cv2.BORDER_CONSTANT, value=0),
+                cv2.copyMakeBorder(gr, 0, 0, pl, pr, cv2.BORDER_CONSTANT, value=0),
+            )[:, pl : pl + w]
+        else:
+            raw = self._sgbm.compute(gl, gr)
         disp = raw.astype(np.float32) * np.float32(1.0 / 16.0)
         invalid = raw < self.min_disparity * 16
         # A match that lands in the padding is outside the right image: not a measurement.
         u_right = np.arange(w, dtype=np.float32)[None, :] - disp
         invalid |= (u_right < 0) | (u_right > w - 1)
         if self.min_texture > 0:
-            invalid |= texture(to_gray(left), self.block_size) < self.min_texture
+            invalid |= texture(gl, self.block_size) < self.min_texture
         disp[invalid] = np.nan
         return disp
 

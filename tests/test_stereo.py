@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from robot_agent.calibration import (
+from robot_agent.stereo import StereoMatcher, depth_from_disparity, disparity_range, points_from_depth
+from robot_agent.stereo_command import add_arguments, run
+from swarm.formats.stereo_calibration import (
     CalibrationError,
     StereoCalibration,
     calibration_from_dict,
     load_calibration,
 )
-from robot_agent.stereo import StereoMatcher, depth_from_disparity, disparity_range, points_from_depth
-from robot_agent.stereo_command import add_arguments, run
 
 W, H = 160, 120
 FX = 0.5 * W / math.tan(math.radians(30))  # 60 deg horizontal field of view

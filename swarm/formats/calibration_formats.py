@@ -1,0 +1,356 @@
+"""Stereo calibrations in the forms users have, read into a ``StereoCalibration``.
+
+* ROS ``camera_info`` (one per camera): the YAML of ``camera_calibration_parsers``
+  (``image_width``, ``camera_matrix``, ``distortion_coefficients``, ``rectification_matrix``,
+  ``projection_matrix``) or the fields of a ``sensor_msgs/CameraInfo`` message (``k d r p``,
+  ROS 1's ``K D R P``). The right camera's ``P[0][3]`` is ``-fx * baseline``.
+* EuRoC / Kalibr: a pair of ASL ``sensor.yaml`` files (``intrinsics [fu, fv, cu, cv]``,
+  ``distortion_coefficients``, ``T_BS`` the camera's pose in the body) or one Kalibr
+  ``camchain.yaml`` (``cam0``, ``cam1`` with ``T_cn_cnm1``); radial-tangential distortion.
+* Middlebury ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``doffs``, ``baseline`` in mm,
+  ``ndisp``): a rectified rig.
+* OpenCV files (``K1 D1 K2 D2 R T``, plus ``E F R1 R2 P1 P2 Q``): ``swarm.formats.stereo_calibration``.
+
+``load_stereo_calibration(path, right)`` tells the forms apart by their fields. Every error
+names the file and the field.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from swarm.formats.stereo_calibration import (
+    CalibrationError,
+    RectificationMaps,
+    StereoCalibration,
+    _CalibLoader,
+    calibration_from_dict,
+    rectify_stereo,
+)
+
+#: ROS distortion models OpenCV's pinhole model reads as they are.
+PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "none", "")
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: calibration file not found") from None
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
+        text = text.split("\n", 1)[1] if "\n" in text else ""
+    try:
+        return yaml.load(text, Loader=_CalibLoader)
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+
+
+def _numbers(value: Any, count: int | tuple[int, ...], source: str, field: str) -> np.ndarray:
+    if isinstance(value, dict) and "data" in value:
+        value = value["data"]
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{source}: {field}: must be a list of numbers") from None
+    counts = (count,) if isinstance(count, int) else count
+    if arr.size not in counts:
+        want = " or ".join(str(c) for c in counts)
+        raise CalibrationError(f"{source}: {field}: must have {want} numbers, got {arr.size}")
+    if not np.all(np.isfinite(arr)):
+        raise CalibrationError(f"{source}: {field}: holds NaN or inf")
+    return arr
+
+
+def _field(data: dict, source: str, *names: str) -> Any:
+    for name in names:
+        if name in data:
+            return data[name]
+    raise CalibrationError(f"{source}: {names[0]}: required field is missing")
+
+
+# -- ROS camera_info -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """One camera's ROS calibration: size, K (3x3), D, R (3x3), P (3x4), distortion model."""
+
+    width: int
+    height: int
+    k: np.ndarray
+    d: np.ndarray
+    r: np.ndarray
+    p: np.ndarray
+    distortion_model: str
+    source: str
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str) -> CameraInfo:
+        """From a camera_info YAML mapping or a CameraInfo message's fields (ROS 1 or 2 names)."""
+        if not isinstance(data, dict):
+            raise CalibrationError(f"{source}: expected a camera_info mapping, got {type(data).__name__}")
+        width = _field(data, source, "image_width", "width")
+        height = _field(data, source, "image_height", "height")
+        if not (isinstance(width, int) and isinstance(height, int) and width > 0 and height > 0):
+            raise CalibrationError(f"{source}: image_width, image_height: must be positive integers")
+        model = str(data.get("distortion_model", "plumb_bob") or "")
+        if model not in PINHOLE_MODELS:
+            raise CalibrationError(
+                f"{source}: distortion_model: {model!r} is not supported "
+                f"(use one of plumb_bob, rational_polynomial)"
+            )
+        k = _numbers(_field(data, source, "camera_matrix", "k", "K"), 9, source, "camera_matrix").reshape(
+            3, 3
+        )
+        if k[0, 0] <= 0 or k[1, 1] <= 0:
+            raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
+        d = _numbers(
+            _field(data, source, "distortion_coefficients", "d", "D"),
+            (0, 4, 5, 8, 12, 14),
+            source,
+            "distortion_coefficients",
+        )
+        r = _numbers(
+            data.get("rectification_matrix", data.get("r", data.get("R", np.eye(3)))),
+            9,
+            source,
+            "rectification_matrix",
+        )
+        p = _numbers(_field(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
+        p = p.reshape(3, 4)
+        if p[0, 0] <= 0 or p[1, 1] <= 0:
+            raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
+        return cls(int(width), int(height), k, d, r.reshape(3, 3), p, model, source)
+
+    @classmethod
+    def load(cls, path: str | Path) -> CameraInfo:
+        path = Path(path)
+        return cls.from_dict(_read_yaml(path), str(path))
+
+
+def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalibration:
+    """A StereoCalibration from the two cameras' camera_info (REP-104: images rectified by R, P)."""
+    source = f"{left.source} + {right.source}"
+    if (left.width, left.height) != (right.width, right.height):
+        raise CalibrationError(
+            f"{right.source}: image_width, image_height: {right.width}x{right.height}, "
+            f"the left camera is {left.width}x{left.height}"
+        )
+    if abs(left.p[0, 3]) > 1e-9:
+        raise CalibrationError(
+            f"{left.source}: projection_matrix: P[0][3] must be 0 for the left camera, got {left.p[0, 3]:g} "
+            "(are --calib-left and --calib-right swapped?)"
+        )
+    baseline = -right.p[0, 3] / right.p[0, 0]
+    if not baseline > 0:
+        raise CalibrationError(
+            f"{right.source}: projection_matrix: P[0][3] = -fx * baseline must be < 0 for the right camera, "
+            f"got {right.p[0, 3]:g} (a camera_info of a single camera has 0 there)"
+        )
+    if baseline > 5.0:
+        raise CalibrationError(
+            f"{right.source}: projection_matrix: baseline {baseline:g} m is implausible (millimetres?)"
+        )
+    size = (left.width, left.height)
+    rectified = all(
+        not np.any(info.d) and np.allclose(info.r, np.eye(3)) and np.allclose(info.k, info.p[:, :3])
+        for info in (left, right)
+    )
+    maps = None
+    if not rectified:
+        maps = RectificationMaps(
+            cv2.initUndistortRectifyMap(left.k, left.d, left.r, left.p[:, :3], size, cv2.CV_16SC2),
+            cv2.initUndistortRectifyMap(right.k, right.d, right.r, right.p[:, :3], size, cv2.CV_16SC2),
+        )
+    return StereoCalibration(
+        fx=float(left.p[0, 0]),
+        fy=float(left.p[1, 1]),
+        cx=float(left.p[0, 2]),
+        cy=float(left.p[1, 2]),
+        baseline=float(baseline),
+        cx_right=float(right.p[0, 2]),
+        image_size=size,
+        maps=maps,
+        left_rotation=None if rectified else left.r.copy(),
+        source=source,
+    )
+
+
+# -- EuRoC / Kalibr ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class KalibrCamera:
+    """A raw camera: K (3x3), radtan D, size (w, h), and its pose ``T_BS`` (4x4) in a body frame."""
+
+    k: np.ndarray
+    d: np.ndarray
+    size: tuple[int, int]
+    body_from_camera: np.ndarray
+    source: str
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str, pose_field: str = "T_BS") -> KalibrCamera:
+        if not isinstance(data, dict):
+            raise CalibrationError(f"{source}: expected a mapping, got {type(data).__name__}")
+        fu, fv, cu, cv = _numbers(_field(data, source, "intrinsics"), 4, source, "intrinsics")
+        if fu <= 0 or fv <= 0:
+            raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
+        model = str(data.get("distortion_model", "radial-tangential"))
+        if model not in ("radial-tangential", "radtan", "plumb_bob", "none"):
+            raise CalibrationError(
+                f"{source}: distortion_model: {model!r} is not supported (radial-tangential only)"
+            )
+        d = _numbers(
+            _field(data, source, "distortion_coefficients", "distortion_coeffs"),
+            (0, 4, 5),
+            source,
+            "distortion_coefficients",
+        )
+        w, h = _numbers(_field(data, source, "resolution"), 2, source, "resolution")
+        pose = _numbers(_field(data, source, pose_field), 16, source, pose_field).reshape(4, 4)
+        rot = pose[:3, :3]
+        if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+            raise CalibrationError(f"{source}: {pose_field}: the rotation part is not a rotation matrix")
+        k = np.array([[fu, 0, cu], [0, fv, cv], [0, 0, 1]])
+        return cls(k, d, (int(w), int(h)), pose, source)
+
+    @classmethod
+    def load(cls, path: str | Path) -> KalibrCamera:
+        path = Path(path)
+        return cls.from_dict(_read_yaml(path), str(path))
+
+
+def stereo_from_kalibr(left: KalibrCamera, right: KalibrCamera) -> StereoCalibration:
+    """Rectify a pair given both cameras' poses in one body frame (EuRoC's two ``T_BS``)."""
+    source = f"{left.source} + {right.source}"
+    if left.size != right.size:
+        raise CalibrationError(f"{right.source}: resolution: {right.size}, the left camera is {left.size}")
+    right_from_left = np.linalg.inv(right.body_from_camera) @ left.body_from_camera  # X1 = R X0 + T
+    return rectify_stereo(
+        left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source
+    )
+
+
+def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
+    """Kalibr ``camchain.yaml``: ``cam0`` and ``cam1``, the latter with ``T_cn_cnm1`` (X1 = T X0)."""
+    for name in ("cam0", "cam1"):
+        if not isinstance(data.get(name), dict):
+            raise CalibrationError(f"{source}: {name}: required camera section is missing")
+    identity = {"T_BS": np.eye(4).tolist()}
+    left = KalibrCamera.from_dict({**data["cam0"], **identity}, f"{source}: cam0")
+    right_dict = dict(data["cam1"])
+    right_from_left = _numbers(
+        _field(right_dict, f"{source}: cam1", "T_cn_cnm1"), 16, source, "cam1.T_cn_cnm1"
+    )
+    right_dict["T_BS"] = np.linalg.inv(right_from_left.reshape(4, 4)).tolist()
+    right = KalibrCamera.from_dict(right_dict, f"{source}: cam1")
+    return stereo_from_kalibr(left, right)
+
+
+# -- Middlebury calib.txt ------------------------------------------------------------------
+
+_MATRIX = re.compile(r"^\[(.*)\]$")
+
+
+def load_middlebury(path: str | Path) -> StereoCalibration:
+    """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres, ``ndisp`` kept."""
+    path = Path(path)
+    source = str(path)
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: calibration file not found") from None
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    values: dict[str, str] = {}
+    for line in lines:
+        if "=" in line:
+            key, value = line.split("=", 1)
+            values[key.strip()] = value.strip()
+
+    def matrix(name: str) -> np.ndarray:
+        match = _MATRIX.match(values.get(name, ""))
+        if match is None:
+            raise CalibrationError(f"{source}: {name}: expected [f 0 cx; 0 f cy; 0 0 1]")
+        rows = [r.split() for r in match.group(1).split(";")]
+        return _numbers(rows if all(len(r) == 3 for r in rows) else [], 9, source, name).reshape(3, 3)
+
+    def number(name: str, default: float | None = None) -> float:
+        if name not in values:
+            if default is not None:
+                return default
+            raise CalibrationError(f"{source}: {name}: required field is missing")
+        try:
+            return float(values[name])
+        except ValueError:
+            raise CalibrationError(f"{source}: {name}: not a number (got {values[name]!r})") from None
+
+    cam0, cam1 = matrix("cam0"), matrix("cam1")
+    baseline_mm = number("baseline")
+    if not baseline_mm > 0:
+        raise CalibrationError(f"{source}: baseline: must be > 0 (millimetres), got {baseline_mm:g}")
+    doffs = number("doffs", cam1[0, 2] - cam0[0, 2])
+    if abs(doffs - (cam1[0, 2] - cam0[0, 2])) > 0.01:
+        raise CalibrationError(
+            f"{source}: doffs: {doffs:g} is not cam1 cx - cam0 cx = {cam1[0, 2] - cam0[0, 2]:g}"
+        )
+    size = None
+    if "width" in values and "height" in values:
+        size = (int(number("width")), int(number("height")))
+    ndisp = int(number("ndisp")) if "ndisp" in values else None
+    return StereoCalibration(
+        fx=float(cam0[0, 0]),
+        fy=float(cam0[1, 1]),
+        cx=float(cam0[0, 2]),
+        cy=float(cam0[1, 2]),
+        baseline=baseline_mm / 1000.0,
+        cx_right=float(cam1[0, 2]),
+        image_size=size,
+        source=source,
+        ndisp=ndisp,
+        notes=(f"{source}: baseline {baseline_mm:g} mm read as {baseline_mm / 1000:g} m",),
+    )
+
+
+# -- one entry point -------------------------------------------------------------------------
+
+
+def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -> StereoCalibration:
+    """Read any supported form: ``right`` is the second file of per-camera forms (camera_info,
+    EuRoC sensor.yaml). Raises CalibrationError naming the file and field."""
+    path = Path(path)
+    if path.suffix == ".txt" or (
+        path.exists() and path.read_text(errors="replace").lstrip().startswith("cam0=")
+    ):
+        if right is not None:
+            raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")
+        return load_middlebury(path)
+    data = _read_yaml(path)
+    if isinstance(data, dict) and ("projection_matrix" in data or "camera_matrix" in data):
+        if right is None:
+            raise CalibrationError(
+                f"{path}: a ROS camera_info describes one camera; give the right camera's too "
+                "(--calib-left LEFT.yaml --calib-right RIGHT.yaml)"
+            )
+        return stereo_from_camera_infos(CameraInfo.from_dict(data, str(path)), CameraInfo.load(right))
+    if isinstance(data, dict) and "T_BS" in data:
+        if right is None:
+            raise CalibrationError(
+                f"{path}: an EuRoC/Kalibr sensor.yaml describes one camera; give cam1's sensor.yaml too"
+            )
+        return stereo_from_kalibr(KalibrCamera.from_dict(data, str(path)), KalibrCamera.load(right))
+    if isinstance(data, dict) and "cam0" in data and "cam1" in data:
+        return stereo_from_camchain(data, str(path))
+    if right is not None:
+        raise CalibrationError(f"{right}: {path} describes both cameras; give it alone")
+    return calibration_from_dict(data, source=str(path))
