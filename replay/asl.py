@@ -1,0 +1,143 @@
+"""ASL / EuRoC dataset folders: ``mav0/cam0``, ``mav0/cam1`` (``data.csv``, ``data/*.png``,
+``sensor.yaml``) and the left camera's poses.
+
+Poses, first found wins:
+
+* ``mav0/cam0_groundtruth/data.csv``: the pose of cam0 per image, ``p_RS_R`` (m) and a
+  quaternion (w, x, y, z) of the rotation **from world to camera** (the convention of the
+  published EuRoC camera trajectories, as the shared excerpt's README states);
+* ``mav0/state_groundtruth_estimate0/data.csv``: EuRoC's body ground truth, ``p_RS_R`` and
+  ``q_RS`` (w, x, y, z) **from body to world**, combined with cam0's ``T_BS``.
+
+Timestamps are nanoseconds; pairs and poses are matched within a tolerance.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from replay.frames import RecordedPair
+from replay.matching import Matched, match_stamps
+from replay.poses import camera_from_body, quaternion_matrix
+from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
+from swarm.formats.stereo_calibration import StereoCalibration
+
+NS = 1e-9
+
+
+class RecordingError(ValueError):
+    """An unusable recording: the message names the file (and topic or column)."""
+
+
+def _rows(path: Path, columns: int) -> list[list[str]]:
+    if not path.is_file():
+        raise RecordingError(f"{path}: file not found")
+    rows = []
+    with path.open(newline="") as fh:
+        for n, row in enumerate(csv.reader(fh), 1):
+            if not row or row[0].lstrip().startswith("#"):
+                continue
+            if len(row) < columns:
+                raise RecordingError(f"{path}: line {n}: expected {columns} columns, got {len(row)}")
+            rows.append([c.strip() for c in row])
+    if not rows:
+        raise RecordingError(f"{path}: no data rows")
+    return rows
+
+
+def _images(cam: Path) -> tuple[np.ndarray, list[Path]]:
+    rows = _rows(cam / "data.csv", 2)
+    try:
+        stamps = np.array([int(float(r[0])) for r in rows], dtype=np.int64)
+    except ValueError as exc:
+        raise RecordingError(f"{cam / 'data.csv'}: timestamp column: {exc}") from None
+    order = np.argsort(stamps)
+    return stamps[order], [cam / "data" / rows[i][1] for i in order]
+
+
+@dataclass
+class PoseTrack:
+    """Left camera poses: times (ns, sorted), positions (N, 3), world_R_optical (N, 3, 3)."""
+
+    stamps: np.ndarray
+    positions: np.ndarray
+    rotations: np.ndarray
+    source: str
+
+
+def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rows = _rows(path, 8)
+    try:
+        values = np.array([[float(c) for c in r[:8]] for r in rows])
+    except ValueError as exc:
+        raise RecordingError(f"{path}: {exc}") from None
+    order = np.argsort(values[:, 0])
+    values = values[order]
+    return values[:, 0].astype(np.int64), values[:, 1:4], values[:, 4:8]
+
+
+def load_poses(mav0: Path, left: KalibrCamera) -> PoseTrack:
+    """The left camera's poses from the camera ground truth or the body ground truth + T_BS."""
+    cam_file = mav0 / "cam0_groundtruth" / "data.csv"
+    body_file = mav0 / "state_groundtruth_estimate0" / "data.csv"
+    if cam_file.is_file():
+        stamps, pos, quat = _pose_rows(cam_file)
+        rot = np.stack([quaternion_matrix(*q).T for q in quat])  # world->camera: transpose
+        return PoseTrack(stamps, pos, rot, str(cam_file))
+    if body_file.is_file():
+        stamps, pos, quat = _pose_rows(body_file)
+        cams = [camera_from_body(p, quaternion_matrix(*q), left.body_from_camera) for p, q in zip(pos, quat)]
+        return PoseTrack(stamps, np.array([c[0] for c in cams]), np.array([c[1] for c in cams]), str(body_file))
+    raise RecordingError(
+        f"{mav0}: no poses: expected cam0_groundtruth/data.csv or state_groundtruth_estimate0/data.csv"
+    )
+
+
+class AslRecording:
+    """An ASL-format stereo recording, rectification ready; iterate ``pairs()``."""
+
+    def __init__(self, folder: str | Path, tolerance_s: float = 0.005) -> None:
+        folder = Path(folder)
+        mav0 = folder / "mav0" if (folder / "mav0").is_dir() else folder
+        for cam in ("cam0", "cam1"):
+            if not (mav0 / cam).is_dir():
+                raise RecordingError(f"{mav0}: no {cam} folder (expected the ASL layout mav0/cam0, mav0/cam1)")
+        self.folder = mav0
+        left = KalibrCamera.load(mav0 / "cam0" / "sensor.yaml")
+        right = KalibrCamera.load(mav0 / "cam1" / "sensor.yaml")
+        self.calibration: StereoCalibration = stereo_from_kalibr(left, right)
+        self.poses = load_poses(mav0, left)
+        self.left_stamps, self.left_files = _images(mav0 / "cam0")
+        right_stamps, self.right_files = _images(mav0 / "cam1")
+        tol_ns = tolerance_s / NS
+        self.matched: Matched = match_stamps(
+            self.left_stamps, {"cam1 image": right_stamps, "pose": self.poses.stamps}, tol_ns
+        )
+
+    def __len__(self) -> int:
+        return len(self.matched.reference)
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) left camera positions of the kept pairs."""
+        return self.poses.positions[self.matched.others["pose"]]
+
+    def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]:
+        stop = len(self) if count is None else min(len(self), start + count)
+        for k in range(start, stop):
+            i = self.matched.reference[k]
+            j = self.matched.others["cam1 image"][k]
+            p = self.matched.others["pose"][k]
+            left = cv2.imread(str(self.left_files[i]), cv2.IMREAD_UNCHANGED)
+            right = cv2.imread(str(self.right_files[j]), cv2.IMREAD_UNCHANGED)
+            for path, image in ((self.left_files[i], left), (self.right_files[j], right)):
+                if image is None:
+                    raise RecordingError(f"{path}: missing or not a readable image")
+            yield RecordedPair(
+                float(self.left_stamps[i]) * NS, left, right, self.poses.positions[p], self.poses.rotations[p]
+            )
