@@ -92,8 +92,13 @@ def load_poses(mav0: Path, left: KalibrCamera) -> PoseTrack:
         return PoseTrack(stamps, pos, rot, str(cam_file))
     if body_file.is_file():
         stamps, pos, quat = _pose_rows(body_file)
-        cams = [camera_from_body(p, quaternion_matrix(*q), left.body_from_camera) for p, q in zip(pos, quat)]
-        return PoseTrack(stamps, np.array([c[0] for c in cams]), np.array([c[1] for c in cams]), str(body_file))
+        cams = [
+            camera_from_body(p, quaternion_matrix(*q), left.body_from_camera)
+            for p, q in zip(pos, quat, strict=True)
+        ]
+        return PoseTrack(
+            stamps, np.array([c[0] for c in cams]), np.array([c[1] for c in cams]), str(body_file)
+        )
     raise RecordingError(
         f"{mav0}: no poses: expected cam0_groundtruth/data.csv or state_groundtruth_estimate0/data.csv"
     )
@@ -107,7 +112,9 @@ class AslRecording:
         mav0 = folder / "mav0" if (folder / "mav0").is_dir() else folder
         for cam in ("cam0", "cam1"):
             if not (mav0 / cam).is_dir():
-                raise RecordingError(f"{mav0}: no {cam} folder (expected the ASL layout mav0/cam0, mav0/cam1)")
+                raise RecordingError(
+                    f"{mav0}: no {cam} folder (expected the ASL layout mav0/cam0, mav0/cam1)"
+                )
         self.folder = mav0
         left = KalibrCamera.load(mav0 / "cam0" / "sensor.yaml")
         right = KalibrCamera.load(mav0 / "cam1" / "sensor.yaml")

@@ -1,0 +1,280 @@
+"""``swarm replay asl DIR --out RUN``: a recording through the real map server and agent processes.
+
+The runner is the Zenoh router on loopback (or joins one with ``connect``); it starts ``swarm
+server`` and ``swarm agent`` as processes, publishes the recording's rectified frames on
+``robot/<id>/frame`` in lockstep with the agent's answers (``replay.publisher``), watches
+``delta/*`` for the entropy, and writes the run folder: config.yaml, map.npz, top_view.png,
+view_3d.png, occupied.ply, frames.csv (per frame: round trip, stereo valid fraction, map
+entropy), metrics.json, and the processes' logs.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import shutil
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from replay.asl import AslRecording
+from replay.frames import make_frame, rectified_camera
+from replay.publisher import FramePublisher
+from robot_agent.stereo import StereoMatcher
+from swarm.config import Mission, mission_from_dict
+from swarm.formats.map_file import save_map
+from swarm.formats.point_cloud_file import write_ply_points
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
+from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient
+from swarm.protocol.wire import Frame
+
+OCCUPIED = 0.5  # E[C] above which a known voxel is drawn as a surface
+
+
+def default_mission(
+    recording: AslRecording, robot: str = "r1", margin: float = 3.0, voxel: float = 0.1
+) -> Mission:
+    """A mission around the recording: a box ``margin`` m around the trajectory, the rectified rig."""
+    pos = recording.positions()
+    lo, hi = pos.min(axis=0) - margin, pos.max(axis=0) + margin
+    lo[2], hi[2] = pos[:, 2].min() - 1.5, pos[:, 2].max() + 1.5
+    cam = rectified_camera(recording.calibration)
+    hfov = math.degrees(2 * math.atan(cam.width / 2 / cam.fx))
+    data = {
+        "mission": "replay",
+        "workspace": {"lo": lo.round(2).tolist(), "hi": hi.round(2).tolist(), "voxel": voxel},
+        "robots": [{"id": robot, "start": {"x": float(pos[0, 0]), "y": float(pos[0, 1])}}],
+        "rig": {
+            "width": cam.width,
+            "height": cam.height,
+            "hfov_deg": round(hfov, 4),
+            "baseline": cam.baseline,
+            "camera_height": float(max(pos[0, 2], 0.05)),
+        },
+    }
+    return mission_from_dict(data)
+
+
+@dataclass
+class ReplayOptions:
+    out: Path
+    robot: str = "r1"
+    start: int = 0
+    count: int | None = None
+    realtime: bool = False
+    connect: str | None = None
+    quiet: bool = False
+
+
+def _frames(recording: AslRecording, options: ReplayOptions) -> Iterator[Frame]:
+    camera = rectified_camera(recording.calibration)
+    for seq, pair in enumerate(recording.pairs(options.start, options.count)):
+        yield make_frame(options.robot, seq, pair, recording.calibration, camera)
+
+
+def run_replay(recording: AslRecording, mission: Mission, options: ReplayOptions) -> dict:
+    """Replay ``recording`` through a map server and an agent; write the run folder; return metrics."""
+    out = options.out
+    out.mkdir(parents=True, exist_ok=True)
+    config_path = out / "config.yaml"
+    config_path.write_text(mission.to_yaml())
+    endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
+    if options.connect:
+        session = bus.open_session(connect=[endpoint])
+    else:
+        session = bus.open_session(listen=[endpoint])  # the runner is the router
+    monitor = TeamMonitor(mission)
+    name = mission.mission
+    sub = bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta)
+    client = MapClient(session, name, timeout=2.0)
+    camera = rectified_camera(recording.calibration)
+    matcher = StereoMatcher.for_rig(mission.rig_for(options.robot).camera())
+    procs = []
+    rows: list[dict] = []
+    publisher = None
+    server_map = None
+    try:
+        if options.connect is None:
+            store = out / "server-store"
+            if store.exists():
+                shutil.rmtree(store)
+            server = _child(
+                ["server", "--config", str(config_path), "--store", str(store), "--connect", endpoint],
+                out / "server.log",
+            )
+            procs.append(server)
+            _wait_for_server(client, server)
+        agent = _child(
+            ["agent", "--id", options.robot, "--connect", endpoint, "--config", str(config_path),
+             "--coordination", "none"],
+            out / f"agent-{options.robot}.log",
+        )  # fmt: skip
+        publisher = FramePublisher(session, name, options.robot)
+        if not publisher.wait_for_agent(60.0):
+            raise RuntimeError(
+                f"the agent did not subscribe to its frames within 60 s (see {out}/agent-*.log)"
+            )
+
+        def after_each(frame: Frame, rtt: float | None) -> None:
+            time.sleep(0.05)  # let the agent's delta of this frame arrive
+            valid = float(np.isfinite(matcher.disparity(frame.left, frame.right)).mean())
+            rows.append(
+                {"seq": frame.seq, "t": frame.t, "round_trip_ms": None if rtt is None else rtt * 1e3,
+                 "stereo_valid": valid, "entropy_bits": monitor.team_entropy}
+            )  # fmt: skip
+            if not options.quiet:
+                ms = "no answer" if rtt is None else f"{rtt * 1e3:6.0f} ms"
+                print(f"frame {frame.seq + 1:4d}/{len(recording)}  {ms}  stereo valid {valid:4.0%}  "
+                      f"H={monitor.team_entropy:,.0f} bits", flush=True)  # fmt: skip
+
+        log = publisher.run(_frames(recording, options), options.realtime, after_each=after_each)
+        _stop([agent])  # the agent flushes its outbox on SIGTERM
+        procs_agent = agent.returncode
+        if options.connect is None:
+            server_map = _final_server_map(client, monitor)
+    finally:
+        if publisher is not None:
+            publisher.close()
+        _stop([p for p in procs if p.poll() is None])
+        sub.undeclare()
+        session.close()
+    cmap = server_map if server_map is not None else monitor.cmap
+    return _write_outputs(out, cmap, rows, log.unanswered, recording, monitor, camera, procs_agent)
+
+
+def occupied_points(cmap: CoverageMap, threshold: float = OCCUPIED) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, 3) and E[C] of the known voxels whose expected coverage is above ``threshold``."""
+    known = cmap.known_mask()
+    lam = cmap.lam.astype(np.float64)
+    cover = np.zeros(cmap.grid.size)
+    cover[known] = expected_coverage(cmap.eta[known] / lam[known], 1.0 / np.sqrt(lam[known]))
+    idx = np.flatnonzero(known & (cover >= threshold))
+    ijk = np.stack(np.unravel_index(idx, cmap.grid.shape), axis=1)
+    return cmap.grid.lo + (ijk + 0.5) * cmap.grid.voxel, cover[idx]
+
+
+def _write_outputs(out, cmap, rows, unanswered, recording, monitor, camera, agent_code) -> dict:
+    save_map(out / "map.npz", cmap)
+    with (out / "frames.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, ["seq", "t", "round_trip_ms", "stereo_valid", "entropy_bits"])
+        writer.writeheader()
+        writer.writerows(rows)
+    points, cover = occupied_points(cmap)
+    write_ply_points(out / "occupied.ply", points, cover)
+    rtts = [r["round_trip_ms"] for r in rows if r["round_trip_ms"] is not None]
+    metrics = {
+        "frames": len(rows),
+        "unanswered": unanswered,
+        "image_size": [camera.width, camera.height],
+        "matching": recording.matched.describe(),
+        "round_trip_ms_median": float(np.median(rtts)) if rtts else None,
+        "stereo_valid_median": float(np.median([r["stereo_valid"] for r in rows])) if rows else None,
+        "entropy_start_bits": monitor.curve[0][1],
+        "entropy_end_bits": monitor.team_entropy,
+        "occupied_voxels": len(points),
+        "agent_exit_code": agent_code,
+    }
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    _plots(out, cmap, points, cover, rows, recording)
+    return metrics
+
+
+def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from swarm.mission.run_report import top_view_image
+
+    traj = recording.positions()
+    image, _ = top_view_image(cmap, (cmap.grid.lo[2], cmap.grid.hi[2]))
+    (x0, y0, _), (x1, y1, _) = cmap.grid.lo, cmap.grid.hi
+    fig, ax = plt.subplots(figsize=(7, 6), dpi=110, layout="constrained")
+    shown = ax.imshow(np.ma.masked_invalid(image.T), origin="lower", extent=(x0, x1, y0, y1), cmap="gray_r",
+                      vmin=0, vmax=1, interpolation="nearest")  # fmt: skip
+    fig.colorbar(shown, ax=ax, label="max E[C] of known voxels in the column")
+    ax.plot(traj[:, 0], traj[:, 1], "r-", lw=1.5, label="camera")
+    ax.set(xlabel="x (m)", ylabel="y (m)", title="Top view (grey: known, blank: unknown)", aspect="equal")
+    ax.legend(loc="upper right")
+    fig.savefig(out / "top_view.png")
+    plt.close(fig)
+    fig = plt.figure(figsize=(8, 6), dpi=110, layout="constrained")
+    ax = fig.add_subplot(projection="3d")
+    shown = ax.scatter(points[:, 0], points[:, 1], points[:, 2], c=points[:, 2], s=2, cmap="viridis")
+    ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], "r-", lw=2)
+    fig.colorbar(shown, ax=ax, shrink=0.7, label="z (m)")
+    ax.set(
+        xlabel="x (m)", ylabel="y (m)", zlabel="z (m)", title=f"Voxels with E[C] >= {OCCUPIED} (red: camera)"
+    )
+    fig.savefig(out / "view_3d.png")
+    plt.close(fig)
+    if rows:
+        fig, ax = plt.subplots(figsize=(7, 4), dpi=110, layout="constrained")
+        ax.plot([r["seq"] + 1 for r in rows], [r["entropy_bits"] for r in rows], "b.-")
+        ax.set(xlabel="frame", ylabel="map entropy (bits)", title="Entropy over frames")
+        fig.savefig(out / "entropy.png")
+        plt.close(fig)
+
+
+# -- command line (``swarm replay asl``; also ``python -m swarm.mission.replay_run asl``) ----------
+
+
+def add_asl_arguments(parser) -> None:
+    """Arguments of ``swarm replay asl``; sets ``run``."""
+    parser.add_argument("folder", type=Path, help="ASL/EuRoC dataset folder (holding mav0/ or cam0/, cam1/)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder to write")
+    parser.add_argument("--config", type=Path, help="mission YAML (default: a box around the trajectory)")
+    parser.add_argument("--robot", default="r1", help="robot id (default r1, or the config's first robot)")
+    parser.add_argument("--start", type=int, default=0, help="first pair to replay (default 0)")
+    parser.add_argument("--frames", type=int, help="number of pairs to replay (default: all)")
+    parser.add_argument("--realtime", action="store_true", help="publish at the recorded rate, not lockstep")
+    parser.add_argument("--connect", help="join a running Zenoh router / map server at this endpoint")
+    parser.add_argument("--tolerance", type=float, default=0.005, help="timestamp matching tolerance (s)")
+    parser.set_defaults(run=run_asl_command)
+
+
+def run_asl_command(args) -> int:
+    """``swarm replay asl``: exit 0 on success, 2 on a user error."""
+    import sys
+
+    from replay.asl import RecordingError
+    from swarm.config import ConfigError, load_mission
+    from swarm.formats.stereo_calibration import CalibrationError
+
+    try:
+        recording = AslRecording(args.folder, args.tolerance)
+        if args.config is not None:
+            mission = load_mission(args.config)
+            robot = args.robot if args.robot in mission.robot_ids else mission.robot_ids[0]
+        else:
+            mission, robot = default_mission(recording, args.robot), args.robot
+    except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
+        print(f"swarm replay asl: error: {exc}", file=sys.stderr)
+        return 2
+    calib = recording.calibration
+    print(f"{args.folder}: {len(recording)} pairs ({recording.matched.describe()}); "
+          f"rectified fx {calib.fx:.1f} px, baseline {calib.baseline:.4f} m")  # fmt: skip
+    options = ReplayOptions(args.out, robot, args.start, args.frames, args.realtime, args.connect)
+    metrics = run_replay(recording, mission, options)
+    print(json.dumps(metrics, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    import argparse
+    import sys
+
+    top = argparse.ArgumentParser(prog="python -m swarm.mission.replay_run")
+    sub = top.add_subparsers(required=True)
+    add_asl_arguments(sub.add_parser("asl", help="replay an ASL/EuRoC folder"))
+    parsed = top.parse_args()
+    sys.exit(parsed.run(parsed))
