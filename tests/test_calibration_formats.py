@@ -1,0 +1,143 @@
+"""Calibration readers: ROS camera_info pairs, EuRoC/Kalibr sensor.yaml pairs, Middlebury calib.txt,
+OpenCV files with stereoRectify's extra outputs."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from swarm.formats.calibration_formats import load_stereo_calibration
+from swarm.formats.stereo_calibration import CalibrationError, rectify_stereo
+
+SIZE = (320, 240)
+K1 = np.array([[300.0, 0, 161.0], [0, 301.0, 118.0], [0, 0, 1]])
+K2 = np.array([[302.0, 0, 158.0], [0, 300.0, 121.0], [0, 0, 1]])
+D1 = np.array([-0.2, 0.05, 0.001, -0.0005, 0.0])
+D2 = np.array([-0.21, 0.06, 0.0, 0.001, 0.0])
+R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+T = np.array([-0.12, 0.002, 0.001])
+
+
+def _matrix(a: np.ndarray) -> dict:
+    a = np.atleast_2d(a)
+    return {"rows": a.shape[0], "cols": a.shape[1], "data": a.ravel().tolist()}
+
+
+def _camera_infos(tmp_path):
+    r1, r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    paths = []
+    for name, k, d, r, p in (("left", K1, D1, r1, p1), ("right", K2, D2, r2, p2)):
+        info = {
+            "image_width": SIZE[0],
+            "image_height": SIZE[1],
+            "camera_name": name,
+            "camera_matrix": _matrix(k),
+            "distortion_model": "plumb_bob",
+            "distortion_coefficients": _matrix(d),
+            "rectification_matrix": _matrix(r),
+            "projection_matrix": _matrix(p),
+        }
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(info))
+        paths.append(path)
+    return paths
+
+
+def test_camera_info_pair_equals_the_opencv_rectification(tmp_path):
+    left, right = _camera_infos(tmp_path)
+    got = load_stereo_calibration(left, right)
+    want = rectify_stereo(K1, D1, K2, D2, R, T, SIZE)
+    assert got.baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+        assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
+    raw = np.random.default_rng(0).integers(0, 255, (SIZE[1], SIZE[0]), dtype=np.uint8)
+    for a, b in zip(got.rectify(raw, raw), want.rectify(raw, raw), strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_camera_info_alone_or_swapped_is_refused_by_name(tmp_path):
+    left, right = _camera_infos(tmp_path)
+    with pytest.raises(CalibrationError, match="right camera's too"):
+        load_stereo_calibration(left)
+    with pytest.raises(CalibrationError, match=r"right.yaml: projection_matrix: P\[0\]\[3\] must be 0"):
+        load_stereo_calibration(right, left)
+
+
+EUROC_CAM0 = """%YAML:1.0
+T_BS:
+  cols: 4
+  rows: 4
+  data: [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,
+         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,
+        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,
+         0.0, 0.0, 0.0, 1.0]
+resolution: [752, 480]
+camera_model: pinhole
+intrinsics: [458.654, 457.296, 367.215, 248.375]
+distortion_model: radial-tangential
+distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+"""
+EUROC_CAM1 = """%YAML:1.0
+T_BS:
+  cols: 4
+  rows: 4
+  data: [0.0125552670891, -0.999755099723, 0.0182237714554, -0.0198435579556,
+         0.999598781151, 0.0130119051815, 0.0251588363115, 0.0453689425024,
+        -0.0253898008918, 0.0179005838253, 0.999517347078, 0.00786212447038,
+         0.0, 0.0, 0.0, 1.0]
+resolution: [752, 480]
+camera_model: pinhole
+intrinsics: [457.587, 456.134, 379.999, 255.238]
+distortion_model: radial-tangential
+distortion_coefficients: [-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05]
+"""
+
+
+def test_euroc_sensor_yaml_pair(tmp_path):
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    calib = load_stereo_calibration(tmp_path / "cam0.yaml", tmp_path / "cam1.yaml")
+    # The two T_BS translations are 0.110 m apart (EuRoC's VI-sensor baseline).
+    assert calib.baseline == pytest.approx(0.1101, abs=5e-4)
+    assert calib.image_size == (752, 480)
+    assert calib.cx_right == pytest.approx(calib.cx)
+    assert np.degrees(np.arccos((np.trace(calib.left_rotation) - 1) / 2)) < 2.0
+    with pytest.raises(CalibrationError, match="cam1's sensor.yaml too"):
+        load_stereo_calibration(tmp_path / "cam0.yaml")
+
+
+def test_middlebury_calib_txt(tmp_path):
+    path = tmp_path / "calib.txt"
+    path.write_text(
+        "cam0=[1000.5 0 300.25; 0 1000.5 200; 0 0 1]\ncam1=[1000.5 0 320.75; 0 1000.5 200; 0 0 1]\n"
+        "doffs=20.5\nbaseline=176.25\nwidth=640\nheight=400\nndisp=120\nisint=0\nvmin=10\nvmax=100\n"
+    )
+    calib = load_stereo_calibration(path)
+    assert calib.baseline == pytest.approx(0.17625)
+    assert calib.disparity_offset == pytest.approx(20.5)
+    assert (calib.fx, calib.cx, calib.image_size, calib.ndisp) == (1000.5, 300.25, (640, 400), 120)
+    path.write_text("cam0=[1000 0 300; 0 1000 200; 0 0 1]\ncam1=[1000 0 320; 0 1000 200; 0 0 1]\nwidth=640\n")
+    with pytest.raises(CalibrationError, match="calib.txt: baseline: required field is missing"):
+        load_stereo_calibration(path)
+
+
+def test_opencv_file_with_stereo_rectify_outputs_loads_with_a_note(tmp_path):
+    r1, r2, p1, p2, q, *_ = cv2.stereoRectify(K1, D1, K2, D2, SIZE, R, T.reshape(3, 1))
+    e = np.eye(3)
+    lines = ["%YAML:1.0"]
+    for name, m in {"M1": K1, "D1": D1, "M2": K2, "D2": D2, "R": R, "T": T, "E": e, "F": e,
+                    "R1": r1, "R2": r2, "P1": p1, "P2": p2, "Q": q}.items():  # fmt: skip
+        m = np.atleast_2d(m)
+        data = ", ".join(f"{v:.12g}" for v in m.ravel())
+        head = f"{name}: !!opencv-matrix\n   rows: {m.shape[0]}\n   cols: {m.shape[1]}\n   dt: d"
+        lines.append(f"{head}\n   data: [{data}]")
+    lines.append(f"image_size: [{SIZE[0]}, {SIZE[1]}]")
+    path = tmp_path / "stereo.yml"
+    path.write_text("\n".join(lines) + "\n")
+    calib = load_stereo_calibration(path)
+    assert calib.baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
+    assert any("E, F, R1, R2, P1, P2, Q: ignored" in note for note in calib.notes)

@@ -1,0 +1,116 @@
+"""Replay: timestamp matching, pose conventions, depth of a real EuRoC pair against the floor, and a
+few EuRoC frames through a real agent and map server over loopback Zenoh."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from replay.matching import match_stamps
+from replay.poses import camera_from_body, quaternion_matrix, wire_pose
+from swarm.map.rotation import rotation_zyx
+
+EUROC = Path(__file__).resolve().parents[2] / "shared" / "data" / "euroc_v1_01_micro"
+if not EUROC.is_dir():
+    EUROC = Path("/work/shared/data/euroc_v1_01_micro")
+needs_euroc = pytest.mark.skipif(not EUROC.is_dir(), reason=f"the EuRoC excerpt is not at {EUROC}")
+
+
+def test_matching_drops_a_missing_right_frame_and_counts_it():
+    left = np.arange(10) * 0.05
+    right = np.delete(left, 4) + 0.001  # frame 4 of the right camera was lost
+    poses = np.arange(0, 0.5, 0.01)
+    m = match_stamps(left, {"right": right, "pose": poses}, tolerance=0.004)
+    assert m.reference.tolist() == [0, 1, 2, 3, 5, 6, 7, 8, 9]
+    assert m.others["right"].tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 8]
+    assert m.dropped == {"no right within 0.004": 1}
+    assert "9 kept, dropped: 1 no right within 0.004" == m.describe()
+
+
+def test_wire_pose_of_optical_frames():
+    # Optical z forward along world +x, x right along world -y, y down along world -z: level camera.
+    level = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])
+    pose = wire_pose(np.array([1.0, 2.0, 0.5]), level)
+    assert pose.xyz == (1.0, 2.0, 0.5)
+    assert np.allclose(pose.ypr, 0.0)
+    # Tilted down by 30 degrees and turned left by 40: the body rotation must come back.
+    body = rotation_zyx(math.radians(40), math.radians(30), 0.0)
+    pose = wire_pose(np.zeros(3), body @ level)
+    assert np.allclose(pose.ypr, (math.radians(40), math.radians(30), 0.0))
+    # A rectification R1 turns the camera: the published pose is the rectified camera's.
+    r1 = rotation_zyx(0.02, -0.01, 0.03)
+    rectified = wire_pose(np.zeros(3), level, r1)
+    assert np.allclose(
+        rotation_zyx(*rectified.ypr) @ np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), level @ r1.T
+    )
+
+
+def test_body_ground_truth_and_camera_extrinsics_compose():
+    q = np.array([0.9, 0.1, -0.2, 0.3])
+    world_R_body = quaternion_matrix(*q)
+    assert np.allclose(world_R_body @ world_R_body.T, np.eye(3))
+    t_bs = np.eye(4)
+    t_bs[:3, :3] = rotation_zyx(0.3, 0.1, -0.2)
+    t_bs[:3, 3] = [0.1, -0.05, 0.02]
+    pos, rot = camera_from_body(np.array([1.0, 2.0, 3.0]), world_R_body, t_bs)
+    assert np.allclose(pos, [1, 2, 3] + world_R_body @ t_bs[:3, 3])
+    assert np.allclose(rot, world_R_body @ t_bs[:3, :3])
+
+
+def _floor_fit(points: np.ndarray, camera_z: float) -> tuple[float, float]:
+    """Height below the camera and tilt (deg) of the dominant horizontal-ish plane (RANSAC-free:
+    iterated least squares on the points within 5 cm of the current plane)."""
+    floor = points[points[:, 2] < camera_z - 0.6]
+    z0 = np.median(floor[:, 2])
+    keep = np.abs(floor[:, 2] - z0) < 0.1
+    for _ in range(5):
+        a = np.c_[floor[keep, :2], np.ones(keep.sum())]
+        coef, *_ = np.linalg.lstsq(a, floor[keep, 2], rcond=None)
+        keep = np.abs(floor[:, :2] @ coef[:2] + coef[2] - floor[:, 2]) < 0.05
+    normal = np.array([-coef[0], -coef[1], 1.0])
+    tilt = math.degrees(math.acos(normal[2] / np.linalg.norm(normal)))
+    centre = np.median(floor[keep, :2], axis=0)
+    return camera_z - float(centre @ coef[:2] + coef[2]), tilt
+
+
+@needs_euroc
+def test_real_euroc_pair_puts_the_floor_093_m_below_the_camera():
+    from replay.asl import AslRecording
+    from replay.frames import make_frame, rectified_camera
+    from robot_agent.stereo import StereoMatcher, points_from_depth
+
+    rec = AslRecording(EUROC)
+    assert len(rec) == 74 and not rec.matched.dropped
+    cam = rectified_camera(rec.calibration)
+    frame = make_frame("r1", 0, next(rec.pairs(20, 1)), rec.calibration, cam)
+    depth = StereoMatcher.for_rig(cam).depth(frame.left, frame.right, cam)
+    assert np.isfinite(depth).mean() > 0.6
+    points = points_from_depth(depth, cam.fx, cam.fy, cam.cx, cam.cy, frame.pose.xyz, frame.pose.ypr, 5.0)
+    height, tilt = _floor_fit(points, frame.pose.xyz[2])
+    assert height == pytest.approx(0.93, abs=0.05)
+    assert tilt < 3.0
+
+
+@needs_euroc
+def test_euroc_frames_through_a_real_agent_fill_the_floor(tmp_path):
+    from replay.asl import AslRecording
+    from swarm.formats.map_file import load_map
+    from swarm.mission.replay_run import ReplayOptions, default_mission, occupied_points, run_replay
+
+    rec = AslRecording(EUROC)
+    mission = default_mission(rec)
+    metrics = run_replay(rec, mission, ReplayOptions(tmp_path, count=3, quiet=True))
+    assert metrics["frames"] == 3 and metrics["unanswered"] == 0
+    assert metrics["entropy_end_bits"] < metrics["entropy_start_bits"] - 10_000
+    for name in ("map.npz", "top_view.png", "view_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
+        assert (tmp_path / name).is_file(), name
+    cmap = load_map(tmp_path / "map.npz")
+    points, _ = occupied_points(cmap)
+    camera = rec.positions()[0]
+    # Most surfaces lie on the floor, 0.93 m below the camera, in front of it (+x in the Vicon room).
+    floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.15
+    assert floor.mean() > 0.4
+    assert np.median(points[floor, 0]) > camera[0]
