@@ -1,0 +1,218 @@
+"""ROS 1 (``.bag``) and ROS 2 (``.db3``, ``.mcap`` folders) recordings, read with ``rosbags``
+(no ROS install).
+
+* images: ``sensor_msgs/Image`` (mono8, mono16, bgr8, rgb8, bgra8, rgba8) or
+  ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics;
+* calibration: a ``StereoCalibration`` from files, or the two ``sensor_msgs/CameraInfo``
+  topics (the first message of each);
+* poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
+  (the orientation turns camera vectors into world vectors): ``geometry_msgs/PoseStamped``,
+  ``nav_msgs/Odometry``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by ``child_frame``.
+
+Times are the messages' header stamps; left, right and pose are matched within a tolerance
+and what was dropped is counted (``matched.describe()``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from replay.asl import RecordingError
+from replay.frames import RecordedPair
+from replay.matching import Matched, match_stamps
+from replay.poses import quaternion_matrix
+from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
+from swarm.formats.stereo_calibration import StereoCalibration
+
+_CHANNELS = {
+    "mono8": (np.uint8, 1),
+    "8uc1": (np.uint8, 1),
+    "mono16": (np.uint16, 1),
+    "16uc1": (np.uint16, 1),
+    "bgr8": (np.uint8, 3),
+    "rgb8": (np.uint8, 3),
+    "bgra8": (np.uint8, 4),
+    "rgba8": (np.uint8, 4),
+}
+
+
+def _stamp(msg: Any) -> float:
+    stamp = msg.header.stamp
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def decode_image(msg: Any, where: str) -> np.ndarray:
+    """A uint8/uint16 image from a sensor_msgs Image or CompressedImage message."""
+    if hasattr(msg, "format"):  # CompressedImage
+        image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
+        return image
+    encoding = str(msg.encoding).lower()
+    if encoding not in _CHANNELS:
+        raise RecordingError(f"{where}: image encoding {msg.encoding!r} is not supported")
+    dtype, channels = _CHANNELS[encoding]
+    row = np.asarray(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
+    pixels = row[:, : msg.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
+    if np.dtype(dtype).itemsize > 1 and bool(msg.is_bigendian):
+        pixels = pixels.byteswap()
+    image = (
+        pixels.reshape(msg.height, msg.width, channels)
+        if channels > 1
+        else pixels.reshape(msg.height, msg.width)
+    )
+    if encoding.startswith("rgb"):
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if channels == 3 else cv2.COLOR_RGBA2BGRA)
+    return image
+
+
+def _pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """(time, position, world_R_optical) of a PoseStamped / Odometry / TFMessage, or None."""
+    if hasattr(msg, "transforms"):
+        for tf in msg.transforms:
+            if tf.child_frame_id.lstrip("/") == (child_frame or "").lstrip("/"):
+                t, q = tf.transform.translation, tf.transform.rotation
+                return _stamp(tf), np.array([t.x, t.y, t.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
+        return None
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    p, q = pose.position, pose.orientation
+    return _stamp(msg), np.array([p.x, p.y, p.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
+
+
+def _camera_info(msg: Any, where: str) -> CameraInfo:
+    data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
+    data["distortion_model"] = msg.distortion_model
+    for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
+        data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
+    return CameraInfo.from_dict(data, where)
+
+
+def _bag_path(path: Path) -> Path:
+    if not path.exists():
+        raise RecordingError(f"{path}: no such bag")
+    if path.is_file() and path.suffix in (".db3", ".mcap"):
+        return path.parent  # a ROS 2 bag is its folder (metadata.yaml)
+    return path
+
+
+class BagRecording:
+    """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        left: str,
+        right: str,
+        pose: str,
+        calibration: StereoCalibration | None = None,
+        left_info: str | None = None,
+        right_info: str | None = None,
+        child_frame: str | None = None,
+        tolerance_s: float = 0.01,
+    ) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.path = _bag_path(Path(path))
+        self.topics = {"left": left, "right": right, "pose": pose}
+        if calibration is None:
+            if not (left_info and right_info):
+                raise RecordingError(f"{path}: give a calibration (--calib-left/--calib-right) or both "
+                                     "camera_info topics (--left-info, --right-info)")  # fmt: skip
+            self.topics |= {"left_info": left_info, "right_info": right_info}
+        self.child_frame = child_frame
+        self._reader_type = AnyReader
+        stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
+        positions, rotations, infos = [], [], {}
+        with AnyReader([self.path]) as reader:
+            conns = self._connections(reader)
+            for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
+                role = next(r for r, cs in conns.items() if conn in cs)
+                if role in ("left_info", "right_info"):
+                    if role not in infos:
+                        infos[role] = _camera_info(
+                            reader.deserialize(raw, conn.msgtype), f"{path}: {conn.topic}"
+                        )
+                    continue
+                msg = reader.deserialize(raw, conn.msgtype)
+                if role == "pose":
+                    found = _pose(msg, child_frame)
+                    if found is not None:
+                        stamps["pose"].append(found[0])
+                        positions.append(found[1])
+                        rotations.append(found[2])
+                else:
+                    stamps[role].append(_stamp(msg))
+        for role in self.topics:
+            if role in stamps and not stamps[role]:
+                extra = f" with child_frame_id {child_frame!r}" if role == "pose" and child_frame else ""
+                raise RecordingError(f"{path}: topic {self.topics[role]}: no messages{extra}")
+        if calibration is None:
+            calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
+        self.calibration = calibration
+        order = np.argsort(stamps["pose"])
+        self.pose_stamps = np.asarray(stamps["pose"])[order]
+        self.pose_positions = np.asarray(positions)[order]
+        self.pose_rotations = np.asarray(rotations)[order]
+        self.left_stamps = np.asarray(stamps["left"])
+        right_stamps = np.asarray(stamps["right"])
+        for role, arr in (("left", self.left_stamps), ("right", right_stamps)):
+            if np.any(np.diff(arr) < 0):
+                raise RecordingError(f"{path}: topic {self.topics[role]}: header stamps go back in time")
+        self.matched: Matched = match_stamps(
+            self.left_stamps, {"right image": right_stamps, "pose": self.pose_stamps}, tolerance_s
+        )
+
+    def _connections(self, reader: Any) -> dict[str, list]:
+        present = sorted({c.topic for c in reader.connections})
+        conns = {}
+        for role, topic in self.topics.items():
+            found = [c for c in reader.connections if c.topic == topic]
+            if not found:
+                raise RecordingError(f"{self.path}: topic {topic} ({role}) is not in the bag "
+                                     f"(topics: {', '.join(present)})")  # fmt: skip
+            conns[role] = found
+        return conns
+
+    def __len__(self) -> int:
+        return len(self.matched.reference)
+
+    def positions(self) -> np.ndarray:
+        return self.pose_positions[self.matched.others["pose"]]
+
+    def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]:
+        """Matched pairs in time order (the bag is read once more, keeping only the pairs asked)."""
+        stop = len(self) if count is None else min(len(self), start + count)
+        want_left = {int(i): k for k, i in enumerate(self.matched.reference[start:stop], start)}
+        want_right = {int(j): k for k, j in enumerate(self.matched.others["right image"][start:stop], start)}
+        found: dict[int, dict[str, np.ndarray]] = {}
+        counts = {"left": 0, "right": 0}
+        nxt = start
+        with self._reader_type([self.path]) as reader:
+            conns = {
+                r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
+            }
+            for conn, _t, raw in reader.messages(connections=conns["left"] + conns["right"]):
+                role = "left" if conn in conns["left"] else "right"
+                n = counts[role]
+                counts[role] += 1
+                k = (want_left if role == "left" else want_right).get(n)
+                if k is None:
+                    continue
+                found.setdefault(k, {})[role] = decode_image(
+                    reader.deserialize(raw, conn.msgtype), conn.topic
+                )
+                while nxt in found and len(found[nxt]) == 2:
+                    p = self.matched.others["pose"][nxt]
+                    t = float(self.left_stamps[self.matched.reference[nxt]])
+                    pair = found.pop(nxt)
+                    yield RecordedPair(
+                        t, pair["left"], pair["right"], self.pose_positions[p], self.pose_rotations[p]
+                    )
+                    nxt += 1
+                if nxt >= stop:
+                    return
