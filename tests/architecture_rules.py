@@ -14,8 +14,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d")
-ROLES = ("robot_agent", "map_server", "coordinator", "sim2d")
+PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay")
+ROLES = ("robot_agent", "map_server", "coordinator", "sim2d", "replay")
 CORE = ("swarm.map", "swarm.navigation", "swarm.formats", "swarm.protocol", "swarm.config")
 TOOLING = ("swarm.mission", "swarm.bench", "swarm.cli")
 

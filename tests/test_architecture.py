@@ -18,14 +18,14 @@ def test_the_house_keeps_its_import_rules():
 
 def test_every_package_is_seen():
     groups = {m.split(".")[0] for m in module_imports(ROOT)}
-    assert groups == {"swarm", "robot_agent", "map_server", "coordinator", "sim2d"}
+    assert groups == {"swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay"}
     assert "swarm.map.fusion" in module_imports(ROOT)
 
 
 @pytest.fixture
 def tree(tmp_path: Path) -> Path:
     """A copy of the project's packages to break on purpose."""
-    for package in ("swarm", "robot_agent", "map_server", "coordinator", "sim2d"):
+    for package in ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay"):
         shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("__pycache__"))
     return tmp_path
 

@@ -1,7 +1,7 @@
 """The ``swarm`` command line: a thin shell over the roles and the map core.
 
 Each command group's arguments sit in its own module beside this one (``ingest``, ``maps``,
-``bench``, ``sim``, ``roles``, ``study``, ``stereo``); this module only assembles them.
+``bench``, ``sim``, ``roles``, ``study``, ``stereo``, ``replay``); this module only assembles them.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import argparse
 import sys
 
 from swarm import __version__
-from swarm.cli import bench, ingest, maps, roles, sim, stereo, study
+from swarm.cli import bench, ingest, maps, replay, roles, sim, stereo, study
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     roles.register_coordinator(sub)
     study.register(sub)
     stereo.register(sub)
+    replay.register(sub)
     sim.register(sub)
     return parser
 

@@ -1,4 +1,4 @@
-"""``swarm replay asl DIR --out RUN``: a recording through the real map server and agent processes.
+"""``swarm replay asl|bag``: a recording through the real map server and agent processes.
 
 The runner is the Zenoh router on loopback (or joins one with ``connect``); it starts ``swarm
 server`` and ``swarm agent`` as processes, publishes the recording's rectified frames on
@@ -18,16 +18,18 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
-from replay.asl import AslRecording
-from replay.frames import make_frame, rectified_camera
+from replay.frames import RecordedPair, make_frame, rectified_camera
+from replay.matching import Matched
 from replay.publisher import FramePublisher
 from robot_agent.stereo import StereoMatcher
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
 from swarm.formats.point_cloud_file import write_ply_points
+from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
@@ -38,8 +40,19 @@ from swarm.protocol.wire import Frame
 OCCUPIED = 0.5  # E[C] above which a known voxel is drawn as a surface
 
 
+class Recording(Protocol):
+    """What the runner needs of a recording (``replay.asl.AslRecording``, ``replay.bag.BagRecording``)."""
+
+    calibration: StereoCalibration
+    matched: Matched
+
+    def __len__(self) -> int: ...
+    def positions(self) -> np.ndarray: ...
+    def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]: ...
+
+
 def default_mission(
-    recording: AslRecording, robot: str = "r1", margin: float = 3.0, voxel: float = 0.1
+    recording: Recording, robot: str = "r1", margin: float = 3.0, voxel: float = 0.1
 ) -> Mission:
     """A mission around the recording: a box ``margin`` m around the trajectory, the rectified rig."""
     pos = recording.positions()
@@ -73,13 +86,13 @@ class ReplayOptions:
     quiet: bool = False
 
 
-def _frames(recording: AslRecording, options: ReplayOptions) -> Iterator[Frame]:
+def _frames(recording: Recording, options: ReplayOptions) -> Iterator[Frame]:
     camera = rectified_camera(recording.calibration)
     for seq, pair in enumerate(recording.pairs(options.start, options.count)):
         yield make_frame(options.robot, seq, pair, recording.calibration, camera)
 
 
-def run_replay(recording: AslRecording, mission: Mission, options: ReplayOptions) -> dict:
+def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -> dict:
     """Replay ``recording`` through a map server and an agent; write the run folder; return metrics."""
     out = options.out
     out.mkdir(parents=True, exist_ok=True)
@@ -222,59 +235,3 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
         ax.set(xlabel="frame", ylabel="map entropy (bits)", title="Entropy over frames")
         fig.savefig(out / "entropy.png")
         plt.close(fig)
-
-
-# -- command line (``swarm replay asl``; also ``python -m swarm.mission.replay_run asl``) ----------
-
-
-def add_asl_arguments(parser) -> None:
-    """Arguments of ``swarm replay asl``; sets ``run``."""
-    parser.add_argument("folder", type=Path, help="ASL/EuRoC dataset folder (holding mav0/ or cam0/, cam1/)")
-    parser.add_argument("--out", type=Path, required=True, help="run folder to write")
-    parser.add_argument("--config", type=Path, help="mission YAML (default: a box around the trajectory)")
-    parser.add_argument("--robot", default="r1", help="robot id (default r1, or the config's first robot)")
-    parser.add_argument("--start", type=int, default=0, help="first pair to replay (default 0)")
-    parser.add_argument("--frames", type=int, help="number of pairs to replay (default: all)")
-    parser.add_argument("--realtime", action="store_true", help="publish at the recorded rate, not lockstep")
-    parser.add_argument("--connect", help="join a running Zenoh router / map server at this endpoint")
-    parser.add_argument("--tolerance", type=float, default=0.005, help="timestamp matching tolerance (s)")
-    parser.set_defaults(run=run_asl_command)
-
-
-def run_asl_command(args) -> int:
-    """``swarm replay asl``: exit 0 on success, 2 on a user error."""
-    import sys
-
-    from replay.asl import RecordingError
-    from swarm.config import ConfigError, load_mission
-    from swarm.formats.stereo_calibration import CalibrationError
-
-    try:
-        recording = AslRecording(args.folder, args.tolerance)
-        if args.config is not None:
-            mission = load_mission(args.config)
-            robot = args.robot if args.robot in mission.robot_ids else mission.robot_ids[0]
-        else:
-            mission, robot = default_mission(recording, args.robot), args.robot
-    except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
-        print(f"swarm replay asl: error: {exc}", file=sys.stderr)
-        return 2
-    calib = recording.calibration
-    print(f"{args.folder}: {len(recording)} pairs ({recording.matched.describe()}); "
-          f"rectified fx {calib.fx:.1f} px, baseline {calib.baseline:.4f} m")  # fmt: skip
-    options = ReplayOptions(args.out, robot, args.start, args.frames, args.realtime, args.connect)
-    metrics = run_replay(recording, mission, options)
-    print(json.dumps(metrics, indent=2))
-    print(f"wrote {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    import argparse
-    import sys
-
-    top = argparse.ArgumentParser(prog="python -m swarm.mission.replay_run")
-    sub = top.add_subparsers(required=True)
-    add_asl_arguments(sub.add_parser("asl", help="replay an ASL/EuRoC folder"))
-    parsed = top.parse_args()
-    sys.exit(parsed.run(parsed))
