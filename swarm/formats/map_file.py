@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.formats.errors import InputError
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_table import default_table
@@ -20,7 +21,7 @@ from swarm.map.sensor_model import SensorModel
 REQUIRED_KEYS = ("mu", "sigma", "entropy", "expected_coverage", "origin", "voxel_size")
 
 
-class MapFileError(ValueError):
+class MapFileError(InputError):
     """A map file that cannot be read, with the file and key named."""
 
 
@@ -50,20 +51,39 @@ def load_map(path: str | Path) -> CoverageMap:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in REQUIRED_KEYS if k not in data.files]
             if missing:
-                raise MapFileError(f"{path}: missing keys {missing}")
+                raise MapFileError(
+                    f"{path}: {', '.join(missing)}: missing; a map file holds {', '.join(REQUIRED_KEYS)}"
+                )
             mu = data["mu"].astype(np.float64)
             sigma = data["sigma"].astype(np.float64)
             origin = data["origin"]
             voxel = float(data["voxel_size"])
-            sensor = SensorModel(*data["sensor"].tolist()) if "sensor" in data.files else None
+            sensor = _sensor(data, path) if "sensor" in data.files else None
     except MapFileError:
         raise
     except (OSError, ValueError, KeyError) as exc:
         raise MapFileError(f"{path}: cannot read map: {exc}") from exc
     if mu.ndim != 3 or mu.shape != sigma.shape:
         raise MapFileError(f"{path}: mu and sigma must be equal 3-D arrays, got {mu.shape}, {sigma.shape}")
-    if not (np.all(np.isfinite(mu)) and np.all(sigma > 0)):
-        raise MapFileError(f"{path}: mu must be finite and sigma > 0")
+    if not np.all(np.isfinite(mu)):
+        raise MapFileError(f"{path}: mu: {int(np.sum(~np.isfinite(mu))):,} voxels are NaN or infinite")
+    if not np.all(np.isfinite(sigma) & (sigma > 0)):
+        bad = int(np.sum(~(np.isfinite(sigma) & (sigma > 0))))
+        raise MapFileError(f"{path}: sigma: {bad:,} voxels are not a finite number > 0")
+    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+        raise MapFileError(f"{path}: origin: must be 3 finite numbers, got {origin.tolist()}")
+    if not (np.isfinite(voxel) and voxel > 0):
+        raise MapFileError(f"{path}: voxel_size: must be a finite number > 0, got {voxel}")
     grid = Grid(tuple(origin.tolist()), voxel, mu.shape)
     lam = 1.0 / sigma**2
     return CoverageMap(grid, sensor, lam.astype(np.float32), (mu * lam).astype(np.float32))
+
+
+def _sensor(data, path: Path) -> SensorModel:
+    values = np.asarray(data["sensor"], dtype=np.float64).reshape(-1)
+    if values.shape != (4,) or not np.all(np.isfinite(values)) or not np.all(values[[0, 2, 3]] > 0):
+        raise MapFileError(
+            f"{path}: sensor: must be [sigma_min, zeta, tau, max_range], finite, with sigma_min, tau, "
+            f"max_range > 0; got {values.tolist()}"
+        )
+    return SensorModel(*values.tolist())
