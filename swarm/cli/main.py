@@ -11,6 +11,8 @@ import sys
 
 from swarm import __version__
 from swarm.cli import bench, ingest, maps, roles, sim, stereo, study
+from swarm.cli.common import endpoint_problem, fail, zenoh_message
+from swarm.formats.errors import InputError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,11 +36,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``swarm`` command; user-input errors print ``swarm: error: FILE: FIELD: what``, exit 2."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "sim" and (len(argv) == 1 or argv[1] not in sim.SIM_COMMANDS):
         argv.insert(1, "run")  # 'swarm sim [CONFIG]' means 'swarm sim run [CONFIG]'
     args = build_parser().parse_args(argv)
-    return int(args.run(args) or 0)
+    for option in ("listen", "connect"):
+        for endpoint in getattr(args, option, None) or []:
+            problem = endpoint_problem(endpoint)
+            if problem:
+                return fail(f"--{option} {endpoint}: {problem}")
+    try:
+        return int(args.run(args) or 0)
+    except InputError as exc:  # a user's file or value: FILE: FIELD: what, never a traceback
+        return fail(str(exc))
+    except Exception as exc:
+        if type(exc).__module__.startswith("zenoh"):  # e.g. a port in use: no Rust traceback
+            return fail(f"Zenoh: {zenoh_message(exc)}")
+        raise
 
 
 if __name__ == "__main__":
