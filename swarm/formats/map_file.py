@@ -1,12 +1,17 @@
-"""``map.npz``: the file form of a coverage map (DESIGN.md section 6).
+"""``map.npz``: the file form of a coverage map.
 
 Keys: ``mu``, ``sigma``, ``entropy``, ``expected_coverage`` (float32, nx x ny x nz),
 ``origin``, ``voxel_size``; and ``sensor`` ([sigma_min, zeta, tau, max_range]) so the
 prior can be rebuilt when the map is loaded.
+
+:func:`load_map` also reads a map server's ``snapshot.npz`` (``lam``, ``eta`` flat, ``grid``
+JSON; the sensor model from ``store.json`` beside it): the team map as of the server's last
+compaction, without the deltas logged after it.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +24,7 @@ from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 
 REQUIRED_KEYS = ("mu", "sigma", "entropy", "expected_coverage", "origin", "voxel_size")
+SNAPSHOT_KEYS = ("lam", "eta", "grid")
 
 
 class MapFileError(InputError):
@@ -49,6 +55,8 @@ def load_map(path: str | Path) -> CoverageMap:
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as data:
+            if all(k in data.files for k in SNAPSHOT_KEYS) and "mu" not in data.files:
+                return _load_snapshot(data, path)
             missing = [k for k in REQUIRED_KEYS if k not in data.files]
             if missing:
                 raise MapFileError(
@@ -87,3 +95,35 @@ def _sensor(data, path: Path) -> SensorModel:
             f"max_range > 0; got {values.tolist()}"
         )
     return SensorModel(*values.tolist())
+
+
+def is_store_snapshot(path: str | Path) -> bool:
+    """True when ``path`` is a map server's ``snapshot.npz`` rather than a map file."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return all(k in data.files for k in SNAPSHOT_KEYS) and "mu" not in data.files
+    except (OSError, ValueError):
+        return False
+
+
+def _load_snapshot(data, path: Path) -> CoverageMap:
+    try:
+        spec = json.loads(str(data["grid"]))
+        grid = Grid(tuple(float(v) for v in spec["origin"]), float(spec["voxel"]), tuple(spec["shape"]))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise MapFileError(f"{path}: grid: not a grid description ({exc})") from exc
+    lam = np.asarray(data["lam"], dtype=np.float32).reshape(-1)
+    eta = np.asarray(data["eta"], dtype=np.float32).reshape(-1)
+    if lam.size != grid.size or eta.size != grid.size:
+        raise MapFileError(f"{path}: lam, eta: {lam.size:,} and {eta.size:,} values for {grid.size:,} voxels")
+    if not (np.all(np.isfinite(lam) & (lam > 0)) and np.all(np.isfinite(eta))):
+        raise MapFileError(f"{path}: lam, eta: must be finite with lam > 0")
+    sensor = None
+    identity = path.parent / "store.json"
+    if identity.is_file():
+        try:
+            s = json.loads(identity.read_text(encoding="utf-8"))["sensor"]
+            sensor = SensorModel(s["sigma_min"], s["zeta"], s["tau"], s["max_range"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise MapFileError(f"{identity}: sensor: cannot read the store's sensor model ({exc})") from exc
+    return CoverageMap(grid, sensor, lam, eta)
