@@ -159,7 +159,7 @@ yaml_values = st.recursive(
 
 
 @given(yaml_values)
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=60, deadline=None)
 def test_non_finite_numbers_finds_exactly_the_non_finite_floats(data):
     found = list(non_finite_numbers(data))
 
