@@ -126,3 +126,24 @@ def test_busy_port_is_one_line_not_a_zenoh_traceback(tmp_path, capsys):
     finally:
         holder.close()
     assert code == 2 and err.count("\n") == 1 and "Address already in use" in err and ".rs:" not in err, err
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["ingest", "{d}/c.xyz", "--out", "{d}/m.npz", "--origin", "nan", "0", "0"], "--origin"),
+        (["ingest", "{d}/c.xyz", "--out", "{d}/m.npz", "--max-range", "inf"], "--max-range"),
+        (["sim", "{c}/lab.yaml", "--max-time", "nan", "--out", "{d}/r"], "--max-time"),
+        (["map", "export", "--out", "{d}/m.ply", "--threshold", "nan"], "--threshold"),
+    ],
+)
+def test_non_finite_numbers_on_the_command_line(tmp_path, capsys, argv, option):
+    (tmp_path / "c.xyz").write_text("1 2 3\n")
+    code, err = run(capsys, *(a.format(c=CONFIGS, d=tmp_path) for a in argv))
+    assert code == 2 and err.count("\n") == 1 and f"error: {option} " in err and "finite" in err, err
+
+
+def test_an_infinite_default_stays_allowed():
+    from swarm.cli.main import _infinite_defaults, build_parser
+
+    assert "max_depth" in _infinite_defaults(build_parser())  # swarm stereo depth: inf = no limit
