@@ -26,12 +26,13 @@ from replay.frames import RecordedPair
 from replay.matching import Matched, match_stamps
 from replay.poses import camera_from_body, quaternion_matrix
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
+from swarm.formats.errors import InputError
 from swarm.formats.stereo_calibration import StereoCalibration
 
 NS = 1e-9
 
 
-class RecordingError(ValueError):
+class RecordingError(InputError):
     """An unusable recording: the message names the file (and topic or column)."""
 
 

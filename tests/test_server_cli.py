@@ -86,8 +86,10 @@ def test_map_get_point_and_box(served, capsys):
     np.testing.assert_allclose([r["entropy_bits"] for r in rows], h, atol=1e-3)
     code, out, _ = swarm(capsys, *base, "--box", "0.5,0.5,0.2,0.6,0.6,0.3")  # the table form
     assert code == 0 and len(out.strip().splitlines()) == 1 + 1 and "E[C]" in out
-    code, out, _ = swarm(capsys, *base, "--point", "9,9,9")
-    assert code == 0 and "outside" in out
+    code, _, err = swarm(capsys, *base, "--point", "9,9,9")  # issue 18: an error, not exit 0
+    assert code == 2 and err.count("\n") == 1 and "--point 9,9,9: outside the map's workspace" in err
+    code, _, err = swarm(capsys, *base, "--point", "nan,1,1")
+    assert code == 2 and "must be finite" in err
     code, _, err = swarm(capsys, *base, "--point", "1,2")
     assert code == 2 and "--point takes X,Y,Z" in err
     code, _, err = swarm(capsys, *base, "--box", "1,1,1,0,0,0")

@@ -7,10 +7,13 @@ Each command group's arguments sit in its own module beside this one (``ingest``
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from swarm import __version__
 from swarm.cli import bench, ingest, maps, replay, roles, sim, stereo, study
+from swarm.cli.common import endpoint_problem, fail, zenoh_message
+from swarm.formats.errors import InputError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,12 +37,47 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _infinite_defaults(parser: argparse.ArgumentParser) -> set[str]:
+    """Destinations of options, in every sub-command, whose default is an infinity."""
+    found = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _infinite_defaults(sub)
+        elif isinstance(action.default, float) and math.isinf(action.default):
+            found.add(action.dest)
+    return found
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``swarm`` command; user-input errors print ``swarm: error: FILE: FIELD: what``, exit 2."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "sim" and (len(argv) == 1 or argv[1] not in sim.SIM_COMMANDS):
         argv.insert(1, "run")  # 'swarm sim [CONFIG]' means 'swarm sim run [CONFIG]'
-    args = build_parser().parse_args(argv)
-    return int(args.run(args) or 0)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    unlimited = _infinite_defaults(parser)  # e.g. stereo --max-depth: inf means "no limit"
+    for dest, value in vars(args).items():
+        values = value if isinstance(value, list | tuple) else [value]
+        floats = [v for v in values if isinstance(v, float)]
+        if any(math.isnan(v) for v in floats) or (
+            dest not in unlimited and any(math.isinf(v) for v in floats)
+        ):
+            shown = " ".join(str(v) for v in values)
+            return fail(f"--{dest.replace('_', '-')} {shown}: must be finite numbers")
+    for option in ("listen", "connect"):
+        for endpoint in getattr(args, option, None) or []:
+            problem = endpoint_problem(endpoint)
+            if problem:
+                return fail(f"--{option} {endpoint}: {problem}")
+    try:
+        return int(args.run(args) or 0)
+    except InputError as exc:  # a user's file or value: FILE: FIELD: what, never a traceback
+        return fail(str(exc))
+    except Exception as exc:
+        if type(exc).__module__.startswith("zenoh"):  # e.g. a port in use: no Rust traceback
+            return fail(f"Zenoh: {zenoh_message(exc)}")
+        raise
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from swarm.cli.common import fail
@@ -67,13 +68,18 @@ def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_map_info(args: argparse.Namespace) -> int:
-    from swarm.formats.map_file import MapFileError, load_map
+    from swarm.formats.map_file import MapFileError, is_store_snapshot, load_map
     from swarm.map.summary import summarize
 
     try:
         summary = summarize(load_map(args.map))
     except (MapFileError, FileNotFoundError) as exc:
         return fail(str(exc))
+    if is_store_snapshot(args.map):
+        summary["note"] = (
+            "a map server's store snapshot: the team map at its last compaction, without the "
+            "deltas logged after it (swarm map export gets the live map)"
+        )
     if args.json:
         print(json.dumps(summary))
     else:
@@ -102,11 +108,18 @@ def _run_map_get(args: argparse.Namespace) -> int:
         values = []
     if len(values) != (3 if args.point else 6):
         return fail(f"--point takes X,Y,Z and --box X0,Y0,Z0,X1,Y1,Z1, got {args.point or args.box!r}")
+    option = "--point" if args.point else "--box"
+    if not all(math.isfinite(v) for v in values):
+        return fail(f"{option} {args.point or args.box}: coordinates must be finite numbers")
     try:
         with MapClient.connect(args.connect, args.mission, args.timeout) as client:
             region = client.point(values) if args.point else client.region(values[:3], values[3:])
     except (ConnectionError, MapQueryError) as exc:
         return fail(str(exc))
+    if len(region) == 0:
+        lo, hi = region.grid.lo, region.grid.hi
+        box = ", ".join(f"{a:g}..{b:g}" for a, b in zip(lo, hi, strict=True))
+        return fail(f"{option} {args.point or args.box}: outside the map's workspace (x, y, z in {box} m)")
     print(json.dumps(region_rows(region)) if args.json else format_region(region))
     return 0
 

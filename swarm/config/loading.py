@@ -6,10 +6,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-import yaml
-from pydantic import (
-    ValidationError,
-)
+from pydantic import ValidationError
 
 from swarm.config.models import (
     ConfigError,
@@ -17,6 +14,7 @@ from swarm.config.models import (
     RigConfig,
     RobotBodyConfig,
 )
+from swarm.formats.errors import refuse_non_finite, user_path
 from swarm.formats.validation_errors import describe_validation_error
 from swarm.formats.yaml_file import read_yaml
 
@@ -35,6 +33,7 @@ def mission_from_dict(
     """Validate a parsed mission; relative paths are taken from ``base_dir`` or the source's folder."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source or '<mission>'}: (top level): must be a mapping of sections")
+    refuse_non_finite(data, source or "<mission>", ConfigError)
     try:
         mission = Mission.model_validate(data)
     except ValidationError as e:
@@ -117,11 +116,11 @@ def _resolve_rig(mission: Mission, rig: str | dict | None, field: str) -> RigCon
         if rig in mission.rigs:
             rig = mission.rigs[rig]
         elif rig.endswith((".yaml", ".yml")):
-            rig_path = mission._base_dir / rig
+            rig_path = user_path(rig, mission._base_dir)
             try:
-                rig = yaml.safe_load(rig_path.read_text(encoding="utf-8")) or {}
-            except (OSError, yaml.YAMLError) as e:
-                raise ConfigError(f"{where}: {field}: cannot read rig file {rig_path}: {e}") from e
+                rig = read_yaml(rig_path, ConfigError) or {}
+            except ConfigError as e:
+                raise ConfigError(f"{where}: {field}: rig file {e}") from e
             if not isinstance(rig, dict):
                 raise ConfigError(f"{where}: {field}: rig file {rig_path} is not a mapping")
         else:

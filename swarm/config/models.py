@@ -22,6 +22,7 @@ from pydantic import (
     model_validator,
 )
 
+from swarm.formats.errors import InputError, user_path
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol.wire import Camera
@@ -34,7 +35,7 @@ DEFAULT_THRESHOLD_FRACTION = 0.25
 _NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """An invalid mission file: the message names the file, the field and the problem."""
 
 
@@ -257,7 +258,7 @@ class Mission(_Section):
         ref = self.floor_plan
         if isinstance(ref, str):
             ref = FloorPlanRef(path=ref)
-        return ref.model_copy(update={"path": str((self._base_dir / ref.path).resolve())})
+        return ref.model_copy(update={"path": str(user_path(ref.path, self._base_dir).resolve())})
 
     def load_floor_plan(self):
         """The mission's ``swarm.formats.floor_plan.FloorPlan`` (cached), or None without one."""
@@ -283,5 +284,5 @@ class Mission(_Section):
         for robot in data["robots"]:
             rig = robot.get("rig")
             if isinstance(rig, str) and rig.endswith((".yaml", ".yml")):
-                robot["rig"] = str((self._base_dir / rig).resolve())
+                robot["rig"] = str(user_path(rig, self._base_dir).resolve())
         return yaml.safe_dump(data, sort_keys=False)

@@ -28,58 +28,32 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
-import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, model_validator
 
+from swarm.formats.errors import FloorPlanError
+from swarm.formats.ros_map import RosMap, is_ros_map, load_ros_map
 from swarm.formats.validation_errors import describe_validation_error
 from swarm.formats.yaml_file import read_yaml
+
+__all__ = [
+    "DEFAULT_WALL_HEIGHT",
+    "FloorPlan",
+    "FloorPlanError",
+    "RosMap",
+    "is_ros_map",
+    "load_floor_plan",
+    "load_ros_map",
+    "plan_from_ros_map",
+    "plan_from_spec",
+]
 
 DEFAULT_WALL_HEIGHT = 2.0
 
 
-class FloorPlanError(ValueError):
-    """A floor plan file that cannot be read; the message names the file and the problem."""
-
-
 # -- the geometry ------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RosMap:
-    """A ROS map_server map classified into occupied / free / unknown cells.
-
-    Arrays are indexed ``[row, col]`` with row 0 the lowest y (the image flipped), so cell
-    (r, c) spans ``origin + R(yaw) @ ([c, r] .. [c+1, r+1]) * resolution``.
-    """
-
-    occupied: np.ndarray
-    free: np.ndarray
-    resolution: float
-    origin: tuple[float, float, float]
-    source: Path
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.occupied.shape
-
-    def to_world(self, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """World (x, y) of map coordinates given in cells (fractional allowed), shape (..., 2)."""
-        ox, oy, yaw = self.origin
-        u = np.asarray(cols, dtype=np.float64) * self.resolution
-        v = np.asarray(rows, dtype=np.float64) * self.resolution
-        c, s = np.cos(yaw), np.sin(yaw)
-        return np.stack([ox + c * u - s * v, oy + s * u + c * v], axis=-1)
-
-    def to_cell(self, xy: np.ndarray) -> np.ndarray:
-        """Cell (row, col) indices (..., 2) of world points (may be outside the map)."""
-        ox, oy, yaw = self.origin
-        xy = np.asarray(xy, dtype=np.float64)
-        dx, dy = xy[..., 0] - ox, xy[..., 1] - oy
-        c, s = np.cos(yaw), np.sin(yaw)
-        u, v = c * dx + s * dy, -s * dx + c * dy
-        return np.floor(np.stack([v, u], axis=-1) / self.resolution).astype(np.int64)
 
 
 @dataclass
@@ -225,27 +199,39 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+Point = tuple[FiniteFloat, FiniteFloat]
+Positive = Annotated[FiniteFloat, Field(gt=0)]
+
+
 class WallSpec(_Strict):
-    points: list[tuple[float, float]] = Field(min_length=2)
+    points: list[Point] = Field(min_length=2)
     closed: bool = False
-    thickness: float | None = Field(default=None, gt=0)
-    height: float | None = Field(default=None, gt=0)
+    thickness: Positive | None = None
+    height: Positive | None = None
 
 
 class BoxSpec(_Strict):
-    centre: tuple[float, float]
-    size: tuple[PositiveFloat, PositiveFloat]
-    height: float = Field(gt=0)
-    yaw: float = 0.0
+    centre: Point
+    size: tuple[Positive, Positive]
+    height: Positive
+    yaw: FiniteFloat = 0.0
 
 
 class PlanSpec(_Strict):
     name: str = ""
-    wall_height: float = Field(default=2.5, gt=0)
-    wall_thickness: float = Field(default=0.1, gt=0)
-    bounds: tuple[tuple[float, float], tuple[float, float]] | None = None
+    wall_height: Positive = 2.5
+    wall_thickness: Positive = 0.1
+    bounds: tuple[Point, Point] | None = None
     walls: list[WallSpec] = []
     boxes: list[BoxSpec] = []
+
+    @model_validator(mode="after")
+    def _bounds_ordered(self) -> PlanSpec:
+        if self.bounds is not None:
+            (x0, y0), (x1, y1) = self.bounds
+            if not (x1 > x0 and y1 > y0):
+                raise ValueError(f"bounds: [[xmin, ymin], [xmax, ymax]] with max > min, got {self.bounds}")
+        return self
 
 
 def plan_from_spec(spec: PlanSpec, source: Path | None = None) -> FloorPlan:
@@ -275,57 +261,6 @@ def plan_from_spec(spec: PlanSpec, source: Path | None = None) -> FloorPlan:
 
 
 # -- ROS map_server maps -----------------------------------------------------------------
-
-
-class RosMapSpec(BaseModel):
-    image: str
-    resolution: float = Field(gt=0)
-    origin: tuple[float, float, float]
-    negate: int = 0
-    occupied_thresh: float = Field(default=0.65, ge=0, le=1)
-    free_thresh: float = Field(default=0.196, ge=0, le=1)
-    mode: str = "trinary"
-
-
-def load_ros_map(path: str | Path) -> RosMap:
-    """Read a ROS map_server ``map.yaml`` and its image; classify cells as map_server does.
-
-    In ``trinary``/``scale`` mode a pixel's occupancy is p = (255 - v) / 255 (v / 255 when
-    ``negate``); p > occupied_thresh is occupied, p < free_thresh is free, else unknown. In
-    ``raw`` mode the pixel value is the occupancy in percent (above 100: unknown).
-    """
-    path = Path(path)
-    data = _read_yaml(path)
-    spec = _validate(RosMapSpec, data, path)
-    image_path = (path.parent / spec.image).resolve()
-    image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise FloorPlanError(f"{path}: image: cannot read {image_path}")
-    alpha = None
-    if image.ndim == 3:
-        if image.shape[2] == 4:
-            alpha = image[..., 3]
-        image = image[..., :3].mean(axis=2)
-    value = image.astype(np.float64)
-    if image.dtype == np.uint16:
-        value = value / 257.0
-    if spec.mode == "raw":
-        occupied = (value <= 100) & (value / 100.0 > spec.occupied_thresh)
-        free = (value <= 100) & (value / 100.0 < spec.free_thresh)
-    else:
-        p = value / 255.0 if spec.negate else (255.0 - value) / 255.0
-        occupied = p > spec.occupied_thresh
-        free = p < spec.free_thresh
-    if alpha is not None:
-        occupied &= alpha > 0
-        free &= alpha > 0
-    return RosMap(
-        occupied=np.ascontiguousarray(occupied[::-1]),
-        free=np.ascontiguousarray(free[::-1]),
-        resolution=spec.resolution,
-        origin=tuple(float(v) for v in spec.origin),
-        source=path,
-    )
 
 
 def merge_cells(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -380,11 +315,6 @@ def plan_from_ros_map(ros_map: RosMap, wall_height: float = DEFAULT_WALL_HEIGHT)
 # -- loading -------------------------------------------------------------------------------
 
 
-def is_ros_map(data: object) -> bool:
-    """True when a parsed YAML document looks like a ROS map_server map description."""
-    return isinstance(data, dict) and "image" in data and "resolution" in data
-
-
 def load_floor_plan(path: str | Path, wall_height: float = DEFAULT_WALL_HEIGHT) -> FloorPlan:
     """Load a project floor-plan YAML or a ROS ``map.yaml`` (extruded to ``wall_height``)."""
     path = Path(path)
@@ -396,11 +326,14 @@ def load_floor_plan(path: str | Path, wall_height: float = DEFAULT_WALL_HEIGHT) 
 
 def _read_yaml(path: Path) -> object:
     data = read_yaml(path, FloorPlanError)
-    return {} if data is None else data
+    if data is None:
+        raise FloorPlanError(
+            f"{path}: (top level): the file is empty; a floor plan has walls, boxes or bounds"
+        )
+    return data
 
 
 def _validate(model: type[BaseModel], data: object, path: Path):
-
     try:
         return model.model_validate(data)
     except ValidationError as e:

@@ -44,11 +44,13 @@ import numpy as np
 import yaml
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
 
+from swarm.formats.errors import InputError
+
 #: A baseline or translation above this many metres is taken for a unit mistake (millimetres).
 MAX_BASELINE_M = 5.0
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError):
     """An unusable calibration: the message names the file, the field and the problem."""
 
 

@@ -1,0 +1,150 @@
+"""ROS map_server maps: a ``map.yaml`` and its image, classified into occupied / free / unknown cells.
+
+``map.yaml`` keys (as map_server reads them)::
+
+    image: site.pgm          # relative to the map.yaml's folder; '~' is expanded (map_server does not)
+    resolution: 0.05         # metres per cell
+    origin: [-10.0, -5.0, 0.0]   # x, y (m) of the lower-left cell, yaw (rad)
+    negate: 0                # 1 (or true): dark is free
+    occupied_thresh: 0.65
+    free_thresh: 0.196
+    mode: trinary            # trinary | scale | raw
+
+A pixel's shade s in [0, 1] is the mean of its colour channels, scaled as its format
+defines (:mod:`swarm.formats.map_image`). Its occupancy is p = 1 - s (p = s with ``negate``).
+``trinary``: p > occupied_thresh is occupied, else p < free_thresh is free, else unknown; an
+alpha channel is averaged in with the colour channels (as map_server does, so transparent
+pixels read darker). ``scale``: a pixel that is not fully opaque is unknown, the rest as
+trinary. ``raw``: the value round(255 s) is the occupancy in percent (0..100; above 100
+unknown), occupied above occupied_thresh x 100, free below free_thresh x 100.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
+
+from swarm.formats.errors import FloorPlanError, user_path
+from swarm.formats.map_image import read_map_image
+from swarm.formats.validation_errors import describe_validation_error
+from swarm.formats.yaml_file import read_yaml
+
+
+@dataclass(frozen=True)
+class RosMap:
+    """A ROS map_server map classified into occupied / free / unknown cells.
+
+    Arrays are indexed ``[row, col]`` with row 0 the lowest y (the image flipped), so cell
+    (r, c) spans ``origin + R(yaw) @ ([c, r] .. [c+1, r+1]) * resolution``.
+    """
+
+    occupied: np.ndarray
+    free: np.ndarray
+    resolution: float
+    origin: tuple[float, float, float]
+    source: Path
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.occupied.shape
+
+    def to_world(self, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """World (x, y) of map coordinates given in cells (fractional allowed), shape (..., 2)."""
+        ox, oy, yaw = self.origin
+        u = np.asarray(cols, dtype=np.float64) * self.resolution
+        v = np.asarray(rows, dtype=np.float64) * self.resolution
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.stack([ox + c * u - s * v, oy + s * u + c * v], axis=-1)
+
+    def to_cell(self, xy: np.ndarray) -> np.ndarray:
+        """Cell (row, col) indices (..., 2) of world points (may be outside the map)."""
+        ox, oy, yaw = self.origin
+        xy = np.asarray(xy, dtype=np.float64)
+        dx, dy = xy[..., 0] - ox, xy[..., 1] - oy
+        c, s = np.cos(yaw), np.sin(yaw)
+        u, v = c * dx + s * dy, -s * dx + c * dy
+        return np.floor(np.stack([v, u], axis=-1) / self.resolution).astype(np.int64)
+
+
+class RosMapSpec(BaseModel):
+    """The keys of a ``map.yaml``; unknown keys are ignored, as map_server ignores them."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    image: str = Field(min_length=1)
+    resolution: FiniteFloat = Field(gt=0)
+    origin: tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+    negate: bool = False
+    occupied_thresh: FiniteFloat = Field(default=0.65, ge=0, le=1)
+    free_thresh: FiniteFloat = Field(default=0.196, ge=0, le=1)
+    mode: Literal["trinary", "scale", "raw"] = "trinary"
+
+    @field_validator("origin", mode="before")
+    @classmethod
+    def _three_numbers(cls, value: object) -> object:
+        if isinstance(value, list | tuple) and len(value) == 3:
+            return value
+        raise ValueError(f"must be [x, y, yaw], 3 numbers (got {value!r})")
+
+    @field_validator("negate", mode="before")
+    @classmethod
+    def _zero_or_one(cls, value: object) -> object:
+        if isinstance(value, bool) or value in (0, 1):
+            return bool(value)
+        raise ValueError(f"must be 0, 1, true or false (got {value!r})")
+
+
+def is_ros_map(data: object) -> bool:
+    """True when a parsed YAML document looks like a ROS map_server map description."""
+    return isinstance(data, dict) and "image" in data and "resolution" in data
+
+
+def load_ros_map(path: str | Path) -> RosMap:
+    """Read a ``map.yaml`` and its image and classify the cells as map_server does (module doc).
+
+    Raises FloorPlanError naming the file and the key (``origin[2]``, ``image``, ...).
+    """
+    path = Path(path)
+    data = read_yaml(path, FloorPlanError)
+    if not isinstance(data, dict):
+        raise FloorPlanError(f"{path}: (top level): must be a mapping of map.yaml keys")
+    try:
+        spec = RosMapSpec.model_validate(data)
+    except ValidationError as e:
+        raise FloorPlanError(describe_validation_error(e, path)) from e
+    image_path = user_path(spec.image, path.parent)
+    if not image_path.exists():
+        where = "" if Path(spec.image).expanduser().is_absolute() else " (taken from the map.yaml's folder)"
+        raise FloorPlanError(f"{path}: image: file not found: {image_path}{where}")
+    try:
+        image = read_map_image(image_path)
+    except FloorPlanError as e:
+        raise FloorPlanError(f"{path}: image: {e}") from e
+    if image.alpha is not None and spec.mode == "trinary":
+        shade = (3 * image.shade + image.alpha) / 4
+    else:
+        shade = image.shade
+    if spec.mode == "raw":
+        percent = np.round(shade * 255)
+        known = percent <= 100
+        occupied = known & (percent > spec.occupied_thresh * 100)
+        free = known & ~occupied & (percent < spec.free_thresh * 100)
+    else:
+        p = shade if spec.negate else 1.0 - shade
+        occupied = p > spec.occupied_thresh
+        free = ~occupied & (p < spec.free_thresh)
+        if spec.mode == "scale" and image.alpha is not None:
+            opaque = image.alpha >= 1.0
+            occupied &= opaque
+            free &= opaque
+    return RosMap(
+        occupied=np.ascontiguousarray(occupied[::-1]),
+        free=np.ascontiguousarray(free[::-1]),
+        resolution=spec.resolution,
+        origin=tuple(float(v) for v in spec.origin),
+        source=path,
+    )

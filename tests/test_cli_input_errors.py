@@ -1,0 +1,149 @@
+"""Every entry point turns a user's bad input into one ``error: FILE: FIELD: what`` line and exit 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.cli import main
+from swarm.cli.common import endpoint_problem
+from swarm.protocol import bus
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+@pytest.fixture
+def site(tmp_path: Path) -> Path:
+    """A good 100-maxval PGM room, map.yaml files (good, -nan origin, ~ image) and a mission."""
+    room = np.full((60, 60), 100, np.uint8)
+    room[0, :] = room[-1, :] = room[:, 0] = room[:, -1] = 0
+    (tmp_path / "site.pgm").write_bytes(b"P5\n60 60\n100\n" + room.tobytes())
+    keys = "resolution: 0.05\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    (tmp_path / "map.yaml").write_text("image: site.pgm\norigin: [0.0, 0.0, 0.0]\n" + keys)
+    (tmp_path / "nan.yaml").write_text("image: site.pgm\norigin: [0.0, 0.0, -nan]\n" + keys)
+    (tmp_path / "tilde.yaml").write_text("image: ~/no-such-site.pgm\norigin: [0, 0, 0]\n" + keys)
+    (tmp_path / "mission.yaml").write_text(
+        "workspace: {lo: [0, 0, 0], hi: [3, 3, 2]}\nfloor_plan: nan.yaml\n"
+        "robots: [{id: r1, start: {x: 1.5, y: 1.5}}]\n"
+    )
+    return tmp_path
+
+
+def run(capsys, *argv: str) -> tuple[int, str]:
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    return code, err
+
+
+NAN_ORIGIN = "nan.yaml: origin[2]: must be a finite number"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sim", "render", "--map", "{d}/nan.yaml", "--out", "{d}/v"],
+        ["sim", "render", "{d}/mission.yaml", "--out", "{d}/v"],
+        ["sim", "--map", "{d}/nan.yaml", "--out", "{d}/r"],
+        ["sim", "{d}/mission.yaml", "--out", "{d}/r"],
+        ["sim", "world", "{d}/mission.yaml"],
+        ["study", "{d}/mission.yaml", "--robots", "1", "--seeds", "0", "--out", "{d}/s"],
+        ["study", "--map", "{d}/nan.yaml", "--robots", "1", "--seeds", "0", "--out", "{d}/s"],
+        ["coordinator", "--config", "{d}/mission.yaml"],
+        ["agent", "--id", "r1", "--config", "{d}/mission.yaml"],
+        ["server", "--config", "{d}/mission.yaml", "--store", "{d}/store"],
+    ],
+)
+def test_nan_origin_map_is_one_error_line_from_every_command(site, capsys, argv):
+    code, err = run(capsys, *(a.format(d=site) for a in argv))
+    assert code == 2 and err.count("\n") == 1 and "error: " in err, err
+    assert NAN_ORIGIN in err and "workspace" not in err and "Traceback" not in err, err
+
+
+def test_missing_image_behind_tilde_is_one_line(site, capsys):
+    code, err = run(capsys, "sim", "render", "--map", site / "tilde.yaml", "--out", site / "v")
+    assert code == 2 and err.count("\n") == 1
+    assert f"{site / 'tilde.yaml'}: image: file not found: {Path.home() / 'no-such-site.pgm'}" in err
+
+
+def test_maxval_100_map_renders(site, capsys):
+    code = main(["sim", "render", "--map", str(site / "map.yaml"), "--out", str(site / "v")])
+    assert code == 0 and (site / "v" / "depth.npy").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["server", "--config", "{c}/lab.yaml", "--store", "{d}/s", "--listen", "0.0.0.0:7464"], "--listen"),
+        (["map", "stats", "--connect", "127.0.0.1:7461"], "--connect"),
+        (["agent", "--id", "r1", "--config", "{c}/lab.yaml", "--connect", "127.0.0.1:7461"], "--connect"),
+        (["coordinator", "--config", "{c}/lab.yaml", "--connect", "tcp/127.0.0.1"], "--connect"),
+        (["sim", "world", "{c}/lab.yaml", "--listen", "tpc/127.0.0.1:7461"], "--listen"),
+    ],
+)
+def test_endpoints_without_protocol_are_refused_with_the_fix(tmp_path, capsys, argv, option):
+    code, err = run(capsys, *(a.format(c=CONFIGS, d=tmp_path) for a in argv))
+    assert code == 2 and err.count("\n") == 1 and f"error: {option} " in err, err
+
+
+@pytest.mark.parametrize(
+    "text, fine",
+    [
+        ("tcp/127.0.0.1:7447", True),
+        ("tcp/0.0.0.0:0", True),
+        ("tcp/[::1]:7447", True),
+        ("udp/robot-3.local:7447", True),
+        ("tcp/127.0.0.1:7447?iface=eth0", True),
+        ("unixsock-stream//tmp/zenoh.sock", True),
+        ("127.0.0.1:7447", False),
+        ("tcp/127.0.0.1", False),
+        ("tcp/127.0.0.1:70000", False),
+        ("http/127.0.0.1:80", False),
+        ("", False),
+    ],
+)
+def test_endpoint_problem(text, fine):
+    assert (endpoint_problem(text) is None) == fine
+    if text == "127.0.0.1:7447":
+        assert "tcp/127.0.0.1:7447" in endpoint_problem(text)
+
+
+def test_busy_port_is_one_line_not_a_zenoh_traceback(tmp_path, capsys):
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    holder = bus.open_session([endpoint])
+    try:
+        code, err = run(
+            capsys,
+            "server",
+            "--config",
+            CONFIGS / "lab.yaml",
+            "--store",
+            tmp_path / "s",
+            "--listen",
+            endpoint,
+        )
+    finally:
+        holder.close()
+    assert code == 2 and err.count("\n") == 1 and "Address already in use" in err and ".rs:" not in err, err
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["ingest", "{d}/c.xyz", "--out", "{d}/m.npz", "--origin", "nan", "0", "0"], "--origin"),
+        (["ingest", "{d}/c.xyz", "--out", "{d}/m.npz", "--max-range", "inf"], "--max-range"),
+        (["sim", "{c}/lab.yaml", "--max-time", "nan", "--out", "{d}/r"], "--max-time"),
+        (["map", "export", "--out", "{d}/m.ply", "--threshold", "nan"], "--threshold"),
+    ],
+)
+def test_non_finite_numbers_on_the_command_line(tmp_path, capsys, argv, option):
+    (tmp_path / "c.xyz").write_text("1 2 3\n")
+    code, err = run(capsys, *(a.format(c=CONFIGS, d=tmp_path) for a in argv))
+    assert code == 2 and err.count("\n") == 1 and f"error: {option} " in err and "finite" in err, err
+
+
+def test_an_infinite_default_stays_allowed():
+    from swarm.cli.main import _infinite_defaults, build_parser
+
+    assert "max_depth" in _infinite_defaults(build_parser())  # swarm stereo depth: inf = no limit

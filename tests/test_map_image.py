@@ -1,0 +1,253 @@
+"""Map images read as their formats define them, and ROS maps classified as map_server does."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarm.config import ConfigError, mission_from_map
+from swarm.formats.errors import FloorPlanError, InputError
+from swarm.formats.map_image import read_map_image
+from swarm.formats.ros_map import load_ros_map
+
+
+def pgm(samples: np.ndarray, maxval: int, comment: bytes = b"") -> bytes:
+    """A binary PGM (P5) written from the Netpbm definition: 1 or 2 big-endian bytes per sample."""
+    rows, cols = samples.shape
+    header = b"P5\n" + comment + f"{cols} {rows}\n{maxval}\n".encode()
+    body = samples.astype(np.uint8 if maxval < 256 else ">u2").tobytes()
+    return header + body
+
+
+def write_map(folder: Path, image_name: str, **keys) -> Path:
+    spec = {"image": image_name, "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0,
+            "occupied_thresh": 0.65, "free_thresh": 0.196, **keys}  # fmt: skip
+    path = folder / "map.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+def room(free: int, wall: int, size: int = 20) -> np.ndarray:
+    """A square room: a one-cell wall border (value ``wall``) around floor cells (value ``free``)."""
+    image = np.full((size, size), free, dtype=np.int64)
+    image[0, :] = image[-1, :] = image[:, 0] = image[:, -1] = wall
+    return image
+
+
+@given(
+    maxval=st.integers(1, 65535),
+    data=st.data(),
+)
+@settings(max_examples=60, deadline=None)
+def test_pgm_samples_scale_by_maxval(tmp_path_factory, maxval, data):
+    rows, cols = data.draw(st.integers(1, 5)), data.draw(st.integers(1, 5))
+    values = np.array(data.draw(st.lists(st.integers(0, maxval), min_size=rows * cols, max_size=rows * cols)))
+    samples = values.reshape(rows, cols)
+    path = tmp_path_factory.mktemp("pgm") / "m.pgm"
+    path.write_bytes(pgm(samples, maxval, comment=b"# written by a test\n"))
+    image = read_map_image(path)
+    np.testing.assert_allclose(image.shade, samples / maxval, atol=1e-12)
+    assert image.alpha is None
+
+
+def test_ascii_and_binary_netpbm_agree(tmp_path):
+    samples = np.array([[0, 50, 100], [100, 25, 75]])
+    (tmp_path / "a.pgm").write_bytes(b"P2\n# comment\n3 2 # after the size\n100\n0 50 100\n100 25 75\n")
+    (tmp_path / "b.pgm").write_bytes(pgm(samples, 100))
+    colour = np.stack([samples] * 3, axis=-1)
+    (tmp_path / "c.ppm").write_bytes(b"P6 3 2 100\n" + colour.astype(np.uint8).tobytes())
+    (tmp_path / "d.ppm").write_bytes(b"P3 3 2 100\n" + " ".join(map(str, colour.ravel())).encode())
+    for name in ("a.pgm", "b.pgm", "c.ppm", "d.ppm"):
+        np.testing.assert_allclose(read_map_image(tmp_path / name).shade, samples / 100, err_msg=name)
+
+
+def test_pbm_one_is_black(tmp_path):
+    (tmp_path / "a.pbm").write_bytes(b"P1\n3 2\n100\n0 1 1\n")
+    (tmp_path / "b.pbm").write_bytes(b"P4\n3 2\n" + bytes([0b10000000, 0b01100000]))
+    want = np.array([[0, 1, 1], [1, 0, 0]], dtype=float)
+    np.testing.assert_array_equal(read_map_image(tmp_path / "a.pbm").shade, want)
+    np.testing.assert_array_equal(read_map_image(tmp_path / "b.pbm").shade, want)
+
+
+def test_pam_with_alpha(tmp_path):
+    header = b"P7\nWIDTH 2\nHEIGHT 1\nDEPTH 2\nMAXVAL 255\nTUPLTYPE GRAYSCALE_ALPHA\nENDHDR\n"
+    (tmp_path / "m.pam").write_bytes(header + bytes([255, 0, 0, 255]))
+    image = read_map_image(tmp_path / "m.pam")
+    np.testing.assert_allclose(image.shade, [[1.0, 0.0]])
+    np.testing.assert_allclose(image.alpha, [[0.0, 1.0]])
+
+
+def test_sixteen_bit_png_and_alpha_png(tmp_path):
+    grey16 = np.array([[0, 65535], [32768, 1000]], dtype=np.uint16)
+    cv2.imwrite(str(tmp_path / "g.png"), grey16)
+    np.testing.assert_allclose(read_map_image(tmp_path / "g.png").shade, grey16 / 65535)
+    bgra = np.zeros((1, 2, 4), np.uint8)
+    bgra[0, 0] = [30, 60, 90, 255]
+    bgra[0, 1] = [255, 255, 255, 0]
+    cv2.imwrite(str(tmp_path / "a.png"), bgra)
+    image = read_map_image(tmp_path / "a.png")
+    np.testing.assert_allclose(image.shade, [[60 / 255, 1.0]])
+    np.testing.assert_allclose(image.alpha, [[1.0, 0.0]])
+
+
+@pytest.mark.parametrize(
+    "content, words",
+    [
+        (b"P5\n4 4\n255\n" + bytes(10), ["truncated", "16", "10"]),
+        (b"P5\n4 4\n", ["maxval"]),
+        (b"P5\n4\n", ["height"]),
+        (b"P5\n4 x\n255\n", ["height", "whole number"]),
+        (b"P5\n4 4\n0\n" + bytes(16), ["maxval", "[1, 65535]"]),
+        (b"P5\n2 1\n100\n" + bytes([0, 200]), ["200", "maxval 100"]),
+        (b"P2\n2 2\n255\n1 2 3\n", ["4 samples", "holds 3", "truncated"]),
+        (b"P2\n2 1\n255\n1 x\n", ["whole numbers"]),
+        (b"P5\n0 4\n255\n", ["width", "[1,"]),
+        (b"", ["empty"]),
+        (b"\x89PNG\r\n\x1a\n broken", ["not a readable image"]),
+    ],
+)
+def test_broken_images_name_the_cause(tmp_path, content, words):
+    path = tmp_path / "m.pgm"
+    path.write_bytes(content)
+    with pytest.raises(FloorPlanError) as info:
+        read_map_image(path)
+    message = str(info.value)
+    assert message.startswith(str(path)) and "\n" not in message
+    for word in words:
+        assert word in message, message
+
+
+def test_maxval_100_floor_is_free_as_map_server_reads_it(tmp_path):
+    """Issue 18 case 3: floor pixels 100 of maxval 100 are white, so free, not unknown."""
+    (tmp_path / "site.pgm").write_bytes(pgm(room(free=100, wall=0), 100))
+    ros_map = load_ros_map(write_map(tmp_path, "site.pgm"))
+    assert ros_map.free.sum() == 18 * 18 and ros_map.occupied.sum() == 20 * 20 - 18 * 18
+    mission = mission_from_map(tmp_path / "map.yaml")
+    assert len(mission.robots) == 1
+
+
+def test_sixteen_bit_pgm_map(tmp_path):
+    (tmp_path / "site.pgm").write_bytes(pgm(room(free=1000, wall=0), 1000))
+    ros_map = load_ros_map(write_map(tmp_path, "site.pgm"))
+    assert ros_map.free.sum() == 18 * 18 and ros_map.occupied.sum() == 76
+
+
+def classify_like_map_server(grey, alpha, mode, negate, occ_th, free_th):
+    """Per-pixel oracle written from map_server's loader: returns 100 / 0 / -1 (or raw percent)."""
+    channels = [grey] * 3 + ([alpha] if alpha is not None and mode == "trinary" else [])
+    shade = sum(channels) / len(channels)
+    if mode == "raw":
+        percent = round(shade * 255)
+        if percent > 100:
+            return -1
+        return 100 if percent > occ_th * 100 else 0 if percent < free_th * 100 else -1
+    if mode == "scale" and alpha is not None and alpha < 1:
+        return -1
+    occ = shade if negate else 1 - shade
+    return 100 if occ > occ_th else 0 if occ < free_th else -1
+
+
+@given(
+    grey=st.lists(st.integers(0, 255), min_size=12, max_size=12),
+    alpha=st.one_of(st.none(), st.lists(st.sampled_from([0, 128, 255]), min_size=12, max_size=12)),
+    mode=st.sampled_from(["trinary", "scale", "raw"]),
+    negate=st.booleans(),
+    thresholds=st.tuples(st.floats(0, 1), st.floats(0, 1)).map(sorted),
+)
+@settings(max_examples=60, deadline=None)
+def test_classification_matches_the_map_server_oracle(
+    tmp_path_factory, grey, alpha, mode, negate, thresholds
+):
+    folder = tmp_path_factory.mktemp("map")
+    g = np.array(grey, np.uint8).reshape(3, 4)
+    if alpha is None:
+        cv2.imwrite(str(folder / "m.png"), g)
+    else:
+        a = np.array(alpha, np.uint8).reshape(3, 4)
+        cv2.imwrite(str(folder / "m.png"), np.dstack([g, g, g, a]))
+    free_th, occ_th = thresholds
+    path = write_map(
+        folder, "m.png", mode=mode, negate=int(negate), occupied_thresh=occ_th, free_thresh=free_th
+    )
+    ros_map = load_ros_map(path)
+    for r in range(3):
+        for c in range(4):
+            want = classify_like_map_server(
+                g[r, c] / 255, None if alpha is None else a[r, c] / 255, mode, negate, occ_th, free_th
+            )
+            got = 100 if ros_map.occupied[2 - r, c] else 0 if ros_map.free[2 - r, c] else -1
+            assert got == want, (r, c, g[r, c])
+
+
+@pytest.mark.parametrize(
+    "keys, field",
+    [
+        ({"origin": [0.0, 0.0, float("nan")]}, "origin[2]"),
+        ({"origin": [0.0, 0.0, "-nan"]}, "origin[2]"),
+        ({"origin": [float("inf"), 0.0, 0.0]}, "origin[0]"),
+        ({"resolution": float("nan")}, "resolution"),
+        ({"occupied_thresh": float("nan")}, "occupied_thresh"),
+        ({"mode": "trinery"}, "mode"),
+        ({"negate": 2}, "negate"),
+        ({"origin": [0.0, 0.0]}, "origin"),
+        ({"image": ""}, "image"),
+    ],
+)
+def test_map_yaml_errors_name_the_key(tmp_path, keys, field):
+    (tmp_path / "site.pgm").write_bytes(pgm(room(255, 0), 255))
+    path = write_map(tmp_path, "site.pgm", **keys)
+    with pytest.raises(FloorPlanError) as info:
+        load_ros_map(path)
+    assert str(info.value).startswith(f"{path}: {field}: "), str(info.value)
+    with pytest.raises(InputError) as info:
+        mission_from_map(path)
+    assert f"{path}: {field}: " in str(info.value)
+    assert "workspace" not in str(info.value) and "robots" not in str(info.value)
+
+
+def test_map_saver_minus_nan_origin_in_a_mission_is_refused(tmp_path):
+    """Issue 18 case 1: ``origin: [0.0, 0.0, -nan]`` as a map saver writes it (not YAML's .nan)."""
+    (tmp_path / "site.pgm").write_bytes(pgm(room(255, 0), 255))
+    (tmp_path / "map.yaml").write_text(
+        "image: site.pgm\nresolution: 0.1\norigin: [0.0, 0.0, -nan]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    mission = tmp_path / "mission.yaml"
+    mission.write_text(
+        yaml.safe_dump(
+            {
+                "workspace": {"lo": [0, 0, 0], "hi": [2, 2, 2]},
+                "floor_plan": "map.yaml",
+                "robots": [{"id": "r1", "start": {"x": 1, "y": 1}}],
+            }
+        )
+    )
+    from swarm.config import load_mission
+
+    with pytest.raises(ConfigError) as info:
+        load_mission(mission)
+    message = str(info.value)
+    assert f"{mission}: floor_plan: " in message and "map.yaml: origin[2]: must be a finite number" in message
+
+
+def test_image_path_tilde_is_expanded(tmp_path, monkeypatch):
+    """Issue 18 case 2: ``image: ~/site.pgm`` names the user's home (map_server would not expand it)."""
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    (tmp_path / "home").mkdir()
+    (tmp_path / "home" / "site.pgm").write_bytes(pgm(room(255, 0), 255))
+    (tmp_path / "maps").mkdir()
+    ros_map = load_ros_map(write_map(tmp_path / "maps", "~/site.pgm"))
+    assert ros_map.free.sum() == 18 * 18
+
+
+def test_missing_image_names_the_key_and_where_it_looked(tmp_path):
+    path = write_map(tmp_path, "nowhere.pgm")
+    with pytest.raises(FloorPlanError) as info:
+        load_ros_map(path)
+    assert str(info.value) == (
+        f"{path}: image: file not found: {tmp_path / 'nowhere.pgm'} (taken from the map.yaml's folder)"
+    )
