@@ -72,6 +72,13 @@ def check_mission(mission: Mission) -> None:
                 f"({x:g}, {y:g}) is outside the workspace x [{lo[0]:g}, {hi[0]:g}], y [{lo[1]:g}, {hi[1]:g}]",
             )
 
+    prior = mission.prior_map_path()
+    if prior is not None:
+        if not prior.is_file():
+            fail("prior_map", f"file not found: {prior}")
+        if prior.suffix.lower() not in (".npz", ".bt"):
+            fail("prior_map", f"{prior}: must be a map .npz or an OctoMap .bt")
+
     if mission.floor_plan is not None:
         from swarm.formats.floor_plan import FloorPlanError
 

@@ -214,6 +214,8 @@ class Mission(_Section):
     mission: str = Field(default="default", pattern=_NAME_PATTERN)
     workspace: WorkspaceConfig
     floor_plan: str | FloorPlanRef | None = None
+    #: a previous map (map.npz or OctoMap .bt) the mission starts from (paper section II.C.1)
+    prior_map: str | None = None
     robots: list[RobotSpec] = Field(min_length=1)
     rig: RigConfig = RigConfig()
     rigs: dict[str, dict[str, Any]] = {}
@@ -260,6 +262,10 @@ class Mission(_Section):
             ref = FloorPlanRef(path=ref)
         return ref.model_copy(update={"path": str(user_path(ref.path, self._base_dir).resolve())})
 
+    def prior_map_path(self) -> Path | None:
+        """The previous map's file, made absolute, or None."""
+        return None if self.prior_map is None else (self._base_dir / self.prior_map).resolve()
+
     def load_floor_plan(self):
         """The mission's ``swarm.formats.floor_plan.FloorPlan`` (cached), or None without one."""
         if self._plan is None and self.floor_plan is not None:
@@ -281,6 +287,8 @@ class Mission(_Section):
         ref = self.floor_plan_ref()
         if ref is not None:
             data["floor_plan"] = ref.model_dump(mode="json")
+        if self.prior_map is not None:
+            data["prior_map"] = str(self.prior_map_path())
         for robot in data["robots"]:
             rig = robot.get("rig")
             if isinstance(rig, str) and rig.endswith((".yaml", ".yml")):

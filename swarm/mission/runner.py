@@ -31,6 +31,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
+from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
@@ -70,6 +71,7 @@ class TeamMonitor:
     rejected: int = 0
     seen: AppliedDeltas = field(default_factory=AppliedDeltas)
     applied: int = 0  # distinct deltas in the map
+    prior_deltas: int = 0  # of which the previous map's (delta/prior): the starting belief
 
     def __post_init__(self) -> None:
         grid = self.mission.workspace.grid()
@@ -92,11 +94,15 @@ class TeamMonitor:
                 self.applied += 1
                 idx = msg.idx.astype(np.int64)
                 self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
+                if msg.robot == PRIOR_SOURCE:  # the previous map: the mission's starting belief
+                    self.prior_deltas += 1
+                    self.curve[-1] = (0.0, float(self.entropy.total))
+                    return
                 self.curve.append((float(msg.t), float(self.entropy.total)))
                 first = self.first_delta.get(msg.robot)
                 if first is None:
                     first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
-                first[idx] = np.minimum(first[idx], self.applied)
+                first[idx] = np.minimum(first[idx], self.applied - self.prior_deltas)
                 self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
         except (WireError, ValueError) as exc:
             self.rejected += 1
@@ -198,6 +204,8 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             coordinator = _child(coordinator_args, out / "coordinator.log")
             services.append(coordinator)
         _wait_for_server(client, server)
+        if mission.prior_map is not None:
+            _publish_prior(session, mission, client, monitor)
         world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
         agents = [
@@ -260,6 +268,29 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         },
     }
     return monitor, facts
+
+
+def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMonitor) -> None:
+    """Send the previous map as ``delta/prior`` and wait until the server and the monitor hold it."""
+    path = mission.prior_map_path()
+    grid, sensor = mission.workspace.grid(), mission.sensor.model()
+    delta = prior_delta(grid, sensor, load_previous_map(path, sensor))
+    pieces = chunks(delta)
+    publisher = bus.reliable_publisher(session, bus.key(mission.mission, "delta", PRIOR_SOURCE))
+    epoch = time.time_ns()
+    for seq, piece in enumerate(pieces, start=1):
+        msg = DeltaMessage(PRIOR_SOURCE, epoch, seq, 0.0, grid, piece.idx, piece.dlam, piece.deta)
+        publisher.put(msg.encode())
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        applied = int(client.stats().get("deltas_applied", 0))
+        if applied >= len(pieces) and monitor.applied >= len(pieces):
+            break
+        time.sleep(0.1)
+    else:
+        raise RuntimeError("the map server did not take the previous map within 60 s (see server.log)")
+    publisher.undeclare()
+    print(f"runner: started from the previous map {path}: {len(delta):,} voxels known", flush=True)
 
 
 def _wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float = 60.0) -> None:

@@ -1,0 +1,251 @@
+"""OctoMap's binary occupancy file (``.bt``): read and write, our own code.
+
+The format, as OctoMap writes it (``AbstractOccupancyOcTree::writeBinaryConst`` and
+``OccupancyOcTreeBase::writeBinaryNode`` in OctoMap 1.x):
+
+* a text header: the line ``# Octomap OcTree binary file``, any ``#`` comment lines, then
+  ``id OcTree``, ``size <nodes>``, ``res <voxel edge in metres>`` and ``data``, one per line;
+* the tree, depth first from the root: every inner node is two bytes, two bits per child
+  (children 0-3 in the first byte, 4-7 in the second, child ``i`` at bits ``2i, 2i+1``):
+  ``00`` unknown (no child), ``01`` (value 1) a free leaf, ``10`` (value 2) an occupied leaf,
+  ``11`` an inner node, whose own two bytes follow after the current node's, in child order.
+
+``size`` counts every node of the tree (the root, inner nodes and leaves); OctoMap refuses a
+file whose count disagrees. The tree has 16 levels below the root. A leaf-level voxel has the
+*key* ``k = floor(x / res) + 32768`` per axis (so voxels are anchored at the world origin), and
+the child index at depth ``d`` (root 0) is ``bx + 2 by + 4 bz`` with ``b`` bit ``15 - d`` of the
+key. A leaf above the last level (a *pruned* node) stands for all ``2**(16 - d)`` cubed voxels
+below it. Only maximum-likelihood states are stored: free or occupied, no probabilities.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+TREE_DEPTH = 16
+#: key of the voxel whose min corner is the world origin
+KEY_ORIGIN = 1 << (TREE_DEPTH - 1)
+MAGIC = b"# Octomap OcTree binary file"
+FREE, OCCUPIED, INNER = 1, 2, 3  # the 2-bit child codes
+
+
+class OctomapFileError(ValueError):
+    """A ``.bt`` file that cannot be read or a tree that cannot be written; names the file."""
+
+
+@dataclass
+class OctreeLeaves:
+    """The leaves of an occupancy octree, pruned ones included.
+
+    ``key`` (N, 3) int64: the leaf-level key of each leaf's min corner; ``depth`` (N,) int:
+    the leaf's depth (16 = one voxel of edge ``resolution``; 16 - n: a cube of 2**n voxels per
+    edge); ``occupied`` (N,) bool. ``resolution`` in metres.
+    """
+
+    resolution: float
+    key: np.ndarray
+    depth: np.ndarray
+    occupied: np.ndarray
+
+    def edge_voxels(self) -> np.ndarray:
+        """Voxels per edge of each leaf, (N,) int64."""
+        return np.left_shift(1, TREE_DEPTH - self.depth.astype(np.int64))
+
+    def voxel_counts(self) -> tuple[int, int]:
+        """(occupied, free) leaf-level voxels, pruned leaves expanded."""
+        volume = self.edge_voxels() ** 3
+        return int(volume[self.occupied].sum()), int(volume[~self.occupied].sum())
+
+
+# -- Morton codes: the depth-first child order of the tree ----------------------------------
+
+
+def _spread(v: np.ndarray) -> np.ndarray:
+    """Bits b of 16-bit ``v`` moved to bits 3b (uint64)."""
+    v = v.astype(np.uint64) & np.uint64(0xFFFF)
+    out = np.zeros_like(v)
+    for b in range(TREE_DEPTH):
+        out |= ((v >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b)
+    return out
+
+
+def _gather(code: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_spread`: bits 3b of ``code`` to bits b."""
+    out = np.zeros_like(code)
+    for b in range(TREE_DEPTH):
+        out |= ((code >> np.uint64(3 * b)) & np.uint64(1)) << np.uint64(b)
+    return out
+
+
+def morton(key: np.ndarray) -> np.ndarray:
+    """Leaf-level keys (N, 3) -> 48-bit codes whose 3-bit groups, from the top, are child indices."""
+    key = np.asarray(key)
+    return _spread(key[:, 0]) | (_spread(key[:, 1]) << np.uint64(1)) | (_spread(key[:, 2]) << np.uint64(2))
+
+
+def unmorton(code: np.ndarray) -> np.ndarray:
+    """48-bit codes -> leaf-level keys (N, 3) int64."""
+    code = np.asarray(code, dtype=np.uint64)
+    return np.stack([_gather(code >> np.uint64(a)) for a in range(3)], axis=1).astype(np.int64)
+
+
+# -- writing -------------------------------------------------------------------------------
+
+
+def encode_tree(key: np.ndarray, occupied: np.ndarray) -> tuple[int, bytes]:
+    """The node count and the data bytes of the pruned tree of leaf-level voxels.
+
+    ``key`` (N, 3) integer keys in [0, 65536), distinct; ``occupied`` (N,) bool (False: free).
+    Eight equal leaf siblings are pruned into their parent, level by level, as OctoMap does
+    before it writes. Raises ValueError on keys out of range or repeated.
+    """
+    key = np.asarray(key, dtype=np.int64).reshape(-1, 3)
+    occupied = np.asarray(occupied, dtype=bool).reshape(-1)
+    if len(key) != len(occupied):
+        raise ValueError(f"{len(key)} keys but {len(occupied)} states")
+    if len(key) == 0:
+        return 0, b""
+    if key.min() < 0 or key.max() >= 1 << TREE_DEPTH:
+        raise ValueError("octree keys must lie in [0, 65536): the map is too far from the origin")
+    code = morton(key)
+    order = np.argsort(code, kind="stable")
+    code = code[order]
+    if np.any(code[1:] == code[:-1]):
+        raise ValueError("the same voxel is given twice")
+    state = np.where(occupied[order], OCCUPIED, FREE).astype(np.uint8)
+    depths, codes, records = [], [], []
+    nodes = 1  # the root
+    for depth in range(TREE_DEPTH, 0, -1):
+        parent = code >> np.uint64(3)
+        child = (code & np.uint64(7)).astype(np.uint16)
+        starts = np.flatnonzero(np.r_[True, parent[1:] != parent[:-1]])
+        counts = np.diff(np.r_[starts, len(parent)])
+        low = np.minimum.reduceat(state, starts)
+        high = np.maximum.reduceat(state, starts)
+        pruned = (counts == 8) & (low == high) & (low != INNER)
+        record = np.bitwise_or.reduceat(state.astype(np.uint16) << (2 * child), starts)
+        inner = ~pruned
+        depths.append(np.full(int(inner.sum()), depth - 1, np.int64))
+        codes.append(parent[starts][inner])
+        records.append(record[inner])
+        nodes += int(counts[inner].sum())
+        code, state = parent[starts], np.where(pruned, low, INNER).astype(np.uint8)
+    if state[0] != INNER:
+        raise ValueError("the whole octree space is one state: OctoMap cannot store a leaf root")
+    depth = np.concatenate(depths)
+    padded = np.concatenate(codes) << (np.uint64(3) * (TREE_DEPTH - depth).astype(np.uint64))
+    preorder = np.lexsort((depth, padded))  # a node before its descendants, children in order
+    return nodes, np.concatenate(records)[preorder].astype("<u2").tobytes()
+
+
+def write_bt(path: str | Path, resolution: float, key: np.ndarray, occupied: np.ndarray) -> int:
+    """Write leaf-level voxels (see :func:`encode_tree`) to an OctoMap ``.bt``; returns the node count.
+
+    Raises OctomapFileError naming ``path`` when the tree cannot be encoded or written.
+    """
+    path = Path(path)
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise OctomapFileError(f"{path}: resolution must be a positive number, got {resolution!r}")
+    try:
+        nodes, data = encode_tree(key, occupied)
+    except ValueError as exc:
+        raise OctomapFileError(f"{path}: {exc}") from exc
+    header = (
+        f"{MAGIC.decode()}\n# written by swarm: the maximum-likelihood occupancy of a coverage map\n"
+        f"id OcTree\nsize {nodes}\nres {float(resolution)!r}\ndata\n"
+    )
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(header.encode("ascii") + data)
+    except OSError as exc:
+        raise OctomapFileError(f"{path}: cannot write: {exc}") from exc
+    return nodes
+
+
+# -- reading -------------------------------------------------------------------------------
+
+
+def _read_header(path: Path, raw: bytes) -> tuple[dict[str, str], int]:
+    """Header fields and the offset of the tree data."""
+    if not raw.startswith(MAGIC):
+        raise OctomapFileError(f"{path}: not an OctoMap binary file (first line is not {MAGIC.decode()!r})")
+    fields: dict[str, str] = {}
+    pos = raw.index(b"\n") + 1
+    while True:
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise OctomapFileError(f"{path}: header ends before its 'data' line")
+        words = raw[pos:end].decode("ascii", "replace").split()
+        pos = end + 1
+        if not words or words[0].startswith("#"):
+            continue
+        if words[0] == "data":
+            return fields, pos
+        fields[words[0]] = words[1] if len(words) > 1 else ""
+
+
+def read_bt(path: str | Path) -> OctreeLeaves:
+    """Every leaf of an OctoMap ``.bt`` file (pruned leaves kept whole; see :class:`OctreeLeaves`).
+
+    Raises OctomapFileError naming the file and the field for a bad header (type other than
+    ``OcTree``, resolution not positive), truncated data or a node count other than ``size``.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise OctomapFileError(f"{path}: cannot read: {exc}") from exc
+    fields, pos = _read_header(path, raw)
+    if fields.get("id") != "OcTree":
+        raise OctomapFileError(f"{path}: id: only 'OcTree' trees are supported, got {fields.get('id')!r}")
+    try:
+        resolution = float(fields["res"])
+        size = int(fields.get("size", "0"))
+    except (KeyError, ValueError) as exc:
+        raise OctomapFileError(f"{path}: res/size: missing or not a number ({exc})") from exc
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise OctomapFileError(f"{path}: res: must be a positive number, got {fields['res']!r}")
+    codes: list[int] = []
+    depths: list[int] = []
+    states: list[int] = []
+    nodes = 0
+    if size > 0:
+        data = raw[pos:]
+        stack = [(0, 0)]  # (code, depth) of inner nodes still to read, the next on top
+        at, nodes = 0, 1
+        while stack:
+            code, depth = stack.pop()
+            if at + 2 > len(data):
+                raise OctomapFileError(f"{path}: data: the tree is truncated at byte {pos + at}")
+            record = data[at] | (data[at + 1] << 8)
+            at += 2
+            inner = []
+            for child in range(8):
+                s = (record >> (2 * child)) & 3
+                if s == 0:
+                    continue
+                nodes += 1
+                if s == INNER:
+                    if depth + 1 >= TREE_DEPTH:
+                        raise OctomapFileError(f"{path}: data: the tree is deeper than {TREE_DEPTH} levels")
+                    inner.append(((code << 3) | child, depth + 1))
+                else:
+                    codes.append((code << 3) | child)
+                    depths.append(depth + 1)
+                    states.append(s)
+            stack.extend(reversed(inner))
+        if nodes != size:
+            raise OctomapFileError(f"{path}: size: the header says {size} nodes, the data holds {nodes}")
+    depth_arr = np.asarray(depths, dtype=np.int64)
+    code_arr = np.asarray(codes, dtype=np.uint64) << (
+        np.uint64(3) * (TREE_DEPTH - depth_arr).astype(np.uint64)
+    )
+    return OctreeLeaves(
+        resolution=resolution,
+        key=unmorton(code_arr) if len(code_arr) else np.zeros((0, 3), np.int64),
+        depth=depth_arr,
+        occupied=np.asarray(states, dtype=np.uint8) == OCCUPIED,
+    )
