@@ -161,7 +161,32 @@ def _read_ply(path: Path) -> np.ndarray:
         )
     if header.fmt == "ascii":
         return _ply_ascii_vertices(data[header.size :], header.elements, vertex_at, path)
-    return _ply_binary_vertices(data[header.size :], header, vertex_at, path)
+    table = _ply_binary_table(data[header.size :], header, vertex_at, path)
+    return np.stack([table[c].astype(np.float64) for c in "xyz"], axis=1)
+
+
+def read_ply_vertices(path: str | Path) -> dict[str, np.ndarray]:
+    """Every scalar property of the vertex element of a PLY file, by name, in file order.
+
+    ASCII (as float64) and binary files (in the file's types); other elements, such as the
+    faces after the vertices, are skipped. Raises PointCloudError naming the file and what
+    is wrong, as :func:`read_point_cloud` does.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise PointCloudError(f"{path}: cannot read: {exc}") from exc
+    header = _parse_ply_header(data, path)
+    vertex_at = next((i for i, e in enumerate(header.elements) if e.name == "vertex"), None)
+    if vertex_at is None:
+        raise PointCloudError(f"{path}: header: no 'element vertex'")
+    names = [n for n, _ in header.elements[vertex_at].scalars]
+    if header.fmt == "ascii":
+        rows = _ply_ascii_vertices(data[header.size :], header.elements, vertex_at, path, names)
+        return {n: rows[:, i] for i, n in enumerate(names)}
+    table = _ply_binary_table(data[header.size :], header, vertex_at, path)
+    return {n: table[n].astype(table[n].dtype.newbyteorder("=")) for n in names}
 
 
 def _parse_ply_header(data: bytes, path: Path) -> _PlyHeader:
@@ -222,7 +247,10 @@ def _parse_ply_header(data: bytes, path: Path) -> _PlyHeader:
     return _PlyHeader(fmt, elements, end)
 
 
-def _ply_ascii_vertices(body: bytes, elements: list[_Element], vertex_at: int, path: Path) -> np.ndarray:
+def _ply_ascii_vertices(
+    body: bytes, elements: list[_Element], vertex_at: int, path: Path, wanted: list[str] | None = None
+) -> np.ndarray:
+    """The ``wanted`` columns (default x, y, z) of the vertices of an ASCII PLY, (count, len(wanted))."""
     lines = [line for line in body.decode("ascii", "replace").splitlines() if line.strip()]
     skip = sum(e.count for e in elements[:vertex_at])
     vertex = elements[vertex_at]
@@ -233,12 +261,13 @@ def _ply_ascii_vertices(body: bytes, elements: list[_Element], vertex_at: int, p
             f"vertex line(s); the file is truncated"
         )
     names = [n for n, _ in vertex.scalars]
-    columns = [names.index(c) for c in "xyz"]
+    wanted = list(wanted or "xyz")
+    columns = [names.index(c) for c in wanted]
     if vertex.lists and max(columns) > names.index(vertex.lists[0]):
         raise PointCloudError(
-            f"{path}: header: x, y, z after the list property {vertex.lists[0]!r} are not supported"
+            f"{path}: header: properties after the list property {vertex.lists[0]!r} are not supported"
         )
-    points = np.empty((vertex.count, 3))
+    points = np.empty((vertex.count, len(columns)))
     for i, line in enumerate(lines[skip : skip + vertex.count]):
         words = line.split()
         if len(words) <= max(columns):
@@ -252,7 +281,8 @@ def _ply_ascii_vertices(body: bytes, elements: list[_Element], vertex_at: int, p
     return points
 
 
-def _ply_binary_vertices(body: bytes, header: _PlyHeader, vertex_at: int, path: Path) -> np.ndarray:
+def _ply_binary_table(body: bytes, header: _PlyHeader, vertex_at: int, path: Path) -> np.ndarray:
+    """The vertex element of a binary PLY as a structured array in the file's byte order."""
     order = _PLY_FORMATS[header.fmt]
     offset = 0
     for element in header.elements[:vertex_at]:
@@ -276,8 +306,7 @@ def _ply_binary_vertices(body: bytes, header: _PlyHeader, vertex_at: int, path: 
             f"({need:,} bytes), the file holds {got:,} ({got // dtype.itemsize:,} whole vertices); "
             "the file is truncated"
         )
-    data = np.frombuffer(body, dtype=dtype, count=vertex.count, offset=offset)
-    return np.stack([data[c].astype(np.float64) for c in "xyz"], axis=1)
+    return np.frombuffer(body, dtype=dtype, count=vertex.count, offset=offset)
 
 
 def _dtype(element: _Element, order: str) -> np.dtype:

@@ -17,7 +17,6 @@ import numpy as np
 import zenoh
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import expected_coverage
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
 from swarm.protocol.wire import Region, Snapshot, WireError
@@ -179,25 +178,16 @@ def sensor_from_stats(stats: dict) -> SensorModel:
     return SensorModel(**values) if isinstance(values, dict) else SensorModel()
 
 
-def export_map(client: MapClient, out: str | Path, threshold: float = 0.5) -> str:
-    """Fetch the team map and write ``out``: a ``.npz`` map file (as ``swarm map info`` reads)
-    or a ``.ply`` of the centres of voxels with E[C] > ``threshold``. Returns what was written."""
-    from swarm.formats.map_file import save_map
-    from swarm.formats.point_cloud_file import write_ply_points
+def export_map(client: MapClient, out: str | Path, threshold: float = 0.5, **options) -> str:
+    """Fetch the team map and write ``out`` (.npz, .ply or .bt; see
+    :func:`swarm.formats.map_export.export_coverage_map`, which takes ``options``).
+    Returns what was written."""
+    from swarm.formats.map_export import SUFFIXES, export_coverage_map
 
-    out = Path(out)
-    suffix = out.suffix.lower()
-    if suffix not in (".npz", ".ply"):
-        raise ValueError(f"{out}: the output must end in .npz (map file) or .ply (occupied voxels)")
+    if Path(out).suffix.lower() not in SUFFIXES:
+        raise ValueError(
+            f"{out}: the output must end in .npz (map file), .ply (occupied voxels) or .bt (OctoMap)"
+        )
     snap = client.snapshot()
-    if suffix == ".npz":
-        cmap = CoverageMap(snap.grid, sensor_from_stats(client.stats()), snap.lam, snap.eta)
-        save_map(out, cmap)
-        return f"wrote {out}: {snap.grid.size:,} voxels {list(snap.grid.shape)}"
-    mu = snap.eta.astype(np.float64) / snap.lam
-    sigma = 1.0 / np.sqrt(snap.lam.astype(np.float64))
-    coverage = expected_coverage(mu, sigma)
-    idx = np.flatnonzero(coverage > threshold)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_ply_points(out, snap.grid.centre(snap.grid.unflat(idx)), coverage[idx].astype(np.float32))
-    return f"wrote {out}: {len(idx):,} voxel centres with E[C] > {threshold:g}"
+    cmap = CoverageMap(snap.grid, sensor_from_stats(client.stats()), snap.lam, snap.eta)
+    return export_coverage_map(out, cmap, threshold, **options)
