@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from swarm.formats.ply_map import BELIEF_PROPERTIES, write_belief_ply
-from swarm.formats.point_cloud_file import PointCloudError, read_point_cloud, read_ply_vertices
+from swarm.formats.point_cloud_file import PointCloudError, read_ply_vertices, read_point_cloud
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import entropy_exact, expected_coverage
 from swarm.map.grid import Grid

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import default_table, expected_coverage
+from swarm.map.entropy import expected_coverage
+from swarm.map.entropy_table import default_table
 
 BELIEF_PROPERTIES = ("mu", "sigma", "entropy", "expected_coverage")
 _CORNERS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.float64)
