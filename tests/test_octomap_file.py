@@ -167,3 +167,27 @@ def test_bad_files_name_the_file_and_field(tmp_path: Path):
         with pytest.raises(OctomapFileError, match=field) as err:
             read_bt(tmp_path / f"{name}.bt")
         assert f"{name}.bt" in str(err.value)
+
+
+def test_cli_import_then_export_gives_the_same_tree(tmp_path: Path):
+    import subprocess
+    import sys
+
+    grid = Grid((-0.8, 0.0, 0.0), 0.2, (12, 10, 6))
+    leaves = coverage_to_leaves(coverage_with(known_states(grid.shape, seed=5), grid))
+    write_bt(tmp_path / "in.bt", leaves.resolution, leaves.key, leaves.occupied)
+
+    def swarm(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "swarm.cli", *args], capture_output=True, text=True)
+
+    done = swarm("map", "import", str(tmp_path / "in.bt"), "--out", str(tmp_path / "prior.npz"))
+    assert done.returncode == 0, done.stderr
+    done = swarm("map", "export", "--from", str(tmp_path / "prior.npz"), "--out", str(tmp_path / "out.bt"))
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "out.bt").read_bytes().split(b"\ndata\n")[1] == (
+        tmp_path / "in.bt"
+    ).read_bytes().split(b"\ndata\n")[1]
+    from swarm.formats.map_export import export_coverage_map
+
+    with pytest.raises(ValueError, match=r"x\.obj: the output must end in .npz, .ply, .bt"):
+        export_coverage_map(tmp_path / "x.obj", coverage_with(known_states(grid.shape), grid))

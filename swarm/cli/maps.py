@@ -46,14 +46,52 @@ def register(sub: argparse._SubParsersAction) -> None:
     get.set_defaults(run=_run_map_get)
     export = msub.add_parser(
         "export",
-        help="fetch the team map from a running map server and write map.npz or a PLY",
-        description="Fetch map/snapshot from a running map server and write --out: a .npz map file "
-        "(as swarm map info reads) or a .ply of the centres of voxels with E[C] > --threshold.",
+        help="write the team map (from a running server or a map.npz) as .npz, .ply or OctoMap .bt",
+        description="Write --out from a running map server's map/snapshot, or from the map file "
+        "--from. By its suffix: .npz a map file (as swarm map info reads); .ply the voxels with "
+        "E[C] > --threshold, with mu, sigma, entropy (bits) and expected_coverage per vertex "
+        "(--cubes: as cubes); .bt an OctoMap binary tree at the map's resolution: voxels with "
+        "sigma > --max-sigma unknown, the others occupied when E[C] > 0.5, else free. OctoMap "
+        "anchors voxels at the world origin: a map whose origin is not a multiple of its voxel "
+        "size is refused unless --align shift moves it (less than half a voxel per axis).",
     )
     _add_map_query_arguments(export)
-    export.add_argument("--out", type=Path, required=True, help="output file: *.npz or *.ply")
+    export.add_argument(
+        "--from", dest="source", type=Path, metavar="MAP.npz", help="read this map file, no server"
+    )
+    export.add_argument("--out", type=Path, required=True, help="output file: *.npz, *.ply or *.bt")
     export.add_argument("--threshold", type=float, default=0.5, help="PLY: E[C] above this (default 0.5)")
+    export.add_argument("--cubes", action="store_true", help="PLY: each voxel a cube (8 vertices, 6 faces)")
+    export.add_argument(
+        "--max-sigma",
+        type=float,
+        default=0.5,
+        help=".bt: voxels with a larger sigma are unknown (default 0.5)",
+    )
+    export.add_argument(
+        "--align",
+        choices=("refuse", "shift"),
+        default="refuse",
+        help=".bt: an origin off OctoMap's lattice is refused (default) or shifted onto it",
+    )
     export.set_defaults(run=_run_map_export)
+    imp = msub.add_parser(
+        "import",
+        help="turn an OctoMap .bt into a map.npz a mission can start from (prior_map:)",
+        description="Read an OctoMap binary tree (.bt) and write a coverage map file at the tree's "
+        "resolution over the box of its known nodes, pruned nodes expanded: occupied voxels get "
+        "the belief N(1, --sigma), free voxels N(0, --sigma), unknown voxels the uninformative "
+        "prior N(0.5, 10 sigma_s(max range)). Name the result as prior_map: in a mission file.",
+    )
+    imp.add_argument("bt", type=Path, help="OctoMap .bt file")
+    imp.add_argument("--out", type=Path, required=True, help="output map file (*.npz)")
+    imp.add_argument(
+        "--sigma",
+        type=float,
+        default=0.1,
+        help="belief standard deviation of known voxels, coverage units (default 0.1)",
+    )
+    imp.set_defaults(run=_run_map_import)
 
 
 def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
@@ -125,11 +163,31 @@ def _run_map_get(args: argparse.Namespace) -> int:
 
 
 def _run_map_export(args: argparse.Namespace) -> int:
+    from swarm.formats.map_export import export_coverage_map
+    from swarm.formats.map_file import MapFileError, load_map
     from swarm.protocol.map_client import MapClient, MapQueryError, export_map
 
+    options = {"cubes": args.cubes, "max_sigma": args.max_sigma, "align": args.align}
     try:
+        if args.source is not None:
+            print(export_coverage_map(args.out, load_map(args.source), args.threshold, **options))
+            return 0
         with MapClient.connect(args.connect, args.mission, args.timeout) as client:
-            print(export_map(client, args.out, args.threshold))
-    except (ConnectionError, MapQueryError, ValueError, OSError) as exc:
+            print(export_map(client, args.out, args.threshold, **options))
+    except (ConnectionError, MapQueryError, MapFileError, ValueError, OSError) as exc:
+        return fail(str(exc))
+    return 0
+
+
+def _run_map_import(args: argparse.Namespace) -> int:
+    from swarm.formats.octomap_file import OctomapFileError
+    from swarm.formats.octomap_map import import_bt
+
+    if args.out.suffix.lower() != ".npz":
+        return fail(f"{args.out}: the output must end in .npz")
+    try:
+        print(f"reading {args.bt} ...", flush=True)
+        print("wrote " + import_bt(args.bt, args.out, args.sigma))
+    except (OctomapFileError, ValueError, OSError) as exc:
         return fail(str(exc))
     return 0
