@@ -146,7 +146,9 @@ def test_write_run_folder(tmp_path):
         assert set(REQUIRED_KEYS) <= set(npz.files)
         assert npz["mu"].shape == GRID.shape and npz["expected_coverage"].dtype == np.float32
     assert (out / "config.yaml").read_text() == "mission: box\n"
-    for name in ("entropy.png", "top_view.png"):
+    slices = sorted((out / "slices").glob("band_*.png"))
+    assert [p.name for p in slices] == ["band_00_z0.00-0.40m.png", "band_01_z0.40-0.80m.png"]
+    for name in ("entropy.png", "top_view.png", "map_3d.png", *(f"slices/{p.name}" for p in slices)):
         image = cv2.imread(str(out / name))
         assert image is not None, name
         h, w = image.shape[:2]

@@ -32,7 +32,10 @@ def test_render_a_mission(tmp_path, capsys):
     plan = load_floor_plan(CONFIGS / "plans" / "lab.yaml")
     truth = Renderer(plan, RigConfig().camera()).cast(camera_pose(0.6, 1.0, 0.0, 0.4)).depth
     np.testing.assert_allclose(depth, truth, rtol=1e-6)  # stereo mode: the true depth
-    assert cv2.imread(str(tmp_path / "depth.png")).shape == (120, 160, 3)
+    picture = cv2.imread(str(tmp_path / "depth.png"))
+    assert picture.shape == (160, 160 + 120, 3)  # the depth, then the colour bar in metres
+    assert np.all(picture[:120, :160][np.isnan(depth)] == 0)  # no return: black
+    assert picture[:, 160:].std() > 20  # the bar is drawn
     assert "r1" in capsys.readouterr().out
 
 

@@ -189,7 +189,10 @@ def write_run_folder(
     mission_yaml_text: str,
     record: RunRecord,
 ) -> None:
-    """Write ``metrics.json``, ``map.npz``, ``config.yaml``, ``entropy.png`` and ``top_view.png``."""
+    """Write ``metrics.json``, ``map.npz``, ``config.yaml``, ``entropy.png``, ``top_view.png``,
+    ``map_3d.png`` and the slice stack ``slices/`` (:mod:`swarm.mission.map_pictures`)."""
+    from swarm.mission.map_pictures import plot_map_3d, plot_slices
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=2) + "\n", encoding="utf-8")
@@ -197,6 +200,8 @@ def write_run_folder(
     (out / "config.yaml").write_text(mission_yaml_text, encoding="utf-8")
     plot_entropy(out / "entropy.png", metrics)
     plot_top_view(out / "top_view.png", cmap, record)
+    plot_map_3d(out / "map_3d.png", cmap, record.trajectories)
+    plot_slices(out / "slices", cmap)
 
 
 def _jsonable(value: Any) -> Any:
