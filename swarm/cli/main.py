@@ -1,7 +1,7 @@
 """The ``swarm`` command line: a thin shell over the roles and the map core.
 
 Each command group's arguments sit in its own module beside this one (``ingest``, ``maps``,
-``bench``, ``sim``, ``roles``, ``study``, ``stereo``, ``replay``); this module only assembles them.
+``bench``, ``sim``, ``roles``, ``study``, ``stereo``, ``replay``, ``view``); this module only assembles them.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import math
 import sys
 
 from swarm import __version__
-from swarm.cli import bench, ingest, maps, replay, roles, sim, stereo, study
+from swarm.cli import bench, ingest, maps, replay, roles, sim, stereo, study, view
 from swarm.cli.common import endpoint_problem, fail, zenoh_message
 from swarm.formats.errors import InputError
 
@@ -34,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     stereo.register(sub)
     replay.register(sub)
     sim.register(sub)
+    view.register(sub)
     return parser
 
 

@@ -51,6 +51,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="SIM_S",
         help="fault injection: SIGKILL the coordinator at this sim time (agents must carry on alone)",
     )
+    run.add_argument(
+        "--view",
+        nargs="?",
+        const="window",
+        metavar="RUN.rrd",
+        help="follow the mission with swarm view (rerun, pip install '.[view]'): a viewer window, "
+        "or with a file name a recording to open later with `rerun RUN.rrd`",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(

@@ -50,6 +50,7 @@ class MissionOptions:
     quiet: bool = False
     coordination: str = "coordinator"  # or "none": each robot chooses alone on the shared map
     kill_coordinator_at_s: float | None = None  # fault injection: SIGKILL it at this sim time
+    view: str | None = None  # "window": swarm view beside the mission; a path: its .rrd recording
 
 
 @dataclass
@@ -206,6 +207,11 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         _wait_for_server(client, server)
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
+        if options.view is not None:
+            view_args = ["view", "--connect", endpoint, "--mission", name]
+            if options.view != "window":
+                view_args += ["--save", str(Path(options.view).resolve())]
+            services.append(_child(view_args, out / "view.log"))
         world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
         agents = [

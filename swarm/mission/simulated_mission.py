@@ -65,6 +65,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         quiet=args.quiet,
         coordination=coordination,
         kill_coordinator_at_s=args.kill_coordinator_at,
+        view=getattr(args, "view", None),
     )
     print(
         f"mission {mission.mission}: robots {', '.join(mission.robot_ids)}, strategy {args.strategy}, "
