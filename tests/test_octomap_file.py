@@ -121,7 +121,7 @@ def test_uncertain_voxels_are_unknown():
     assert leaves.occupied.tolist() == [True, False, False]  # E[C] = 0.5 is not above 0.5
 
 
-@pytest.mark.skipif(not SHARED_BT.exists(), reason="the bundled OctoMap sample data/octomap/geb079.bt is missing")
+@pytest.mark.skipif(not SHARED_BT.exists(), reason="data/octomap/geb079.bt is missing")
 def test_import_real_octomap_counts_match_octomaps_own():
     leaves = read_bt(SHARED_BT)
     tree = octomap.OcTree(str(SHARED_BT).encode())
