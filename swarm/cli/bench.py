@@ -1,4 +1,4 @@
-"""``swarm bench``: the benchmarks (fusion, entropy, agent frame, server)."""
+"""``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, server)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,11 @@ BUNDLED_SCAN = Path("data") / "octomap" / "scan.dat.bz2"
 DEFAULT_SCAN = next(
     (p for p in (BUNDLED_SCAN, Path(__file__).resolve().parents[2] / BUNDLED_SCAN) if p.exists()),
     BUNDLED_SCAN,
+)
+
+BUNDLED_BT = Path("data") / "octomap" / "geb079.bt"
+DEFAULT_BT = next(
+    (p for p in (BUNDLED_BT, Path(__file__).resolve().parents[2] / BUNDLED_BT) if p.exists()), BUNDLED_BT
 )
 
 
@@ -40,6 +45,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     fusion.add_argument("--voxel", type=float, default=0.1, help="voxel edge (default 0.1 m)")
     fusion.add_argument("--repeat", type=int, default=3, help="take the best of N runs (default 3)")
     fusion.set_defaults(run=_run_bench_fusion)
+    octo = bsub.add_parser(
+        "octomap",
+        help="read and write OctoMap .bt files, ours beside OctoMap's own",
+        description="Time reading a .bt (default: the bundled geb079.bt) and writing its voxels "
+        "back, with our own code and with OctoMap (octomap-python, pip install '.[bench]').",
+    )
+    octo.add_argument("--bt", type=Path, default=DEFAULT_BT, help=f"OctoMap file (default: {DEFAULT_BT})")
+    octo.add_argument("--repeat", type=int, default=3, help="take the best of N runs (default 3)")
+    octo.set_defaults(run=_run_bench_octomap)
     entropy = bsub.add_parser(
         "entropy",
         help="entropy of a 1,000,000-voxel map",
@@ -76,6 +90,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--period", type=float, default=0.25, help="paced latency: seconds between an agent's deltas"
     )
     server.set_defaults(run=_run_bench_server)
+
+
+def _run_bench_octomap(args: argparse.Namespace) -> int:
+    from swarm.bench import octomap_io
+    from swarm.formats.octomap_file import OctomapFileError
+
+    try:
+        print(octomap_io.format_table(octomap_io.run(args.bt, args.repeat)))
+    except (OctomapFileError, OSError) as exc:
+        return fail(str(exc))
+    return 0
 
 
 def _run_bench_fusion(args: argparse.Namespace) -> int:
