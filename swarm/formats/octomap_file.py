@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.formats.errors import InputError
+
 TREE_DEPTH = 16
 #: key of the voxel whose min corner is the world origin
 KEY_ORIGIN = 1 << (TREE_DEPTH - 1)
@@ -32,7 +34,7 @@ MAGIC = b"# Octomap OcTree binary file"
 FREE, OCCUPIED, INNER = 1, 2, 3  # the 2-bit child codes
 
 
-class OctomapFileError(ValueError):
+class OctomapFileError(InputError):
     """A ``.bt`` file that cannot be read or a tree that cannot be written; names the file."""
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.formats.errors import InputError
 from swarm.map.coverage_map import CoverageMap, prior_information
 from swarm.map.delta import Delta
 from swarm.map.grid import Grid
@@ -33,7 +34,7 @@ PRIOR_SOURCE = "prior"
 CHUNK_VOXELS = 250_000
 
 
-class PriorMapError(ValueError):
+class PriorMapError(InputError):
     """A previous map that cannot be used; names the file."""
 
 
