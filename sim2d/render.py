@@ -9,28 +9,45 @@ r = (h - c_z) / m when it enters above it and comes down before r_out; otherwise
 the floor at r = -c_z / m (or nothing). All distances are analytic: no marching.
 
 For a level camera (no pitch, no roll) every image column is one floor-plane ray, so the
-clipping costs columns x quads and only the rows differ in slope; crossings that a nearer
-crossing hides from every row are pruned before the per-pixel step. A pitched camera casts
-one floor-plane ray per pixel.
+clipping costs columns x quads and only the rows differ in slope; each pixel walks its
+column's crossings nearest first and stops at the first that cannot beat its best hit. A
+pitched camera casts one floor-plane ray per pixel.
 
 Images are grey (uint8): walls, box sides and tops and the floor carry a procedural
 multi-scale texture (filtered noise, mip-mapped so it does not alias) under a fixed
 directional light, so both cameras of a pair see the same surface pattern and block
 matching (OpenCV SGBM) works. Pixels with no return are flat dark grey.
+
+The per-pixel work (nearest hit, shading, texture lookup) is compiled with Numba
+(``sim2d.render_kernels``, ``sim2d.texture_sampling``); this module sets up the rays and the
+culling of quads by azimuth, in numpy.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from sim2d.render_kernels import (
+    FACE_FLOOR,
+    FACE_NONE,
+    FACE_SIDE,
+    FACE_TOP,
+    cast_rays,
+    grey_levels,
+    shade_pixels,
+)
+from sim2d.texture_sampling import TexturePyramid, texture_pyramid
 from swarm.formats.floor_plan import FloorPlan
 from swarm.protocol.wire import Camera, Pose
 
-FACE_NONE, FACE_FLOOR, FACE_SIDE, FACE_TOP = 0, 1, 2, 3
+__all__ = [
+    "FACE_FLOOR", "FACE_NONE", "FACE_SIDE", "FACE_TOP", "SKY_GREY", "Hits", "Renderer", "TexturePyramid",
+    "camera_pose", "right_camera_pose", "vertical_fov",
+]  # fmt: skip
+
 SKY_GREY = 30.0
 _AMBIENT = 0.55
 _LIGHT = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])
@@ -56,6 +73,25 @@ class Hits:
     footprint: np.ndarray | None = None
 
 
+@dataclass
+class _Rays:
+    """Floor-plane rays of one view and their nearest hits.
+
+    ``unit`` (R, 2) ray directions on the floor, ``norm_h`` (R,) |d_xy| of the pixel rays
+    (optical z = 1), ``slope`` (rows, R); a level camera has one ray per column (rows = H),
+    a pitched one a ray per pixel (rows = 1). Hits as in ``Hits``, shaped (rows, R).
+    """
+
+    origin: np.ndarray
+    unit: np.ndarray
+    norm_h: np.ndarray
+    slope: np.ndarray
+    distance: np.ndarray
+    face: np.ndarray
+    obstacle: np.ndarray
+    edge: np.ndarray
+
+
 def camera_pose(x: float, y: float, yaw: float, height: float, pitch: float = 0.0) -> Pose:
     """The pose of a camera on a robot at (x, y, yaw) and ``height``, tilted by ``pitch``."""
     return Pose((float(x), float(y), float(height)), (float(yaw), float(pitch), 0.0))
@@ -77,7 +113,7 @@ class Renderer:
         self.plan = plan
         self.camera = camera
         self.max_distance = float(max_distance)
-        self.texture = _texture_pyramid(seed)
+        self.texture = texture_pyramid(seed)
         u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
         self._optical = np.stack(
             [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones(u.shape)], axis=-1
@@ -85,6 +121,7 @@ class Renderer:
         self._edge_a, self._edge_n = plan.edge_normals()
         self._centres = plan.quads.mean(axis=1)
         self._radii = np.linalg.norm(plan.quads - self._centres[:, None], axis=-1).max(axis=1)
+        self._heights = np.ascontiguousarray(plan.heights, dtype=np.float64)
         # Each wall segment or box gets its own albedo and texture offset; the cells of a
         # ROS map share one, so that a wall made of many cells looks like one surface.
         rng = np.random.default_rng([seed, 7])
@@ -93,67 +130,31 @@ class Renderer:
         cells = np.array([kind == "cell" for kind in plan.kinds], dtype=bool)
         self._albedo[cells] = 0.85
         self._offsets[cells] = 0.0
+        # Lambert light on each quad side (normal n, light l): ambient + (1 - ambient) max(0, n . l).
+        n = self._edge_n.reshape(-1, 2)
+        side = n[:, 0] * _LIGHT[0] + n[:, 1] * _LIGHT[1]
+        self._side_light = (_AMBIENT + (1 - _AMBIENT) * np.maximum(0.0, side)).reshape(plan.count, 4)
+        self._flat_light = _AMBIENT + (1 - _AMBIENT) * _LIGHT[2]
 
     # -- geometry ----------------------------------------------------------------------
     def cast(self, pose: Pose, surface: bool = True) -> Hits:
         """Cast every pixel ray of a camera at ``pose`` (``surface``: also points, footprints)."""
-        h_img, w_img = self.camera.height, self.camera.width
-        dirs = self._optical @ pose.optical_rotation().T  # (H, W, 3) world, optical z = 1
-        level = abs(pose.ypr[1]) < 1e-12 and abs(pose.ypr[2]) < 1e-12
-        if not level:
-            dirs = dirs.reshape(1, -1, 3)
-        ray_xy = dirs[0, :, :2]
-        norm_h = np.maximum(np.linalg.norm(ray_xy, axis=-1), 1e-12)  # (R,)
-        unit = ray_xy / norm_h[:, None]
-        slope = dirs[..., 2] / norm_h  # (rows, R)
-        origin = np.asarray(pose.xyz, dtype=np.float64)
-        cam_z = origin[2]
-
-        # Sort the floor-plane rays by azimuth; each block of neighbours only meets the quads
-        # inside its narrow wedge.
-        mid = math.atan2(unit[:, 1].mean(), unit[:, 0].mean())
-        angle = _wrap(np.arctan2(unit[:, 1], unit[:, 0]) - mid)
-        perm = np.argsort(angle, kind="stable")
-        angle, s_unit, s_slope = angle[perm], unit[perm], slope[:, perm]
-        q_lo, q_hi, in_range = self._quad_wedges(origin, mid)
-
-        distance = np.where(s_slope < 0, -cam_z / np.where(s_slope < 0, s_slope, -1.0), np.inf)
-        face = np.where(s_slope < 0, FACE_FLOOR, FACE_NONE).astype(np.int8)
-        obstacle = np.full(s_slope.shape, -1, dtype=np.int32)
-        edge = np.full(s_slope.shape, -1, dtype=np.int8)
-        block = max(16, 8192 // s_slope.shape[0]) if level else 1024
-        for r0 in range(0, len(angle), block):
-            rays = slice(r0, r0 + block)
-            a_lo, a_hi = angle[rays][0] - 1e-9, angle[rays][-1] + 1e-9
-            overlap = np.zeros_like(in_range)
-            for shift in (-2 * np.pi, 0.0, 2 * np.pi):
-                overlap |= (q_lo + shift <= a_hi) & (q_hi + shift >= a_lo)
-            quads = np.flatnonzero(in_range & overlap)
-            if quads.size:
-                self._hit_quads(
-                    origin[:2], cam_z, s_unit[rays], s_slope[:, rays], quads, level,
-                    distance[:, rays], face[:, rays], obstacle[:, rays], edge[:, rays],
-                )  # fmt: skip
-        unsort = np.argsort(perm)
-        distance, face = distance[:, unsort], face[:, unsort]
-        obstacle, edge = obstacle[:, unsort], edge[:, unsort]
-        far = distance > self.max_distance
-        distance[far], face[far], obstacle[far], edge[far] = np.inf, FACE_NONE, -1, -1
-
+        rays = self._trace(pose)
+        distance, face, obstacle, edge = rays.distance, rays.face, rays.obstacle, rays.edge
         hit = np.isfinite(distance)
         r = np.where(hit, distance, 0.0)
-        shape = (h_img, w_img)
+        shape = (self.camera.height, self.camera.width)
         hits = Hits(
             distance=distance.reshape(shape),
-            depth=np.where(hit, r / norm_h, np.nan).reshape(shape),
+            depth=np.where(hit, r / rays.norm_h, np.nan).reshape(shape),
             face=face.reshape(shape),
             obstacle=obstacle.reshape(shape),
             edge=edge.reshape(shape),
         )
         if surface:
+            unit, slope, origin = rays.unit, rays.slope, rays.origin
             points = np.stack(
-                [origin[0] + r * unit[:, 0], origin[1] + r * unit[:, 1], cam_z + r * slope],
-                axis=-1,
+                [origin[0] + r * unit[:, 0], origin[1] + r * unit[:, 1], origin[2] + r * slope], axis=-1
             )
             # Pixel footprint on the surface: range / f, widened at grazing incidence.
             cos_inc = self._incidence(face, obstacle, edge, unit, slope)
@@ -162,6 +163,41 @@ class Renderer:
             hits.points = points.reshape(*shape, 3)
             hits.footprint = footprint.reshape(shape)
         return hits
+
+    def _trace(self, pose: Pose) -> _Rays:
+        """The floor-plane rays of a camera at ``pose`` and the nearest hit of each pixel."""
+        rotation = pose.optical_rotation()
+        yaw_only = pose.ypr[1] == 0 and pose.ypr[2] == 0
+        level = abs(pose.ypr[1]) < 1e-12 and abs(pose.ypr[2]) < 1e-12
+        if yaw_only:  # d_xy is the same down a column and d_z the same along a row
+            ray_xy = (self._optical[0] @ rotation.T)[:, :2]
+            dirs_z = (self._optical[:, :1] @ rotation.T)[..., 2]  # (H, 1)
+        else:
+            dirs = self._optical @ rotation.T  # (H, W, 3) world, optical z = 1
+            if not level:
+                dirs = dirs.reshape(1, -1, 3)
+            ray_xy, dirs_z = dirs[0, :, :2], dirs[..., 2]
+        norm_h = np.maximum(np.linalg.norm(ray_xy, axis=-1), 1e-12)  # (R,)
+        unit = ray_xy / norm_h[:, None]
+        slope = dirs_z / norm_h  # (rows, R)
+        origin = np.asarray(pose.xyz, dtype=np.float64)
+
+        # Sort the floor-plane rays by azimuth; each block of neighbours only meets the quads
+        # inside its narrow wedge.
+        mid = math.atan2(unit[:, 1].mean(), unit[:, 0].mean())
+        angle = _wrap(np.arctan2(unit[:, 1], unit[:, 0]) - mid)
+        perm = np.argsort(angle, kind="stable")
+        q_lo, q_hi, in_range = self._quad_wedges(origin, mid)
+        block = max(16, 8192 // slope.shape[0]) if level else 1024
+        distance = np.empty(slope.shape)
+        face = np.empty(slope.shape, dtype=np.int8)
+        obstacle = np.empty(slope.shape, dtype=np.int32)
+        edge = np.empty(slope.shape, dtype=np.int8)
+        cast_rays(
+            origin[:2], origin[2], unit, slope, perm, angle[perm], block, q_lo, q_hi, in_range,
+            self._edge_a, self._edge_n, self._heights, self.max_distance, distance, face, obstacle, edge,
+        )  # fmt: skip
+        return _Rays(origin, unit, norm_h, slope, distance, face, obstacle, edge)
 
     def _quad_wedges(self, origin: np.ndarray, mid: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Azimuth interval (relative to ``mid``) each quad covers from ``origin``, and range mask.
@@ -182,51 +218,6 @@ class Renderer:
         in_range = np.linalg.norm(to_centre, axis=1) - self._radii < self.max_distance
         return lo, hi, in_range
 
-    def _hit_quads(
-        self,
-        origin: np.ndarray,
-        cam_z: float,
-        unit: np.ndarray,
-        slope: np.ndarray,
-        quads: np.ndarray,
-        level: bool,
-        distance: np.ndarray,
-        face: np.ndarray,
-        obstacle: np.ndarray,
-        edge: np.ndarray,
-    ) -> None:
-        """Nearest obstacle hit of rays ``unit`` (R, 2) with slopes (rows, R); updates in place."""
-        r_in, r_out, enter, valid = _clip_rays(origin, unit, self._edge_a[quads], self._edge_n[quads])
-        height = self.plan.heights[quads][None, :]
-        valid &= r_in < self.max_distance
-        if level:
-            valid &= ~_hidden(r_in, r_out, height, valid, cam_z)
-        keep = valid.sum(axis=1)
-        layers = int(keep.max()) if keep.size else 0
-        if layers == 0:
-            return
-        order = np.argsort(~valid, axis=1, kind="stable")[:, :layers]  # (R, L)
-        take = functools.partial(np.take_along_axis, indices=order, axis=1)
-        r_in, r_out, enter, valid = take(r_in), take(r_out), take(enter), take(valid)
-        h = self.plan.heights[quads][order]
-        m = slope[..., None]  # (rows, R, 1)
-        z_in = cam_z + m * r_in
-        side = valid & (z_in >= 0) & (z_in <= h)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r_top = np.where(m < 0, (h - cam_z) / m, np.inf)
-        top = valid & (z_in > h) & (m < 0) & (r_top <= r_out)
-        cand = np.where(side, r_in, np.where(top, r_top, np.inf))  # (rows, R, L)
-        best = np.argmin(cand, axis=-1)
-        best_r = np.take_along_axis(cand, best[..., None], axis=-1)[..., 0]
-        better = best_r < distance
-        rows_idx, ray_idx = np.nonzero(better)
-        layer = best[rows_idx, ray_idx]
-        distance[better] = best_r[better]
-        is_side = side[rows_idx, ray_idx, layer]
-        face[better] = np.where(is_side, FACE_SIDE, FACE_TOP)
-        obstacle[better] = quads[order[ray_idx, layer]]
-        edge[better] = np.where(is_side, enter[ray_idx, layer], -1)
-
     def _incidence(self, face, obstacle, edge, unit, slope) -> np.ndarray:
         """|cos| of the angle between each pixel ray and the surface normal it hits."""
         norm = np.sqrt(1 + slope**2)
@@ -241,45 +232,29 @@ class Renderer:
         return cos
 
     # -- images ------------------------------------------------------------------------
-    def shade(self, hits: Hits) -> np.ndarray:
-        """Grey levels (float, 0-255) of what ``hits`` sees: texture x albedo x light."""
-        face, obs, edge = hits.face, hits.obstacle, hits.edge
-        p = hits.points
-        su = np.zeros(face.shape)
-        sv = np.zeros(face.shape)
-        albedo = np.ones(face.shape)
-        light = np.full(face.shape, _AMBIENT + (1 - _AMBIENT) * _LIGHT[2])
-
-        floor = face == FACE_FLOOR
-        su[floor], sv[floor] = p[floor, 0] * 0.8, p[floor, 1] * 0.8
-        albedo[floor] = 0.8
-
-        top = face == FACE_TOP
-        off = self._offsets[obs[top], 4]
-        su[top], sv[top] = p[top, 0] + off[:, 0], p[top, 1] + off[:, 1]
-        albedo[top] = self._albedo[obs[top]]
-
-        side = face == FACE_SIDE
-        n = self._edge_n[obs[side], edge[side]]
-        along = np.stack([-n[:, 1], n[:, 0]], axis=-1)
-        off = self._offsets[obs[side], edge[side]]
-        su[side] = np.sum(p[side, :2] * along, axis=-1) + off[:, 0]
-        sv[side] = p[side, 2] + off[:, 1]
-        albedo[side] = self._albedo[obs[side]]
-        light[side] = _AMBIENT + (1 - _AMBIENT) * np.maximum(0.0, n @ _LIGHT[:2])
-
-        tex = self.texture.sample(su, sv, hits.footprint)
-        grey = 255.0 * albedo * light * (0.25 + 0.75 * tex)
-        grey[face == FACE_NONE] = SKY_GREY
-        return grey
+    def grey(self, pose: Pose) -> np.ndarray:
+        """Grey levels (float64 H x W, 0-255) seen from ``pose``: texture x albedo x light."""
+        rays = self._trace(pose)
+        grey = np.empty(rays.slope.shape)
+        tex = self.texture
+        shade_pixels(
+            rays.distance, rays.face, rays.obstacle, rays.edge, rays.unit, rays.slope, rays.origin[:2],
+            rays.origin[2], self.camera.fx, self._edge_n, self._albedo, self._offsets, self._side_light,
+            self._flat_light, SKY_GREY, tex.texels, tex.starts, tex.sizes, tex.shrink, tex.texel, grey,
+        )  # fmt: skip
+        return grey.reshape(self.camera.height, self.camera.width)
 
     def image(self, pose: Pose, noise_std: float = 0.0, rng=None) -> np.ndarray:
         """One grey image (uint8 H x W) seen from ``pose``, with optional Gaussian noise."""
-        grey = self.shade(self.cast(pose))
+        grey = self.grey(pose)
         if noise_std > 0:
             rng = rng if rng is not None else np.random.default_rng()
-            grey = grey + rng.normal(0.0, noise_std, grey.shape)
-        return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+            noise = rng.normal(0.0, noise_std, grey.shape)
+        else:
+            noise = np.zeros(grey.shape)
+        image = np.empty(grey.shape, dtype=np.uint8)
+        grey_levels(grey, noise, image)
+        return image
 
     def stereo_pair(self, pose: Pose, noise_std: float = 0.0, rng=None) -> tuple[np.ndarray, np.ndarray]:
         """Rectified (left, right) uint8 images; ``pose`` is the left camera's."""
@@ -306,116 +281,6 @@ class Renderer:
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
     return (angle + np.pi) % (2 * np.pi) - np.pi
-
-
-def _clip_rays(
-    origin: np.ndarray, unit: np.ndarray, edge_a: np.ndarray, edge_n: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Cyrus-Beck: distances where rays (R, 2) from ``origin`` enter and leave quads (Q, 4, 2).
-
-    Returns r_in, r_out (R, Q), the entering edge (R, Q) and whether the ray crosses the
-    quad ahead of the origin. A quad side is ``n . (p - a) <= 0``.
-    """
-    num = np.sum(edge_n * (origin - edge_a), axis=-1)  # (Q, 4): > 0 outside that side
-    den = np.einsum("rk,qek->rqe", unit, edge_n)  # (R, Q, 4)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = -num / den
-    t_enter = np.where(den < 0, t, -np.inf)
-    t_exit = np.where(den > 0, t, np.inf)
-    enter = np.argmax(t_enter, axis=-1).astype(np.int8)
-    r_in = np.take_along_axis(t_enter, enter[..., None].astype(np.int64), axis=-1)[..., 0]
-    r_out = t_exit.min(axis=-1)
-    parallel_out = np.any((den == 0) & (num > 0), axis=-1)
-    valid = (r_in < r_out) & (r_out > 0) & ~parallel_out
-    return np.maximum(r_in, 0.0), r_out, enter, valid
-
-
-def _hidden(
-    r_in: np.ndarray, r_out: np.ndarray, height: np.ndarray, valid: np.ndarray, cam_z: float
-) -> np.ndarray:
-    """Crossings (R, Q) that no pixel of their column can see.
-
-    Every pixel whose slope is at most g_j = max((h_j - c_z) / r_in_j, (h_j - c_z) / r_out_j)
-    is stopped (by crossing j or the floor before it) no farther than r_out_j. So crossing k
-    is hidden when some crossing j with r_out_j <= r_in_k has g_j >= g_k. Computed with one
-    sort per column: the running maximum of g over exits, read at each entry.
-    """
-    n_rays, n_q = r_in.shape
-    with np.errstate(divide="ignore", invalid="ignore"):
-        g = np.maximum((height - cam_z) / r_in, (height - cam_z) / r_out)
-    g = np.where(valid, np.nan_to_num(g, nan=np.inf, posinf=np.inf), -np.inf)
-    # Events: exits (value g, at r_out) sorted before entries at the same distance.
-    pos = np.concatenate([np.where(valid, r_out, np.inf), np.where(valid, r_in, np.inf)], axis=1)
-    kind = np.concatenate([np.zeros((n_rays, n_q)), np.ones((n_rays, n_q))], axis=1)
-    order = np.lexsort((kind, pos), axis=1)
-    exit_g = np.concatenate([g, np.full((n_rays, n_q), -np.inf)], axis=1)
-    running = np.maximum.accumulate(np.take_along_axis(exit_g, order, axis=1), axis=1)
-    seen_before = np.empty_like(running)
-    np.put_along_axis(seen_before, order, running, axis=1)
-    return valid & (seen_before[:, n_q:] >= g)
-
-
-# -- texture -----------------------------------------------------------------------------
-
-
-class TexturePyramid:
-    """A periodic square grey texture tile (values 0-1, side a power of two) with mip levels.
-
-    All levels live in one flat array so that a lookup is a few vectorised gathers, each
-    pixel at its own level. Coordinates are in metres; ``texel`` is the finest texel's size.
-    """
-
-    def __init__(self, tile: np.ndarray, texel: float):
-        self.texel = texel
-        levels = [tile.astype(np.float32)]
-        while levels[-1].shape[0] > 1:
-            t = levels[-1]
-            levels.append(0.25 * (t[::2, ::2] + t[1::2, ::2] + t[::2, 1::2] + t[1::2, 1::2]))
-        self.count = len(levels)
-        self.sizes = np.array([lvl.shape[0] for lvl in levels], dtype=np.int64)
-        self.starts = np.concatenate([[0], np.cumsum(self.sizes**2)[:-1]]).astype(np.int64)
-        self.texels = np.concatenate([lvl.ravel() for lvl in levels])
-
-    def sample(self, u: np.ndarray, v: np.ndarray, footprint: np.ndarray) -> np.ndarray:
-        """Trilinear lookup at (u, v) metres for pixels covering ``footprint`` metres."""
-        lod = np.clip(np.log2(np.maximum(footprint, 1e-9) / self.texel), 0, self.count - 1)
-        fine = np.floor(lod).astype(np.int64)
-        coarse = np.minimum(fine + 1, self.count - 1)
-        a = self._bilinear(fine, u, v)
-        return a + (self._bilinear(coarse, u, v) - a) * (lod - fine)
-
-    def _bilinear(self, level: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        n = self.sizes[level]
-        scale = self.texel * np.exp2(level)
-        x = u / scale - 0.5
-        y = v / scale - 0.5
-        x0, y0 = np.floor(x), np.floor(y)
-        fx, fy = x - x0, y - y0
-        wrap = n - 1
-        i0 = x0.astype(np.int64) & wrap
-        j0 = y0.astype(np.int64) & wrap
-        i1, j1 = (i0 + 1) & wrap, (j0 + 1) & wrap
-        row0 = self.starts[level] + j0 * n
-        row1 = self.starts[level] + j1 * n
-        t = self.texels
-        top = t[row0 + i0] * (1 - fx) + t[row0 + i1] * fx
-        bottom = t[row1 + i0] * (1 - fx) + t[row1 + i1] * fx
-        return top * (1 - fy) + bottom * fy
-
-
-@functools.lru_cache(maxsize=4)
-def _texture_pyramid(seed: int, size: int = 1024, texel: float = 0.004) -> TexturePyramid:
-    """Band-limited 1/f noise on a periodic tile, squashed to 0-1."""
-    rng = np.random.default_rng([seed, 1])
-    freq = np.fft.fftfreq(size)
-    radius = np.hypot(freq[:, None], freq[None, :])
-    amplitude = np.where(radius > 0, 1.0 / np.maximum(radius, 1.0 / size) ** 0.9, 0.0)
-    amplitude *= np.exp(-((radius / 0.35) ** 4))  # gentle roll-off near Nyquist
-    spectrum = np.fft.fft2(rng.standard_normal((size, size))) * amplitude
-    tile = np.real(np.fft.ifft2(spectrum))
-    tile = (tile - tile.mean()) / tile.std()
-    tile = 0.5 + 0.5 * np.tanh(0.8 * tile)
-    return TexturePyramid(tile, texel)
 
 
 def vertical_fov(camera: Camera) -> float:

@@ -1,0 +1,183 @@
+"""Compiled per-pixel steps of the renderer (Numba): nearest hit of each ray, then its grey level.
+
+``cast_rays`` takes floor-plane rays sorted by azimuth (one per image column for a level
+camera, one per pixel otherwise), each with the slopes of its pixels. For each block of
+neighbouring rays it keeps the quads whose azimuth wedge meets the block's; for each ray it
+clips the ray against those quads (Cyrus-Beck) once and sorts the crossings by entry
+distance; for each pixel of the ray it walks the crossings nearest first and stops as soon
+as no later crossing can be nearer than the best hit found (a hit is never nearer than its
+crossing's entry). Ties between quads go to the lower quad index, as numpy's ``argmin``
+over the quads in index order would; a quad hit must be strictly nearer than the floor.
+
+``shade_pixels`` turns each pixel's hit into a grey level: texture x albedo x light, the
+texture sampled trilinearly for the pixel's footprint on the surface.
+
+Every step is scalar IEEE arithmetic in the same order as the vectorised numpy renderer it
+replaced (kept in the tests as the oracle), so distances, faces and images are the same.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from sim2d.texture_sampling import trilinear
+
+FACE_NONE, FACE_FLOOR, FACE_SIDE, FACE_TOP = 0, 1, 2, 3
+TWO_PI = 2 * np.pi
+CHUNK = 4096  # pixels per parallel work item of ``shade_pixels``
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def cast_rays(
+    origin, cam_z, unit, slope, perm, angle, block, q_lo, q_hi, in_range,
+    edge_a, edge_n, heights, max_distance, distance, face, obstacle, edge,
+):  # fmt: skip
+    """Nearest hit of every pixel; writes ``distance``, ``face``, ``obstacle``, ``edge`` (rows, R).
+
+    ``origin`` (2,) and ``cam_z``: camera (m); ``unit`` (R, 2): floor-plane ray directions;
+    ``slope`` (rows, R): d_z / |d_xy| of each pixel; ``perm``: the rays in azimuth order and
+    ``angle`` their sorted azimuths (rad, relative to the view's middle); ``block``: rays per
+    culling block; ``q_lo``, ``q_hi``, ``in_range`` (Q,): each quad's azimuth interval and
+    whether it is within ``max_distance``; ``edge_a``, ``edge_n`` (Q, 4, 2): a point and the
+    outward normal of each quad side; ``heights`` (Q,) m.
+    """
+    n_rays = len(perm)
+    n_rows = slope.shape[0]
+    n_quads = len(heights)
+    ox, oy = origin[0], origin[1]
+    for b in numba.prange((n_rays + block - 1) // block):
+        r0 = b * block
+        r1 = min(r0 + block, n_rays)
+        cand = np.empty(n_quads, dtype=np.int64)
+        c_in = np.empty(n_quads)
+        c_out = np.empty(n_quads)
+        c_h = np.empty(n_quads)
+        c_quad = np.empty(n_quads, dtype=np.int64)
+        c_enter = np.empty(n_quads, dtype=np.int64)
+        a_lo, a_hi = angle[r0] - 1e-9, angle[r1 - 1] + 1e-9
+        n_cand = 0
+        for q in range(n_quads):
+            if not in_range[q]:
+                continue
+            for shift in (-TWO_PI, 0.0, TWO_PI):
+                if q_lo[q] + shift <= a_hi and q_hi[q] + shift >= a_lo:
+                    cand[n_cand] = q
+                    n_cand += 1
+                    break
+        for j in range(r0, r1):
+            ray = perm[j]
+            u0, u1 = unit[ray, 0], unit[ray, 1]
+            # Cyrus-Beck: crossings of this ray, kept sorted by entry distance (stable).
+            n_cross = 0
+            for k in range(n_cand):
+                q = cand[k]
+                r_in, enter, r_out, parallel_out = -np.inf, 0, np.inf, False
+                for e in range(4):
+                    nx, ny = edge_n[q, e, 0], edge_n[q, e, 1]
+                    num = nx * (ox - edge_a[q, e, 0]) + ny * (oy - edge_a[q, e, 1])
+                    den = u0 * nx + u1 * ny
+                    if den < 0:
+                        t = -num / den
+                        if t > r_in:
+                            r_in, enter = t, e
+                    elif den > 0:
+                        r_out = min(r_out, -num / den)
+                    elif den == 0 and num > 0:
+                        parallel_out = True
+                if not (r_in < r_out and r_out > 0) or parallel_out:
+                    continue
+                r_in = max(r_in, 0.0)
+                if not r_in < max_distance:
+                    continue
+                at = n_cross
+                while at > 0 and c_in[at - 1] > r_in:
+                    c_in[at], c_out[at], c_h[at] = c_in[at - 1], c_out[at - 1], c_h[at - 1]
+                    c_quad[at], c_enter[at] = c_quad[at - 1], c_enter[at - 1]
+                    at -= 1
+                c_in[at], c_out[at], c_h[at], c_quad[at], c_enter[at] = r_in, r_out, heights[q], q, enter
+                n_cross += 1
+            for row in range(n_rows):
+                m = slope[row, ray]
+                floor_r = -cam_z / m if m < 0 else np.inf
+                best_r, best_c, best_side = np.inf, -1, False
+                for c in range(n_cross):
+                    r_in = c_in[c]
+                    if r_in > best_r or r_in >= floor_r:
+                        break  # every later hit is at least this far
+                    h = c_h[c]
+                    z_in = cam_z + m * r_in
+                    if z_in >= 0 and z_in <= h:
+                        hit_r, side = r_in, True
+                    elif z_in > h and m < 0 and (h - cam_z) / m <= c_out[c]:
+                        hit_r, side = (h - cam_z) / m, False
+                    else:
+                        continue
+                    if hit_r < best_r or (hit_r == best_r and c_quad[c] < c_quad[best_c]):
+                        best_r, best_c, best_side = hit_r, c, side
+                if best_c >= 0 and best_r < floor_r:
+                    r, f, o = best_r, FACE_SIDE if best_side else FACE_TOP, c_quad[best_c]
+                    s = c_enter[best_c] if best_side else -1
+                elif m < 0:
+                    r, f, o, s = floor_r, FACE_FLOOR, -1, -1
+                else:
+                    r, f, o, s = np.inf, FACE_NONE, -1, -1
+                if r > max_distance:
+                    r, f, o, s = np.inf, FACE_NONE, -1, -1
+                distance[row, ray], face[row, ray], obstacle[row, ray], edge[row, ray] = r, f, o, s
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def shade_pixels(
+    distance, face, obstacle, edge, unit, slope, origin, cam_z, fx, edge_n, albedo, offsets,
+    side_light, flat_light, sky, texels, starts, sizes, shrink, texel, grey,
+):  # fmt: skip
+    """Grey level (0-255) of every pixel (rows, R) from its hit; writes ``grey``.
+
+    Hits and rays as ``cast_rays`` gives them; ``fx``: focal length (px); per quad
+    ``albedo`` (Q,), texture ``offsets`` (Q, 5, 2) m (4 sides, top) and ``side_light``
+    (Q, 4); ``flat_light``: light on the floor and tops; ``sky``: grey of no return; the
+    rest: a ``TexturePyramid``'s arrays.
+    """
+    ox, oy = origin[0], origin[1]
+    n_rays = distance.shape[1]
+    n_pixels = distance.size
+    for chunk in numba.prange((n_pixels + CHUNK - 1) // CHUNK):
+        for pixel in range(chunk * CHUNK, min((chunk + 1) * CHUNK, n_pixels)):
+            row, ray = pixel // n_rays, pixel % n_rays
+            f = face[row, ray]
+            if f == FACE_NONE:
+                grey[row, ray] = sky
+                continue
+            r, m = distance[row, ray], slope[row, ray]
+            u0, u1 = unit[ray, 0], unit[ray, 1]
+            px, py, pz = ox + r * u0, oy + r * u1, cam_z + r * m
+            norm = math.sqrt(1 + m * m)
+            o = obstacle[row, ray]
+            if f == FACE_SIDE:
+                e = edge[row, ray]
+                nx, ny = edge_n[o, e, 0], edge_n[o, e, 1]
+                cos_inc = abs(nx * u0 + ny * u1) / norm
+                su = px * -ny + py * nx + offsets[o, e, 0]
+                sv = pz + offsets[o, e, 1]
+                alb, light = albedo[o], side_light[o, e]
+            else:
+                cos_inc = abs(m) / norm
+                light = flat_light
+                if f == FACE_FLOOR:
+                    su, sv, alb = px * 0.8, py * 0.8, 0.8
+                else:
+                    su, sv, alb = px + offsets[o, 4, 0], py + offsets[o, 4, 1], albedo[o]
+            footprint = r * norm / fx / max(cos_inc, 0.2)
+            tex = trilinear(texels, starts, sizes, shrink, texel, su, sv, footprint)
+            grey[row, ray] = 255.0 * alb * light * (0.25 + 0.75 * tex)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def grey_levels(grey, noise, out):
+    """``out`` (uint8) = clip(rint(grey + noise), 0, 255), rounding half to even; same shapes."""
+    flat_grey, flat_noise, flat_out = grey.ravel(), noise.ravel(), out.ravel()
+    for k in numba.prange(len(flat_out)):
+        flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k] + flat_noise[k]), 0.0), 255.0))

@@ -1,0 +1,144 @@
+"""The renderer's procedural surface texture: a mip-mapped periodic noise tile and its lookup.
+
+A square tile of band-limited 1/f noise (values 0-1, side a power of two) and its box-filtered
+mip levels live in one flat float32 array, each level stored in 4 x 4 texel blocks (64 bytes,
+one cache line) so that the four texels of a bilinear lookup, and those of the next image
+row, are mostly in one line. A pixel covering ``footprint`` metres of surface
+reads the level of detail lod = log2(footprint / texel), clipped to the pyramid, and blends
+bilinear lookups of the two levels around it (trilinear filtering), so distant surfaces do
+not alias. Lookups are compiled with Numba; each is one pixel's worth of scalar arithmetic,
+done in the same order as numpy would, so results do not depend on how pixels are batched.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numba
+import numpy as np
+
+BLOCK = 4  # texels per side of a storage block (``_offset`` assumes 4)
+
+
+class TexturePyramid:
+    """A periodic square grey texture tile (values 0-1) with its mip levels, in metres.
+
+    ``texel`` is the finest texel's size (m). ``texels`` holds every level, level k (side
+    ``sizes[k]``, texel ``texel`` / ``shrink[k]`` m) from ``starts[k]``, in 4 x 4 blocks (row-major blocks
+    of row-major texels; levels smaller than 4 x 4 are plain row-major): see ``level``.
+    """
+
+    def __init__(self, tile: np.ndarray, texel: float):
+        if tile.ndim != 2 or tile.shape[0] != tile.shape[1] or tile.shape[0] & (tile.shape[0] - 1):
+            raise ValueError(f"texture tile: must be square with a power-of-two side (got {tile.shape})")
+        self.texel = texel
+        levels = [tile.astype(np.float32)]
+        while levels[-1].shape[0] > 1:
+            t = levels[-1]
+            levels.append(0.25 * (t[::2, ::2] + t[1::2, ::2] + t[::2, 1::2] + t[1::2, 1::2]))
+        self.count = len(levels)
+        self.sizes = np.array([lvl.shape[0] for lvl in levels], dtype=np.int64)
+        self.starts = np.concatenate([[0], np.cumsum(self.sizes**2)[:-1]]).astype(np.int64)
+        self.shrink = np.exp2(-np.arange(self.count, dtype=np.float64))  # 2^-k, exact
+        self.texels = np.concatenate([_blocked(lvl) for lvl in levels])
+
+    def level(self, k: int) -> np.ndarray:
+        """Mip level ``k`` as a (side, side) float32 array, row = v, column = u."""
+        n = int(self.sizes[k])
+        flat = self.texels[self.starts[k] : self.starts[k] + n * n]
+        if n < BLOCK:
+            return flat.reshape(n, n)
+        return flat.reshape(n // BLOCK, n // BLOCK, BLOCK, BLOCK).transpose(0, 2, 1, 3).reshape(n, n)
+
+    def sample(self, u: np.ndarray, v: np.ndarray, footprint: np.ndarray) -> np.ndarray:
+        """Trilinear lookup (values 0-1) at (u, v) metres for pixels covering ``footprint`` metres.
+
+        ``u``, ``v``, ``footprint``: arrays of one shape; returns float64 of that shape.
+        """
+        u, v, footprint = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (u, v, footprint)))
+        out = np.empty(u.shape)
+        _sample_many(self.texels, self.starts, self.sizes, self.shrink, self.texel, u.ravel(), v.ravel(),
+                     footprint.ravel(), out.reshape(-1))  # fmt: skip
+        return out
+
+
+def _blocked(level: np.ndarray) -> np.ndarray:
+    """A square level flattened in BLOCK x BLOCK blocks (inverse of ``TexturePyramid.level``)."""
+    n = level.shape[0]
+    if n < BLOCK:
+        return level.ravel()
+    return level.reshape(n // BLOCK, BLOCK, n // BLOCK, BLOCK).transpose(0, 2, 1, 3).ravel()
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _offset(n, i, j):
+    """Index of texel (column i, row j) of an n x n level within that level's block layout."""
+    if n < BLOCK:
+        return j * n + i
+    return ((j >> 2) * (n >> 2) + (i >> 2)) * 16 + ((j & 3) << 2) + (i & 3)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bilinear(texels, starts, sizes, level, x, y):
+    """Bilinear lookup of mip ``level`` at (x, y) in that level's texels (the tile repeats)."""
+    n = sizes[level]
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    wrap = n - 1
+    i0 = np.int64(x0) & wrap
+    j0 = np.int64(y0) & wrap
+    i1 = (i0 + 1) & wrap
+    j1 = (j0 + 1) & wrap
+    base = starts[level]
+    top = texels[base + _offset(n, i0, j0)] * (1 - fx) + texels[base + _offset(n, i1, j0)] * fx
+    bottom = texels[base + _offset(n, i0, j1)] * (1 - fx) + texels[base + _offset(n, i1, j1)] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint):
+    """One pixel's trilinear lookup: (u, v) in m, ``footprint`` in m; the arrays of a pyramid.
+
+    Level k's texel is texel 2^k, so u / (texel 2^k) is (u / texel) 2^-k exactly (scaling
+    by a power of two does not round): one division per coordinate, ``shrink[k]`` = 2^-k.
+    Where the level of detail is clipped (lod - fine = 0) the second level has no weight
+    and is not read: a + (b - a) 0 = a.
+    """
+    top_level = len(sizes) - 1
+    lod = math.log2(max(footprint, 1e-9) / texel)
+    lod = min(max(lod, 0.0), float(top_level))
+    fine = np.int64(math.floor(lod))
+    x, y = u / texel, v / texel
+    step = shrink[fine]
+    a = _bilinear(texels, starts, sizes, fine, x * step - 0.5, y * step - 0.5)
+    weight = lod - fine
+    if weight == 0:
+        return a
+    coarse = min(fine + 1, top_level)
+    step = shrink[coarse]
+    b = _bilinear(texels, starts, sizes, coarse, x * step - 0.5, y * step - 0.5)
+    return a + (b - a) * weight
+
+
+@numba.njit(cache=True, nogil=True)
+def _sample_many(texels, starts, sizes, shrink, texel, u, v, footprint, out):
+    for k in range(len(out)):
+        out[k] = trilinear(texels, starts, sizes, shrink, texel, u[k], v[k], footprint[k])
+
+
+@functools.lru_cache(maxsize=4)
+def texture_pyramid(seed: int, size: int = 1024, texel: float = 0.004) -> TexturePyramid:
+    """Band-limited 1/f noise on a periodic ``size`` x ``size`` tile of ``texel`` m, squashed to 0-1."""
+    rng = np.random.default_rng([seed, 1])
+    freq = np.fft.fftfreq(size)
+    radius = np.hypot(freq[:, None], freq[None, :])
+    amplitude = np.where(radius > 0, 1.0 / np.maximum(radius, 1.0 / size) ** 0.9, 0.0)
+    amplitude *= np.exp(-((radius / 0.35) ** 4))  # gentle roll-off near Nyquist
+    spectrum = np.fft.fft2(rng.standard_normal((size, size))) * amplitude
+    tile = np.real(np.fft.ifft2(spectrum))
+    tile = (tile - tile.mean()) / tile.std()
+    tile = 0.5 + 0.5 * np.tanh(0.8 * tile)
+    return TexturePyramid(tile, texel)
