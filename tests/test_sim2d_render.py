@@ -1,4 +1,5 @@
-"""The renderer: exact depth against analytic geometry, and stereo pairs that SGBM can match."""
+"""The renderer: exact depth against analytic geometry, stereo pairs that SGBM can match, and the
+compiled renderer equal to the numpy renderer it replaced (the oracle, tests/reference_render.py)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ import numpy as np
 import pytest
 
 from sim2d.render import FACE_FLOOR, FACE_NONE, FACE_SIDE, FACE_TOP, Renderer, camera_pose
+from sim2d.texture_sampling import texture_pyramid
 from swarm.config import RigConfig
 from swarm.formats.floor_plan import FloorPlan, load_floor_plan, rectangle, wall_segment
 from swarm.protocol.wire import Camera
+from tests import reference_render
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 CAMERA = RigConfig().camera()  # 160 x 120, 60 degrees, 9 cm
@@ -176,3 +179,79 @@ def test_image_noise_and_no_return_pixels():
     sky = renderer.cast(pose).face == FACE_NONE
     assert sky.any() and np.all(clean[sky] == 30)
     assert clean[~sky].std() > 20  # textured
+
+
+# -- the compiled renderer against the numpy one it replaced (tests/reference_render.py) ----------
+
+
+def assert_same_hits(new, old):
+    for field in ("distance", "depth", "face", "obstacle", "edge", "points", "footprint"):
+        np.testing.assert_array_equal(getattr(new, field), getattr(old, field), err_msg=field)
+
+
+OFFICE_POSES = [
+    (1.0, 5.0, 0.0, 0.0),
+    (2.0, 3.0, 0.7, 0.0),
+    (3.0, 2.0, 2.0, 0.3),
+    (6.0, 7.0, -1.2, -0.2),
+    (4.0, 5.0, 1.3, 1e-13),
+]
+DEPOT_POSES = [(15.0, 7.6, 0.0, 0.0), (5.0, 3.0, 0.7, 0.0), (25.0, 12.0, 3.5, 0.0), (10.0, 8.0, 1.0, 0.25)]
+
+
+@pytest.mark.parametrize(
+    "plan_file, poses, size",
+    [
+        ("plans/office.yaml", OFFICE_POSES, (160, 120)),
+        ("plans/office.yaml", OFFICE_POSES[1:3], (320, 240)),
+        ("maps/depot.yaml", DEPOT_POSES, (160, 120)),
+    ],
+)
+def test_compiled_renderer_equals_the_numpy_oracle(plan_file, poses, size):
+    """Same hits, bit for bit, and the same noisy stereo images (level and pitched cameras)."""
+    plan = load_floor_plan(CONFIGS / plan_file)
+    camera = RigConfig(width=size[0], height=size[1]).camera()
+    new, old = Renderer(plan, camera, seed=3), reference_render.Renderer(plan, camera, seed=3)
+    faces = set()
+    for x, y, yaw, pitch in poses:
+        pose = camera_pose(x, y, yaw, 0.4, pitch)
+        hits = new.cast(pose)
+        assert_same_hits(hits, old.cast(pose))
+        faces |= set(np.unique(hits.face).tolist())
+        pair = new.stereo_pair(pose, 2.0, np.random.default_rng(5))
+        expected = old.stereo_pair(pose, 2.0, np.random.default_rng(5))
+        np.testing.assert_array_equal(pair[0], expected[0])
+        np.testing.assert_array_equal(pair[1], expected[1])
+        np.testing.assert_array_equal(new.depth_image(pose, 0.01, 4.0, np.random.default_rng(2)),
+                                      old.depth_image(pose, 0.01, 4.0, np.random.default_rng(2)))  # fmt: skip
+    assert {FACE_FLOOR, FACE_SIDE, FACE_NONE} <= faces
+
+
+def test_ties_between_quads_go_to_the_lower_index_as_in_the_oracle():
+    """Duplicated and abutting boxes: equal hit distances, resolved as numpy's argmin did."""
+    box = rectangle((2.0, 0.0), (1.0, 1.0))
+    quads = [box, box, rectangle((3.0, 0.0), (1.0, 1.0)), rectangle((2.0, 1.0), (1.0, 1.0)), box]
+    plan = plan_of(quads, [0.5, 0.5, 0.9, 0.3, 0.5])
+    new, old = Renderer(plan, CAMERA), reference_render.Renderer(plan, CAMERA)
+    for x, y, yaw, pitch in ((0.0, 0.0, 0.0, 0.0), (0.0, 1.0, -0.3, 0.0), (0.5, -0.5, 0.4, 0.3)):
+        pose = camera_pose(x, y, yaw, 0.6, pitch)
+        hits = new.cast(pose)
+        assert_same_hits(hits, old.cast(pose))
+        seen = set(np.unique(hits.obstacle).tolist())
+        assert 0 in seen and 1 not in seen and 4 not in seen  # the duplicates never win a tie
+
+
+def test_texture_lookup_equals_the_numpy_oracle():
+    """Trilinear lookups, clipped levels of detail at both ends included, and the blocked layout."""
+    new = texture_pyramid(0, size=64, texel=0.01)
+    old = reference_render._texture_pyramid(0, size=64, texel=0.01)
+    rng = np.random.default_rng(0)
+    u, v = rng.uniform(-50, 5000, 20000), rng.uniform(-50, 5000, 20000)
+    footprint = np.exp(rng.uniform(np.log(1e-4), np.log(10.0), 20000))  # lod below 0 to above the top
+    footprint[:10] = 0.0
+    np.testing.assert_array_equal(new.sample(u, v, footprint), old.sample(u, v, footprint))
+    for k in range(new.count):
+        n = old.sizes[k]
+        np.testing.assert_array_equal(
+            new.level(k), old.texels[old.starts[k] : old.starts[k] + n * n].reshape(n, n)
+        )
