@@ -27,10 +27,10 @@ from sim2d.texture_sampling import trilinear
 
 FACE_NONE, FACE_FLOOR, FACE_SIDE, FACE_TOP = 0, 1, 2, 3
 TWO_PI = 2 * np.pi
-CHUNK = 4096  # pixels per parallel work item of ``shade_pixels``
+BATCH = 64  # pixels per batch of ``shade_pixels``
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def cast_rays(
     origin, cam_z, unit, slope, perm, angle, block, q_lo, q_hi, in_range,
     edge_a, edge_n, heights, max_distance, distance, face, obstacle, edge,
@@ -48,15 +48,11 @@ def cast_rays(
     n_rows = slope.shape[0]
     n_quads = len(heights)
     ox, oy = origin[0], origin[1]
-    for b in numba.prange((n_rays + block - 1) // block):
-        r0 = b * block
+    cand = np.empty(n_quads, dtype=np.int64)
+    c_in, c_out, c_h = np.empty(n_quads), np.empty(n_quads), np.empty(n_quads)
+    c_quad, c_enter = np.empty(n_quads, dtype=np.int64), np.empty(n_quads, dtype=np.int64)
+    for r0 in range(0, n_rays, block):
         r1 = min(r0 + block, n_rays)
-        cand = np.empty(n_quads, dtype=np.int64)
-        c_in = np.empty(n_quads)
-        c_out = np.empty(n_quads)
-        c_h = np.empty(n_quads)
-        c_quad = np.empty(n_quads, dtype=np.int64)
-        c_enter = np.empty(n_quads, dtype=np.int64)
         a_lo, a_hi = angle[r0] - 1e-9, angle[r1 - 1] + 1e-9
         n_cand = 0
         for q in range(n_quads):
@@ -129,7 +125,7 @@ def cast_rays(
                 distance[row, ray], face[row, ray], obstacle[row, ray], edge[row, ray] = r, f, o, s
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def shade_pixels(
     distance, face, obstacle, edge, unit, slope, origin, cam_z, fx, edge_n, albedo, offsets,
     side_light, flat_light, sky, texels, starts, sizes, shrink, texel, grey,
@@ -139,17 +135,23 @@ def shade_pixels(
     Hits and rays as ``cast_rays`` gives them; ``fx``: focal length (px); per quad
     ``albedo`` (Q,), texture ``offsets`` (Q, 5, 2) m (4 sides, top) and ``side_light``
     (Q, 4); ``flat_light``: light on the floor and tops; ``sky``: grey of no return; the
-    rest: a ``TexturePyramid``'s arrays.
+    rest: a ``TexturePyramid``'s arrays. Pixels go in batches: surface coordinates and
+    footprints of the batch, then its texture lookups, then its grey levels.
     """
     ox, oy = origin[0], origin[1]
     n_rays = distance.shape[1]
     n_pixels = distance.size
-    for chunk in numba.prange((n_pixels + CHUNK - 1) // CHUNK):
-        for pixel in range(chunk * CHUNK, min((chunk + 1) * CHUNK, n_pixels)):
+    flat_grey = grey.ravel()
+    index = np.empty(BATCH, dtype=np.int64)
+    su, sv, footprint = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
+    lit, lod, tex = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
+    for start in range(0, n_pixels, BATCH):
+        count = 0
+        for pixel in range(start, min(start + BATCH, n_pixels)):
             row, ray = pixel // n_rays, pixel % n_rays
             f = face[row, ray]
             if f == FACE_NONE:
-                grey[row, ray] = sky
+                flat_grey[pixel] = sky
                 continue
             r, m = distance[row, ray], slope[row, ray]
             u0, u1 = unit[ray, 0], unit[ray, 1]
@@ -160,24 +162,28 @@ def shade_pixels(
                 e = edge[row, ray]
                 nx, ny = edge_n[o, e, 0], edge_n[o, e, 1]
                 cos_inc = abs(nx * u0 + ny * u1) / norm
-                su = px * -ny + py * nx + offsets[o, e, 0]
-                sv = pz + offsets[o, e, 1]
+                su[count] = px * -ny + py * nx + offsets[o, e, 0]
+                sv[count] = pz + offsets[o, e, 1]
                 alb, light = albedo[o], side_light[o, e]
             else:
                 cos_inc = abs(m) / norm
                 light = flat_light
                 if f == FACE_FLOOR:
-                    su, sv, alb = px * 0.8, py * 0.8, 0.8
+                    su[count], sv[count], alb = px * 0.8, py * 0.8, 0.8
                 else:
-                    su, sv, alb = px + offsets[o, 4, 0], py + offsets[o, 4, 1], albedo[o]
-            footprint = r * norm / fx / max(cos_inc, 0.2)
-            tex = trilinear(texels, starts, sizes, shrink, texel, su, sv, footprint)
-            grey[row, ray] = 255.0 * alb * light * (0.25 + 0.75 * tex)
+                    su[count], sv[count], alb = px + offsets[o, 4, 0], py + offsets[o, 4, 1], albedo[o]
+            footprint[count] = r * norm / fx / max(cos_inc, 0.2)  # range / f, widened when grazing
+            lit[count] = 255.0 * alb * light
+            index[count] = pixel
+            count += 1
+        trilinear(texels, starts, sizes, shrink, texel, su, sv, footprint, count, lod, tex)
+        for k in range(count):
+            flat_grey[index[k]] = lit[k] * (0.25 + 0.75 * tex[k])
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def grey_levels(grey, noise, out):
     """``out`` (uint8) = clip(rint(grey + noise), 0, 255), rounding half to even; same shapes."""
     flat_grey, flat_noise, flat_out = grey.ravel(), noise.ravel(), out.ravel()
-    for k in numba.prange(len(flat_out)):
+    for k in range(len(flat_out)):
         flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k] + flat_noise[k]), 0.0), 255.0))

@@ -56,10 +56,11 @@ class TexturePyramid:
 
         ``u``, ``v``, ``footprint``: arrays of one shape; returns float64 of that shape.
         """
-        u, v, footprint = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (u, v, footprint)))
+        arrays = np.broadcast_arrays(u, v, footprint)
+        u, v, footprint = (np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
         out = np.empty(u.shape)
-        _sample_many(self.texels, self.starts, self.sizes, self.shrink, self.texel, u.ravel(), v.ravel(),
-                     footprint.ravel(), out.reshape(-1))  # fmt: skip
+        trilinear(self.texels, self.starts, self.sizes, self.shrink, self.texel, u.ravel(), v.ravel(),
+                  footprint.ravel(), u.size, np.empty(u.size), out.reshape(-1))  # fmt: skip
         return out
 
 
@@ -98,35 +99,34 @@ def _bilinear(texels, starts, sizes, level, x, y):
     return top * (1 - fy) + bottom * fy
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint):
-    """One pixel's trilinear lookup: (u, v) in m, ``footprint`` in m; the arrays of a pyramid.
+@numba.njit(cache=True, nogil=True)
+def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint, count, lod, out):
+    """Trilinear lookups of the first ``count`` pixels: (u, v) and ``footprint`` in m.
 
-    Level k's texel is texel 2^k, so u / (texel 2^k) is (u / texel) 2^-k exactly (scaling
-    by a power of two does not round): one division per coordinate, ``shrink[k]`` = 2^-k.
-    Where the level of detail is clipped (lod - fine = 0) the second level has no weight
-    and is not read: a + (b - a) 0 = a.
+    The arrays of a ``TexturePyramid``, then (N,) ``u``, ``v``, ``footprint``, a scratch
+    ``lod`` and ``out`` (values 0-1). Level k's texel is texel 2^k, so u / (texel 2^k) is
+    (u / texel) 2^-k exactly (scaling by a power of two does not round; ``shrink[k]`` = 2^-k):
+    one division per coordinate. Where the level of detail is clipped (lod - fine = 0) the
+    second level has no weight and is not read: a + (b - a) 0 = a. Two passes (levels of
+    detail, then lookups) so that the processor overlaps the lookups of many pixels.
     """
     top_level = len(sizes) - 1
-    lod = math.log2(max(footprint, 1e-9) / texel)
-    lod = min(max(lod, 0.0), float(top_level))
-    fine = np.int64(math.floor(lod))
-    x, y = u / texel, v / texel
-    step = shrink[fine]
-    a = _bilinear(texels, starts, sizes, fine, x * step - 0.5, y * step - 0.5)
-    weight = lod - fine
-    if weight == 0:
-        return a
-    coarse = min(fine + 1, top_level)
-    step = shrink[coarse]
-    b = _bilinear(texels, starts, sizes, coarse, x * step - 0.5, y * step - 0.5)
-    return a + (b - a) * weight
-
-
-@numba.njit(cache=True, nogil=True)
-def _sample_many(texels, starts, sizes, shrink, texel, u, v, footprint, out):
-    for k in range(len(out)):
-        out[k] = trilinear(texels, starts, sizes, shrink, texel, u[k], v[k], footprint[k])
+    for k in range(count):
+        level = math.log2(max(footprint[k], 1e-9) / texel)
+        lod[k] = min(max(level, 0.0), float(top_level))
+    for k in range(count):
+        fine = np.int64(math.floor(lod[k]))
+        x, y = u[k] / texel, v[k] / texel
+        step = shrink[fine]
+        a = _bilinear(texels, starts, sizes, fine, x * step - 0.5, y * step - 0.5)
+        weight = lod[k] - fine
+        if weight == 0:
+            out[k] = a
+            continue
+        coarse = min(fine + 1, top_level)
+        step = shrink[coarse]
+        b = _bilinear(texels, starts, sizes, coarse, x * step - 0.5, y * step - 0.5)
+        out[k] = a + (b - a) * weight
 
 
 @functools.lru_cache(maxsize=4)
