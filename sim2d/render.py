@@ -26,6 +26,7 @@ culling of quads by azimuth, in numpy.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,12 +108,21 @@ class Renderer:
     """Renders views of one floor plan with one camera model.
 
     ``seed`` picks the texture; ``max_distance`` (m) bounds what is cast (farther is no return).
+    ``threads``: 2 renders the right view of a stereo pair in a second thread while this one
+    renders the left and draws the noise (the compiled kernels and numpy's generator release
+    the GIL); 1 renders everything in the calling thread. Images are the same either way.
     """
 
-    def __init__(self, plan: FloorPlan, camera: Camera, *, seed: int = 0, max_distance: float = 60.0):
+    def __init__(
+        self, plan: FloorPlan, camera: Camera, *, seed: int = 0, max_distance: float = 60.0, threads: int = 2
+    ):
+        if threads not in (1, 2):
+            raise ValueError(f"Renderer: threads must be 1 or 2 (got {threads})")
         self.plan = plan
         self.camera = camera
         self.max_distance = float(max_distance)
+        self.threads = threads
+        self._worker: ThreadPoolExecutor | None = None
         self.texture = texture_pyramid(seed)
         u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
         self._optical = np.stack(
@@ -245,21 +255,36 @@ class Renderer:
         return grey.reshape(self.camera.height, self.camera.width)
 
     def image(self, pose: Pose, noise_std: float = 0.0, rng=None) -> np.ndarray:
-        """One grey image (uint8 H x W) seen from ``pose``, with optional Gaussian noise."""
+        """One grey image (uint8 H x W) seen from ``pose``, with optional Gaussian noise.
+
+        ``noise_std``: grey levels; ``rng``: a numpy Generator (default: a fresh one).
+        """
         grey = self.grey(pose)
-        if noise_std > 0:
-            rng = rng if rng is not None else np.random.default_rng()
-            noise = rng.normal(0.0, noise_std, grey.shape)
-        else:
-            noise = np.zeros(grey.shape)
-        image = np.empty(grey.shape, dtype=np.uint8)
-        grey_levels(grey, noise, image)
-        return image
+        return _grey_levels(grey, self._noise(noise_std, rng))
 
     def stereo_pair(self, pose: Pose, noise_std: float = 0.0, rng=None) -> tuple[np.ndarray, np.ndarray]:
-        """Rectified (left, right) uint8 images; ``pose`` is the left camera's."""
+        """Rectified (left, right) uint8 images; ``pose`` is the left camera's.
+
+        The same images and the same draws from ``rng`` (left noise, then right) as
+        ``image(pose)`` followed by ``image(right camera pose)``.
+        """
         right = right_camera_pose(pose, self.camera.baseline)
-        return self.image(pose, noise_std, rng), self.image(right, noise_std, rng)
+        if self.threads == 1:
+            return self.image(pose, noise_std, rng), self.image(right, noise_std, rng)
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim2d-render")
+        right_grey = self._worker.submit(self.grey, right)
+        left_grey = self.grey(pose)
+        left_noise, right_noise = self._noise(noise_std, rng), self._noise(noise_std, rng)
+        return _grey_levels(left_grey, left_noise), _grey_levels(right_grey.result(), right_noise)
+
+    def _noise(self, noise_std: float, rng) -> np.ndarray:
+        """Gaussian image noise (grey levels, H x W); zeros when ``noise_std`` is 0."""
+        shape = (self.camera.height, self.camera.width)
+        if noise_std > 0:
+            rng = rng if rng is not None else np.random.default_rng()
+            return rng.normal(0.0, noise_std, shape)
+        return np.zeros(shape)
 
     def depth_image(
         self,
@@ -277,6 +302,13 @@ class Renderer:
             depth = np.where(depth <= max_range, depth, np.nan)
         depth = np.where(depth > 0, depth, np.nan)
         return depth.astype(np.float32)
+
+
+def _grey_levels(grey: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """uint8 image of clip(rint(grey + noise), 0, 255)."""
+    image = np.empty(grey.shape, dtype=np.uint8)
+    grey_levels(grey, noise, image)
+    return image
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
