@@ -255,3 +255,17 @@ def test_texture_lookup_equals_the_numpy_oracle():
         np.testing.assert_array_equal(
             new.level(k), old.texels[old.starts[k] : old.starts[k] + n * n].reshape(n, n)
         )
+
+
+def test_stereo_pair_in_one_or_two_threads_gives_the_same_images_and_draws():
+    plan = load_floor_plan(CONFIGS / "plans" / "office.yaml")
+    serial, threaded = Renderer(plan, CAMERA, threads=1), Renderer(plan, CAMERA, threads=2)
+    rng_a, rng_b = np.random.default_rng(4), np.random.default_rng(4)
+    for yaw in (0.0, 1.0):
+        pose = camera_pose(2.0, 3.0, yaw, 0.4)
+        pair_a, pair_b = serial.stereo_pair(pose, 3.0, rng_a), threaded.stereo_pair(pose, 3.0, rng_b)
+        for a, b in zip(pair_a, pair_b, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert rng_a.random() == rng_b.random()  # the same number of draws
+    with pytest.raises(ValueError, match="threads must be 1 or 2"):
+        Renderer(plan, CAMERA, threads=3)
