@@ -3,10 +3,10 @@
 Prints frames rendered per second (one frame = a stereo pair, or one depth image in range
 mode) for 1 and 4 robots at 160x120 and 640x480, and simulator ticks per second (all
 robots rendered once): the best of ``--repeats`` measurements of ``--seconds`` each, wall
-clock, so that a busy machine disturbs the figure less. ``--plan``: office (default), depot or
-lab. Robots move a little between
-frames, as in a run. The first line gives the machine's load average and the number of
-threads the compiled kernels use (Numba; set ``NUMBA_NUM_THREADS`` to change it).
+clock, so that a busy machine disturbs the figure less. ``--plan``: office (default), depot
+or lab. Robots move a little between frames, as in a run. The first line gives the
+machine's load average and ``--threads``, the renderer's threads per stereo pair (2, the
+default, renders the right view beside the left; see ``sim2d.render.Renderer``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import os
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from sim2d.render import Renderer, camera_pose
@@ -25,9 +24,9 @@ from swarm.config import RigConfig, load_mission
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def bench(mission, rig: RigConfig, robots: int, seconds: float) -> tuple[float, float]:
+def bench(mission, rig: RigConfig, robots: int, seconds: float, threads: int = 2) -> tuple[float, float]:
     """(frames per second, ticks per second) rendering ``robots`` robots with ``rig``."""
-    renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=0)
+    renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=0, threads=threads)
     starts = [(r.start.x, r.start.y, r.start.yaw) for r in mission.robots]
     starts = (starts * robots)[:robots]
     rng = np.random.default_rng(0)
@@ -51,6 +50,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--plan", default="office", choices=["lab", "office", "depot"])
     parser.add_argument("--seconds", type=float, default=2.0, help="time per measurement (default 2)")
     parser.add_argument("--repeats", type=int, default=3, help="measurements per line; the best is printed")
+    parser.add_argument("--threads", type=int, default=2, choices=[1, 2], help="threads per stereo pair")
     args = parser.parse_args(argv)
     if args.seconds <= 0 or args.repeats < 1:
         parser.error("--seconds must be > 0 and --repeats >= 1")
@@ -58,14 +58,15 @@ def main(argv: list[str] | None = None) -> None:
     plan = mission.load_floor_plan()
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"plan {args.plan}: {plan.count} obstacles; best of {args.repeats} x {args.seconds:g} s per line; "
-          f"load average {load}; {numba.get_num_threads()} kernel threads")  # fmt: skip
+          f"load average {load}; {args.threads} thread(s) per stereo pair")  # fmt: skip
     print(f"{'size':>8} {'mode':>7} {'robots':>6} {'frames/s':>9} {'ticks/s':>8}")
     for width, height in ((160, 120), (640, 480)):
         for mode in ("stereo", "range"):
             rig = RigConfig(width=width, height=height, mode=mode, noise_std=1.0)
             for robots in (1, 4):
-                bench(mission, rig, robots, 0.0)  # warm up: compiled kernels, texture
-                fps, tps = max(bench(mission, rig, robots, args.seconds) for _ in range(args.repeats))
+                bench(mission, rig, robots, 0.0, args.threads)  # warm up: compiled kernels, texture
+                runs = [bench(mission, rig, robots, args.seconds, args.threads) for _ in range(args.repeats)]
+                fps, tps = max(runs)
                 print(f"{width}x{height:<4} {mode:>7} {robots:>6} {fps:>9.1f} {tps:>8.1f}", flush=True)
 
 
