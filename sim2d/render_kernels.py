@@ -48,6 +48,12 @@ def cast_rays(
     n_rows = slope.shape[0]
     n_quads = len(heights)
     ox, oy = origin[0], origin[1]
+    # n . (origin - a) of every quad side (> 0: the camera is outside that side), once per view.
+    side_num = np.empty((n_quads, 4))
+    for q in range(n_quads):
+        for e in range(4):
+            nx, ny = edge_n[q, e, 0], edge_n[q, e, 1]
+            side_num[q, e] = nx * (ox - edge_a[q, e, 0]) + ny * (oy - edge_a[q, e, 1])
     cand = np.empty(n_quads, dtype=np.int64)
     c_in, c_out, c_h = np.empty(n_quads), np.empty(n_quads), np.empty(n_quads)
     c_quad, c_enter = np.empty(n_quads, dtype=np.int64), np.empty(n_quads, dtype=np.int64)
@@ -72,9 +78,8 @@ def cast_rays(
                 q = cand[k]
                 r_in, enter, r_out, parallel_out = -np.inf, 0, np.inf, False
                 for e in range(4):
-                    nx, ny = edge_n[q, e, 0], edge_n[q, e, 1]
-                    num = nx * (ox - edge_a[q, e, 0]) + ny * (oy - edge_a[q, e, 1])
-                    den = u0 * nx + u1 * ny
+                    num = side_num[q, e]
+                    den = u0 * edge_n[q, e, 0] + u1 * edge_n[q, e, 1]
                     if den < 0:
                         t = -num / den
                         if t > r_in:
