@@ -22,19 +22,36 @@ import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
 
+#: Seconds ``swarm sim world`` waits for the agents by default (they start slowly on a busy machine).
+STARTUP_TIMEOUT_S = 120.0
+
 
 def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", nargs="?", help="mission YAML file")
     parser.add_argument("--map", help="a ROS map_server map.yaml to use instead of a mission")
-    parser.add_argument("--robots", type=int, default=1, help="robots placed on --map (default 1)")
+    parser.add_argument(
+        "--robots",
+        type=int,
+        help="robots placed on --map (default 1); with a CONFIG, keep its first N robots (default all)",
+    )
 
 
 def _load(args: argparse.Namespace) -> Mission:
     if bool(args.config) == bool(args.map):
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml")
+    if args.robots is not None and args.robots < 1:
+        raise ConfigError(f"--robots {args.robots}: must be at least 1")
     if args.map:
-        return mission_from_map(args.map, robots=args.robots)
-    return load_mission(args.config)
+        return mission_from_map(args.map, robots=args.robots or 1)
+    mission = load_mission(args.config)
+    if args.robots is not None:
+        if args.robots > len(mission.robots):
+            raise ConfigError(
+                f"{args.config}: robots: --robots {args.robots} asks for more than the "
+                f"{len(mission.robots)} robots the mission places"
+            )
+        mission = mission.model_copy(update={"robots": mission.robots[: args.robots]})
+    return mission
 
 
 def add_render_arguments(parser: argparse.ArgumentParser) -> None:
@@ -117,12 +134,43 @@ def depth_colours(depth: np.ndarray, max_depth: float, colour_bar: bool = True) 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``swarm sim run``."""
     _add_mission_arguments(parser)
-    parser.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on")
-    parser.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to")
-    parser.add_argument("--encoding", choices=["raw8", "png"], default="raw8")
-    parser.add_argument("--max-ticks", type=int, help="stop after this many frames")
     parser.add_argument(
-        "--startup-timeout", type=float, help="seconds to wait for agents (default: agent timeout)"
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on (the world is then the router agents connect to); repeatable",
+    )
+    parser.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to, e.g. the map server's (default tcp/127.0.0.1:7447); repeatable",
+    )
+    parser.add_argument(
+        "--encoding",
+        choices=["raw8", "png"],
+        default="raw8",
+        help="image encoding in the frames: raw8 (default, fastest on loopback) or png (smaller)",
+    )
+    parser.add_argument(
+        "--max-ticks", type=int, help="stop after this many frames (default: the mission's time)"
+    )
+    parser.add_argument(
+        "--startup-timeout",
+        type=float,
+        default=STARTUP_TIMEOUT_S,
+        metavar="S",
+        help="seconds to wait for every robot's agent to subscribe before the first frame; robots whose "
+        f"agent has not come by then are declared dead at the first frame (default {STARTUP_TIMEOUT_S:g})",
+    )
+    parser.add_argument(
+        "--progress-every",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds between progress lines: frame, simulated time, rate, live and dead agents (default 10)",
     )
 
 
@@ -137,8 +185,16 @@ def run_sim(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if not args.progress_every > 0:
+        print(f"swarm: error: --progress-every {args.progress_every}: must be positive", file=sys.stderr)
+        return 2
+
+    logging.getLogger(__name__).info(
+        "mission %r: %s", mission.mission, bus.describe_connection(args.listen, args.connect)
+    )
     session = bus.open_session(args.listen, args.connect)
     sim = Simulator(mission, session, encoding=args.encoding)
+    sim.progress_every_s = args.progress_every
     try:
         summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
     except KeyboardInterrupt:
