@@ -3,8 +3,8 @@
 ``swarm sim render [CONFIG | --map MAP.yaml] --robot r1 --out DIR`` writes a robot's first
 view: left.png, right.png (the rectified pair), depth.npy (float32 optical-z depth in
 metres, NaN = no return; with range noise in range mode) and depth.png (that depth
-coloured, near = blue, far = red, up to the sensor's max range; black = no return; a colour
-bar in metres on the right).
+coloured, near = red, far = blue, 0 to the sensor's max range, with a colour bar in metres;
+black = no return).
 
 ``swarm sim run CONFIG [--listen EP | --connect EP]`` runs the lockstep simulator.
 """
@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
+from swarm.formats.depth_picture import depth_picture
 
 #: Seconds ``swarm sim world`` waits for the agents by default (they start slowly on a busy machine).
 STARTUP_TIMEOUT_S = 120.0
@@ -92,7 +93,7 @@ def run_render(args: argparse.Namespace) -> int:
     cv2.imwrite(str(out / "left.png"), left)
     cv2.imwrite(str(out / "right.png"), right)
     np.save(out / "depth.npy", depth)
-    cv2.imwrite(str(out / "depth.png"), depth_colours(depth, mission.sensor.max_range))
+    cv2.imwrite(str(out / "depth.png"), depth_picture(depth, 0.0, mission.sensor.max_range))
     seen = np.isfinite(depth)
     span = f"{np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m" if seen.any() else "none"
     print(
@@ -101,34 +102,6 @@ def run_render(args: argparse.Namespace) -> int:
     )
     print(f"wrote left.png right.png depth.png depth.npy to {out}")
     return 0
-
-
-def depth_colours(depth: np.ndarray, max_depth: float, colour_bar: bool = True) -> np.ndarray:
-    """A BGR picture of a depth image: turbo colours over [0, max_depth], black = no return.
-
-    With ``colour_bar``, a strip on the right shows the colour scale in metres and the
-    colour of "no return".
-    """
-    seen = np.isfinite(depth)
-    scaled = np.clip(np.where(seen, depth, 0) / max_depth, 0, 1)
-    picture = cv2.applyColorMap((255 * scaled).astype(np.uint8), cv2.COLORMAP_TURBO)
-    picture[~seen] = 0
-    if not colour_bar:
-        return picture
-    h = max(picture.shape[0], 160)
-    bar = np.full((h, 120, 3), 255, np.uint8)
-    top, bottom = 14, h - 34
-    ramp = np.linspace(255, 0, bottom - top).astype(np.uint8)[:, None]
-    bar[top:bottom, 8:26] = cv2.applyColorMap(np.repeat(ramp, 18, axis=1), cv2.COLORMAP_TURBO)
-    font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
-    for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
-        y = int(bottom - frac * (bottom - top - 1))
-        cv2.putText(bar, f"{frac * max_depth:.3g} m", (30, y + 4), font, 0.35, black, 1, cv2.LINE_AA)
-    bar[h - 22 : h - 8, 8:26] = 0
-    cv2.putText(bar, "no return", (30, h - 11), font, 0.35, black, 1, cv2.LINE_AA)
-    canvas = np.full((h, picture.shape[1], 3), 255, np.uint8)
-    canvas[: picture.shape[0]] = picture
-    return np.hstack([canvas, bar])
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
