@@ -168,6 +168,9 @@ def run_sim(args: argparse.Namespace) -> int:
     session = bus.open_session(args.listen, args.connect)
     sim = Simulator(mission, session, encoding=args.encoding)
     sim.progress_every_s = args.progress_every
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sim.request_stop())  # stop cleanly and print the summary
     try:
         summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
     except KeyboardInterrupt:
