@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import time
 from pathlib import Path
 
 from coordinator.role import SNAPSHOT_TIMEOUT_S, Coordinator
@@ -44,22 +45,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help=f"seconds to wait for a map server's snapshot at start (default {SNAPSHOT_TIMEOUT_S:g})",
     )
+    parser.add_argument(
+        "--progress-every",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds between progress lines: requests answered, merged deltas, team map entropy "
+        "(default 10)",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
 
 
 def run(args: argparse.Namespace) -> int:
     """``swarm coordinator``: run until SIGINT/SIGTERM; 0 on a clean stop, 2 on bad arguments."""
     import sys
+    import threading
 
     from swarm.config import ConfigError, load_mission
+    from swarm.protocol.map_client import missions_answering
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
     )
+    log = logging.getLogger("coordinator")
     try:
+        if not args.progress_every > 0:
+            raise ValueError(f"--progress-every {args.progress_every}: must be positive")
         mission = load_mission(args.config)
         if args.mission is not None:
             bus.key(args.mission)  # a valid key part
+        log.info(bus.describe_connection(args.listen, args.connect))
         session = bus.open_session(args.listen, args.connect)
     except (ConfigError, ValueError, ConnectionError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
@@ -67,16 +82,50 @@ def run(args: argparse.Namespace) -> int:
     coordinator = Coordinator(
         mission, session, mission_name=args.mission, snapshot_timeout=args.snapshot_timeout
     )
-    signal.signal(signal.SIGTERM, lambda *_: coordinator.request_stop())
-    signal.signal(signal.SIGINT, lambda *_: coordinator.request_stop())
+    stopping = threading.Event()
+
+    def on_signal(*_) -> None:
+        coordinator.request_stop()
+        stopping.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    name = coordinator.name
     try:
         coordinator.start()
-        coordinator.wait()
+        others = [] if coordinator.started_from_snapshot else missions_answering(session, 0.5)
+        if others and name not in others:
+            origin = "--mission" if args.mission else f"{args.config}: mission"
+            serves = ", ".join(repr(m) for m in others)
+            print(
+                f"swarm: error: {origin}: mission {name!r}, but the map server on this network serves "
+                f"mission {serves}",
+                file=sys.stderr,
+            )
+            return 2
+        log.info(
+            "waiting for requests on %s, robot statuses on %s and the team map on %s",
+            bus.key(name, "coord", "assign"),
+            bus.key_pattern(name, "robot", "*", "status"),
+            bus.key(name, "merged"),
+        )
+        last = (time.monotonic(), 0)
+        while not stopping.wait(args.progress_every):
+            now, counts = time.monotonic(), coordinator.counts
+            answered = counts["requests"]
+            log.info(
+                "%d assign requests answered (%.1f/s), %d merged deltas applied, team map %s bits",
+                answered,
+                (answered - last[1]) / max(now - last[0], 1e-9),
+                counts["merged_applied"],
+                f"{coordinator.state.team.entropy_bits:,.0f}",
+            )
+            last = (now, answered)
     finally:
         coordinator.stop()
         counts = coordinator.counts
         print(
-            "coordinator: "
+            "coordinator: final: "
             + ", ".join(f"{k} {counts[k]}" for k in sorted(counts))
             + f"; team map {coordinator.state.team.entropy_bits:,.0f} bits",
             flush=True,

@@ -34,7 +34,13 @@ from swarm.navigation.exploration import ExplorationTarget
 from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.coord_client import ask_for_target
-from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
+from swarm.protocol.map_client import (
+    MapClient,
+    MapQueryError,
+    MapServerUnavailable,
+    MissionMismatch,
+    missions_answering,
+)
 from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
@@ -44,6 +50,7 @@ RESEND_AFTER_S = 5.0
 STATUS_EVERY = 4  # frames
 COORDINATOR_TIMEOUT_S = 1.0  # wait this long for coord/assign before choosing alone
 COORDINATOR_RETRY_S = 10.0  # after a silence, choose alone this long before asking again
+PROGRESS_EVERY_S = 10.0  # seconds between progress lines (and "still waiting" lines)
 
 
 class Agent:
@@ -88,7 +95,11 @@ class Agent:
         if self.coordination:
             self.explorer.assigner = self._ask_coordinator
         self.rejected_frames = 0
+        self.frames_fused = 0
         self.last_t = 0.0
+        self.acked = 0  # the map server's last contiguous acked seq of this run's deltas
+        self.progress_every_s = PROGRESS_EVERY_S
+        self._frame_key = bus.key(name, "robot", robot_id, "frame")
         self._last_sent: dict[int, float] = {}
         self._stop = threading.Event()
         self._acker = threading.Thread(target=self._poll_acks, daemon=True)
@@ -100,8 +111,14 @@ class Agent:
         self._acker.start()
         handled = 0
         last_frame = time.monotonic()
+        log.info("%s: waiting for frames on %s", self.robot_id, self._frame_key)
+        report = (last_frame, 0)  # (time, frames handled) of the last progress line
         try:
             while not self._stop.is_set():
+                now = time.monotonic()
+                if now - report[0] >= self.progress_every_s:
+                    self._log_progress(handled - report[1], now - report[0])
+                    report = (now, handled)
                 try:
                     payload = self._frames.get(timeout=0.2)
                 except queue.Empty:
@@ -115,6 +132,30 @@ class Agent:
                     break
         finally:
             self.shutdown()
+
+    def _log_progress(self, frames: int, seconds: float) -> None:
+        """One progress line: frames fused and their rate, deltas sent and acked, map entropy."""
+        if self.frames_fused == 0:
+            log.info(
+                "%s: no frame yet on %s (is 'swarm sim world' or the robot's driver publishing?)",
+                self.robot_id,
+                self._frame_key,
+            )
+            return
+        stats = self.outbox.stats
+        log.info(
+            "%s: %d frames fused (%.1f/s), %d deltas sent, %d acked by the map server, %d resent; "
+            "map entropy %s bits; merged from the team %d; coordinator %s",
+            self.robot_id,
+            self.frames_fused,
+            frames / max(seconds, 1e-9),
+            stats.deltas_sent,
+            self.acked,
+            stats.resent,
+            f"{self.explorer.map_entropy:,.0f}",
+            self.merged_counts["applied"],
+            dict(self.coordinator_counts) or "not asked yet",
+        )
 
     def handle(self, payload: bytes) -> Cmd | None:
         """Fuse one frame, share what is worth it, and answer with a command."""
@@ -132,6 +173,7 @@ class Agent:
         self._pose = frame.pose
         self.apply_merged()
         delta = self.explorer.fuse(frame)
+        self.frames_fused += 1
         self.outbox.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
         decision = self.explorer.decide(x, y, frame.pose.ypr[0])
@@ -163,9 +205,16 @@ class Agent:
     # -- the team map --------------------------------------------------------------------
     def catch_up(self, timeout: float = 2.0) -> bool:
         """Start from the map server's snapshot, if one answers within ``timeout`` seconds."""
+        name = self.mission.mission
         try:
-            snap = MapClient(self.session, self.mission.mission, timeout).snapshot()
+            snap = MapClient(self.session, name, timeout).snapshot()
         except (MapServerUnavailable, MapQueryError, zenoh.ZError) as exc:
+            others = [m for m in missions_answering(self.session, 0.5) if m != name]
+            if others:
+                raise MissionMismatch(
+                    f"the mission config names mission {name!r}, but the map server on this network "
+                    f"serves mission {', '.join(repr(m) for m in others)}"
+                ) from exc
             log.info("%s: no team map to start from (%s)", self.robot_id, exc)
             return False
         try:
@@ -237,6 +286,7 @@ class Agent:
             if acks is None:
                 continue  # no server yet: keep everything
             self.outbox.acknowledge(acks)
+            self.acked = max(self.acked, acks)
             for seq in [s for s in self._last_sent if s <= acks]:
                 del self._last_sent[seq]
             now = time.monotonic()
@@ -264,7 +314,16 @@ class Agent:
 
     def shutdown(self) -> None:
         """Flush every pending voxel, then stop polling."""
+        before = (self.outbox.stats.deltas_sent, self.outbox.stats.voxels_sent)
         self._share(flush=True)
+        sent = self.outbox.stats.deltas_sent - before[0]
+        voxels = self.outbox.stats.voxels_sent - before[1]
+        log.info(
+            "%s: shutdown flush: %s; %d deltas not yet acked by the map server",
+            self.robot_id,
+            f"sent {sent} last delta(s), {voxels} voxels" if sent else "nothing pending",
+            len(self.outbox.unacked),
+        )
         self._stop.set()
         self._frame_sub.undeclare()
         self._merged_sub.undeclare()

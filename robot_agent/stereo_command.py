@@ -2,8 +2,8 @@
 
 Computes a depth image (metres, float32, NaN where unknown, the size of the input) from a
 stereo pair with OpenCV SGBM; a full calibration rectifies the pair first (the depth is
-then in the rectified left camera). ``--png`` writes a colour-mapped view: near is red,
-far is blue, unknown is black.
+then in the rectified left camera). ``--png`` writes a colour-mapped view with a colour
+bar in metres: near is red, far is blue, unknown is black.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import numpy as np
 
 from robot_agent.stereo import SGBM_MODES, StereoMatcher
 from swarm.formats.calibration_formats import load_stereo_calibration
+from swarm.formats.depth_picture import depth_picture
 from swarm.formats.stereo_calibration import CalibrationError
 
 
@@ -38,8 +39,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="the right camera's file, for per-camera forms (ROS camera_info, EuRoC sensor.yaml)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="depth image to write (.npy, float32 metres)")
-    parser.add_argument("--png", type=Path, help="also write a colour-mapped depth PNG (unknown = black)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="depth image to write: a NumPy .npy file of float32 metres, NaN = unknown "
+        "(the name must end in .npy)",
+    )
+    parser.add_argument(
+        "--png",
+        type=Path,
+        help="also write a picture of the depth (.png): near red, far blue, unknown black, with a colour bar "
+        "in metres from the nearest depth found to --max-depth (or the 98th percentile)",
+    )
     parser.add_argument(
         "--min-depth",
         type=float,
@@ -87,24 +99,15 @@ def _read_image(path: Path, role: str) -> np.ndarray:
     return image
 
 
-def depth_png(depth: np.ndarray, far: float | None = None) -> np.ndarray:
-    """BGR uint8 colour map of a depth image by inverse depth (near red, far blue), unknown black."""
-    valid = np.isfinite(depth) & (depth > 0)
-    out = np.zeros((*depth.shape, 3), np.uint8)
-    if not valid.any():
-        return out
-    inv = np.zeros(depth.shape, np.float64)
-    inv[valid] = 1.0 / depth[valid]
-    lo = 1.0 / far if far and np.isfinite(far) else float(np.percentile(inv[valid], 2))
-    hi = float(np.percentile(inv[valid], 98))
-    scale = np.clip((inv - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
-    colours = cv2.applyColorMap((scale * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    out[valid] = colours[valid]
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``swarm stereo depth``; returns the exit status (0 ok, 2 on a user error)."""
+    if args.out.suffix.lower() != ".npy":
+        return _fail(
+            f"--out {args.out}: the depth is written as a NumPy .npy file (float32 metres); name it "
+            f"{args.out.with_suffix('.npy').name}, and use --png for a picture"
+        )
+    if args.png is not None and args.png.suffix.lower() != ".png":
+        return _fail(f"--png {args.png}: the picture is a PNG; name it {args.png.with_suffix('.png').name}")
     try:
         calib = load_stereo_calibration(args.calib, args.calib_right)
         left = _read_image(args.left, "left")
@@ -137,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
             np.save(fh, depth)
         if args.png is not None:
             args.png.parent.mkdir(parents=True, exist_ok=True)
-            if not cv2.imwrite(str(args.png), depth_png(depth, args.max_depth)):
+            if not cv2.imwrite(str(args.png), depth_picture(depth, *_picture_range(depth, args.max_depth))):
                 return _fail(f"--png {args.png}: cannot write a PNG there")
     except OSError as exc:
         return _fail(f"cannot write output: {exc}")
@@ -149,3 +152,13 @@ def run(args: argparse.Namespace) -> int:
         )
     print(f"wrote {args.out} ({summary})" + (f" and {args.png}" if args.png is not None else ""))
     return 0
+
+
+def _picture_range(depth: np.ndarray, max_depth: float) -> tuple[float, float]:
+    """The colour bar's range in metres: the nearest depth found to --max-depth (else the 98th percentile)."""
+    valid = depth[np.isfinite(depth) & (depth > 0)]
+    if valid.size == 0:
+        return 0.0, 1.0
+    near = float(valid.min())
+    far = float(max_depth) if np.isfinite(max_depth) else float(np.percentile(valid, 98))
+    return near, max(far, near + 1e-3)

@@ -3,8 +3,8 @@
 ``swarm sim render [CONFIG | --map MAP.yaml] --robot r1 --out DIR`` writes a robot's first
 view: left.png, right.png (the rectified pair), depth.npy (float32 optical-z depth in
 metres, NaN = no return; with range noise in range mode) and depth.png (that depth
-coloured, near = blue, far = red, up to the sensor's max range; black = no return; a colour
-bar in metres on the right).
+coloured, near = red, far = blue, 0 to the sensor's max range, with a colour bar in metres;
+black = no return).
 
 ``swarm sim run CONFIG [--listen EP | --connect EP]`` runs the lockstep simulator.
 """
@@ -21,20 +21,38 @@ import cv2
 import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
+from swarm.formats.depth_picture import depth_picture
+
+#: Seconds ``swarm sim world`` waits for the agents by default (they start slowly on a busy machine).
+STARTUP_TIMEOUT_S = 120.0
 
 
 def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", nargs="?", help="mission YAML file")
     parser.add_argument("--map", help="a ROS map_server map.yaml to use instead of a mission")
-    parser.add_argument("--robots", type=int, default=1, help="robots placed on --map (default 1)")
+    parser.add_argument(
+        "--robots",
+        type=int,
+        help="robots placed on --map (default 1); with a CONFIG, keep its first N robots (default all)",
+    )
 
 
 def _load(args: argparse.Namespace) -> Mission:
     if bool(args.config) == bool(args.map):
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml")
+    if args.robots is not None and args.robots < 1:
+        raise ConfigError(f"--robots {args.robots}: must be at least 1")
     if args.map:
-        return mission_from_map(args.map, robots=args.robots)
-    return load_mission(args.config)
+        return mission_from_map(args.map, robots=args.robots or 1)
+    mission = load_mission(args.config)
+    if args.robots is not None:
+        if args.robots > len(mission.robots):
+            raise ConfigError(
+                f"{args.config}: robots: --robots {args.robots} asks for more than the "
+                f"{len(mission.robots)} robots the mission places"
+            )
+        mission = mission.model_copy(update={"robots": mission.robots[: args.robots]})
+    return mission
 
 
 def add_render_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,7 +93,7 @@ def run_render(args: argparse.Namespace) -> int:
     cv2.imwrite(str(out / "left.png"), left)
     cv2.imwrite(str(out / "right.png"), right)
     np.save(out / "depth.npy", depth)
-    cv2.imwrite(str(out / "depth.png"), depth_colours(depth, mission.sensor.max_range))
+    cv2.imwrite(str(out / "depth.png"), depth_picture(depth, 0.0, mission.sensor.max_range))
     seen = np.isfinite(depth)
     span = f"{np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m" if seen.any() else "none"
     print(
@@ -86,43 +104,46 @@ def run_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def depth_colours(depth: np.ndarray, max_depth: float, colour_bar: bool = True) -> np.ndarray:
-    """A BGR picture of a depth image: turbo colours over [0, max_depth], black = no return.
-
-    With ``colour_bar``, a strip on the right shows the colour scale in metres and the
-    colour of "no return".
-    """
-    seen = np.isfinite(depth)
-    scaled = np.clip(np.where(seen, depth, 0) / max_depth, 0, 1)
-    picture = cv2.applyColorMap((255 * scaled).astype(np.uint8), cv2.COLORMAP_TURBO)
-    picture[~seen] = 0
-    if not colour_bar:
-        return picture
-    h = max(picture.shape[0], 160)
-    bar = np.full((h, 120, 3), 255, np.uint8)
-    top, bottom = 14, h - 34
-    ramp = np.linspace(255, 0, bottom - top).astype(np.uint8)[:, None]
-    bar[top:bottom, 8:26] = cv2.applyColorMap(np.repeat(ramp, 18, axis=1), cv2.COLORMAP_TURBO)
-    font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
-    for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
-        y = int(bottom - frac * (bottom - top - 1))
-        cv2.putText(bar, f"{frac * max_depth:.3g} m", (30, y + 4), font, 0.35, black, 1, cv2.LINE_AA)
-    bar[h - 22 : h - 8, 8:26] = 0
-    cv2.putText(bar, "no return", (30, h - 11), font, 0.35, black, 1, cv2.LINE_AA)
-    canvas = np.full((h, picture.shape[1], 3), 255, np.uint8)
-    canvas[: picture.shape[0]] = picture
-    return np.hstack([canvas, bar])
-
-
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``swarm sim run``."""
     _add_mission_arguments(parser)
-    parser.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on")
-    parser.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to")
-    parser.add_argument("--encoding", choices=["raw8", "png"], default="raw8")
-    parser.add_argument("--max-ticks", type=int, help="stop after this many frames")
     parser.add_argument(
-        "--startup-timeout", type=float, help="seconds to wait for agents (default: agent timeout)"
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on (the world is then the router agents connect to); repeatable",
+    )
+    parser.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to, e.g. the map server's (default tcp/127.0.0.1:7447); repeatable",
+    )
+    parser.add_argument(
+        "--encoding",
+        choices=["raw8", "png"],
+        default="raw8",
+        help="image encoding in the frames: raw8 (default, fastest on loopback) or png (smaller)",
+    )
+    parser.add_argument(
+        "--max-ticks", type=int, help="stop after this many frames (default: the mission's time)"
+    )
+    parser.add_argument(
+        "--startup-timeout",
+        type=float,
+        default=STARTUP_TIMEOUT_S,
+        metavar="S",
+        help="seconds to wait for every robot's agent to subscribe before the first frame; robots whose "
+        f"agent has not come by then are declared dead at the first frame (default {STARTUP_TIMEOUT_S:g})",
+    )
+    parser.add_argument(
+        "--progress-every",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds between progress lines: frame, simulated time, rate, live and dead agents (default 10)",
     )
 
 
@@ -137,8 +158,19 @@ def run_sim(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if not args.progress_every > 0:
+        print(f"swarm: error: --progress-every {args.progress_every}: must be positive", file=sys.stderr)
+        return 2
+
+    logging.getLogger(__name__).info(
+        "mission %r: %s", mission.mission, bus.describe_connection(args.listen, args.connect)
+    )
     session = bus.open_session(args.listen, args.connect)
     sim = Simulator(mission, session, encoding=args.encoding)
+    sim.progress_every_s = args.progress_every
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sim.request_stop())  # stop cleanly and print the summary
     try:
         summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
     except KeyboardInterrupt:

@@ -84,6 +84,7 @@ class Simulator:
             rid: np.random.default_rng([mission.sim.seed, i]) for i, rid in enumerate(self.robot_ids)
         }
         self._stop = threading.Event()
+        self.progress_every_s = 10.0  # seconds between progress lines of run()
         name = mission.mission
         self._frame_pubs = {
             rid: bus.reliable_publisher(session, bus.key(name, "robot", rid, "frame"))
@@ -144,8 +145,15 @@ class Simulator:
     def wait_for_agents(self, timeout: float | None = None) -> list[str]:
         """Wait until every robot's frame key has a subscriber; return those still missing."""
         timeout = self.mission.sim.agent_timeout_s if timeout is None else timeout
-        bus.wait_for_subscribers(self._frame_pubs.values(), timeout)
-        return [rid for rid, pub in self._frame_pubs.items() if not bus.has_subscribers(pub)]
+        deadline = time.monotonic() + timeout
+        while True:
+            waited = min(self.progress_every_s, deadline - time.monotonic())
+            if bus.wait_for_subscribers(self._frame_pubs.values(), max(waited, 0.0)):
+                return []
+            missing = [rid for rid, pub in self._frame_pubs.items() if not bus.has_subscribers(pub)]
+            if time.monotonic() >= deadline or self._stop.is_set():
+                return missing
+            log.info("still waiting for the agents of %s", ", ".join(missing))
 
     def tick(self) -> bool:
         """Publish frames, wait for every live agent's command, advance one frame period.
@@ -223,14 +231,28 @@ class Simulator:
     def run(self, max_ticks: int | None = None, startup_timeout: float | None = None) -> SimSummary:
         """Wait for the agents, then tick until the run is over or ``max_ticks`` ticks."""
         start = time.monotonic()
+        wait = self.mission.sim.agent_timeout_s if startup_timeout is None else startup_timeout
+        log.info(
+            "waiting up to %g s for an agent on each of %s (robots %s)",
+            wait,
+            bus.key(self.mission.mission, "robot", "<id>", "frame"),
+            ", ".join(self.robot_ids),
+        )
         missing = self.wait_for_agents(startup_timeout)
         if missing:
             log.warning("no agent subscribed for %s; starting anyway", ", ".join(missing))
+        else:
+            log.info("every robot's agent is there: running")
         ticks = 0
+        report = (time.monotonic(), 0)
         while max_ticks is None or ticks < max_ticks:
             ticks += 1
             if not self.tick():
                 break
+            now = time.monotonic()
+            if now - report[0] >= self.progress_every_s:
+                self._log_progress(ticks - report[1], now - report[0])
+                report = (now, ticks)
         return SimSummary(
             ticks=self.seq,
             sim_time_s=self.time,
@@ -239,6 +261,20 @@ class Simulator:
             dead=sorted(self.dead),
             distance_m={rid: s.distance for rid, s in self.world.robots.items()},
             rejected=self.rejected,
+        )
+
+    def _log_progress(self, ticks: int, seconds: float) -> None:
+        """One progress line: frames, simulated time, the rate, and who is live or dead."""
+        log.info(
+            "frame %d, sim t = %.1f s (%.1f frames/s, x%.1f real time); live %s; dead %s; "
+            "%d commands rejected",
+            self.seq,
+            self.time,
+            ticks / max(seconds, 1e-9),
+            ticks * self.mission.sim.frame_period_s / max(seconds, 1e-9),
+            ", ".join(self.live) or "none",
+            ", ".join(sorted(self.dead)) or "none",
+            self.rejected,
         )
 
     def close(self) -> None:

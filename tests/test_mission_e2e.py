@@ -49,6 +49,11 @@ def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
     summary = {k: v for k, v in metrics.items() if k != "entropy_curve"}
     assert metrics["reached_threshold"] is True, f"{summary}\n{proc.stdout}\n{logs}"
     assert metrics["final_entropy_bits"] <= 8000
+    # issue 18 case 9: the last figures printed are metrics.json's, after the shutdown flush
+    final = [line for line in proc.stdout.splitlines() if line.startswith("final, after the shutdown flush")]
+    assert len(final) == 1, proc.stdout
+    assert f"H={metrics['final_entropy_bits']:,.0f} bits" in final[0] and "the flush brought" in final[0]
+    assert "r1: shutdown flush:" in (out / "agent-r1.log").read_text()
     assert metrics["initial_entropy_bits"] > 32000
     assert 0 < metrics["mission_time_s"] <= metrics["sim_time_s"] <= 400
     assert metrics["distance_m"]["r1"] > 0.5  # it had to move, not only turn

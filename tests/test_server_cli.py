@@ -135,3 +135,28 @@ def test_server_refuses_a_store_of_another_mission(tmp_path: Path, capsys):
                          "--listen", endpoint)  # fmt: skip
     assert code == 2 and f"{tmp_path / 'store'}: this store was written for mission 'srvtest'" in err
     assert "shape [30, 20, 10]" in err and "shape [30, 20, 20]" in err
+
+
+def test_map_tools_find_the_servers_mission_or_name_both(served, capsys, tmp_path: Path):
+    """Issue 18 case 7: without --mission the tools use the only mission that answers; a
+    --mission or --config naming another mission is an error naming both."""
+    endpoint, _central = served
+    code, out, err = swarm(capsys, "map", "stats", "--connect", endpoint)
+    assert code == 0, err
+    assert json.loads(out)["mission"] == "srvtest"
+    code, out, err = swarm(capsys, "map", "get", "--connect", endpoint, "--point", "1.23,0.71,0.46", "--json")
+    assert code == 0 and json.loads(out)[0]["index"] == [12, 7, 4], err
+    code, _, err = swarm(
+        capsys, "map", "stats", "--connect", endpoint, "--mission", "office", "--timeout", "2"
+    )
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--mission names mission 'office'" in err and "serves mission 'srvtest'" in err
+    config = tmp_path / "office.yaml"
+    config.write_text(MISSION_YAML.replace("mission: srvtest", "mission: office"))
+    code, _, err = swarm(capsys, "map", "export", "--connect", endpoint, "--config", str(config),
+                         "--out", str(tmp_path / "m.npz"), "--timeout", "2")  # fmt: skip
+    assert code == 2 and f"{config}: mission names mission 'office'" in err and "'srvtest'" in err
+    config.write_text(MISSION_YAML)
+    code, out, err = swarm(capsys, "map", "export", "--connect", endpoint, "--config", str(config),
+                           "--out", str(tmp_path / "m.npz"))  # fmt: skip
+    assert code == 0 and "wrote" in out, err

@@ -11,6 +11,7 @@ import numpy as np
 from sim2d.commands import add_render_arguments, run_render
 from sim2d.render import Renderer, camera_pose
 from swarm.config import RigConfig
+from swarm.formats.depth_picture import BAR_WIDTH
 from swarm.formats.floor_plan import load_floor_plan
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -33,9 +34,9 @@ def test_render_a_mission(tmp_path, capsys):
     truth = Renderer(plan, RigConfig().camera()).cast(camera_pose(0.6, 1.0, 0.0, 0.4)).depth
     np.testing.assert_allclose(depth, truth, rtol=1e-6)  # stereo mode: the true depth
     picture = cv2.imread(str(tmp_path / "depth.png"))
-    assert picture.shape == (160, 160 + 120, 3)  # the depth, then the colour bar in metres
-    assert np.all(picture[:120, :160][np.isnan(depth)] == 0)  # no return: black
-    assert picture[:, 160:].std() > 20  # the bar is drawn
+    assert picture.shape == (240, 2 * 160 + BAR_WIDTH, 3)  # the depth enlarged 2x, then the colour bar
+    assert np.all(picture[:240:2, :320:2][np.isnan(depth)] == 0)  # no return: black
+    assert picture[:, 320:].std() > 20  # the bar is drawn
     assert "r1" in capsys.readouterr().out
 
 

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from robot_agent.stereo import StereoMatcher, depth_from_disparity, disparity_range, points_from_depth
 from robot_agent.stereo_command import add_arguments, run
+from swarm.formats.depth_picture import BAR_WIDTH
 from swarm.formats.stereo_calibration import (
     CalibrationError,
     StereoCalibration,
@@ -326,9 +327,10 @@ def test_cli_writes_depth_and_png(pair_files, capsys) -> None:
     assert depth.shape == (H, W) and depth.dtype == np.float32
     assert np.isnan(depth).any() and np.isfinite(depth).mean() > 0.6
     assert relative_error(depth, truth)[0] < 0.03
-    png = cv2.imread(str(d / "depth.png"))
-    assert png.shape == (H, W, 3)
-    assert np.all(png[np.isnan(depth)] == 0)
+    png = cv2.imread(str(d / "depth.png"))  # the picture (enlarged to >= 240 rows), then its colour bar
+    factor = max(1, -(-240 // H))
+    assert png.shape == (H * factor, W * factor + BAR_WIDTH, 3)
+    assert np.all(png[: H * factor : factor, : W * factor : factor][np.isnan(depth)] == 0)
     assert "wrote" in capsys.readouterr().out
 
 

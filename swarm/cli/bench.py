@@ -60,8 +60,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Time the lookup-table entropy of a 1,000,000-voxel map, "
         "the exact formula on a sample, and an incremental update.",
     )
-    entropy.add_argument("--voxels", type=int, default=1_000_000)
-    entropy.add_argument("--repeat", type=int, default=5)
+    entropy.add_argument(
+        "--voxels", type=int, default=1_000_000, help="map size in voxels (default 1,000,000)"
+    )
+    entropy.add_argument("--repeat", type=int, default=5, help="take the best of N runs (default 5)")
     entropy.set_defaults(run=_run_bench_entropy)
     agent = bsub.add_parser(
         "agent",
@@ -72,7 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     agent.add_argument("--config", type=Path, default=Path("configs/office.yaml"), help="mission to render")
     agent.add_argument("--sizes", nargs="+", default=["160x120", "640x480"], help="image sizes WxH")
-    agent.add_argument("--repeat", type=int, default=5)
+    agent.add_argument("--repeat", type=int, default=5, help="take the best of N runs (default 5)")
     agent.set_defaults(run=_run_bench_agent)
     server = bsub.add_parser(
         "server",

@@ -101,8 +101,30 @@ def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint of the map server (default tcp/127.0.0.1:7447); repeatable",
     )
-    p.add_argument("--mission", default="default", help="mission name, the key prefix (default: default)")
+    p.add_argument(
+        "--mission",
+        help="mission name, the key prefix (default: --config's mission, else the only mission whose "
+        "server answers; a server of another mission is an error naming both)",
+    )
+    p.add_argument("--config", type=Path, help="mission YAML file: take the mission name from it")
     p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for an answer (default 5)")
+
+
+def _open_client(args: argparse.Namespace):
+    """A MapClient on the mission to query (see ``resolve_mission`` for the rule)."""
+    from swarm.config import load_mission
+    from swarm.protocol.map_client import MapClient, resolve_mission
+
+    wanted, origin = args.mission, "--mission"
+    if wanted is None and args.config is not None:
+        wanted, origin = load_mission(args.config).mission, f"{args.config}: mission"
+    client = MapClient.connect(args.connect, wanted or "default", args.timeout)
+    try:
+        client.mission = resolve_mission(client.session, wanted, args.timeout, client.endpoint, origin)
+    except BaseException:
+        client.close()
+        raise
+    return client
 
 
 def _run_map_info(args: argparse.Namespace) -> int:
@@ -127,10 +149,10 @@ def _run_map_info(args: argparse.Namespace) -> int:
 
 
 def _run_map_stats(args: argparse.Namespace) -> int:
-    from swarm.protocol.map_client import MapClient, MapQueryError
+    from swarm.protocol.map_client import MapQueryError
 
     try:
-        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+        with _open_client(args) as client:
             print(json.dumps(client.stats(), indent=1))
     except (ConnectionError, MapQueryError) as exc:
         return fail(str(exc))
@@ -138,7 +160,7 @@ def _run_map_stats(args: argparse.Namespace) -> int:
 
 
 def _run_map_get(args: argparse.Namespace) -> int:
-    from swarm.protocol.map_client import MapClient, MapQueryError, format_region, region_rows
+    from swarm.protocol.map_client import MapQueryError, format_region, region_rows
 
     try:
         values = [float(v) for v in (args.point or args.box).split(",")]
@@ -150,7 +172,7 @@ def _run_map_get(args: argparse.Namespace) -> int:
     if not all(math.isfinite(v) for v in values):
         return fail(f"{option} {args.point or args.box}: coordinates must be finite numbers")
     try:
-        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+        with _open_client(args) as client:
             region = client.point(values) if args.point else client.region(values[:3], values[3:])
     except (ConnectionError, MapQueryError) as exc:
         return fail(str(exc))
@@ -165,14 +187,14 @@ def _run_map_get(args: argparse.Namespace) -> int:
 def _run_map_export(args: argparse.Namespace) -> int:
     from swarm.formats.map_export import export_coverage_map
     from swarm.formats.map_file import MapFileError, load_map
-    from swarm.protocol.map_client import MapClient, MapQueryError, export_map
+    from swarm.protocol.map_client import MapQueryError, export_map
 
     options = {"cubes": args.cubes, "max_sigma": args.max_sigma, "align": args.align}
     try:
         if args.source is not None:
             print(export_coverage_map(args.out, load_map(args.source), args.threshold, **options))
             return 0
-        with MapClient.connect(args.connect, args.mission, args.timeout) as client:
+        with _open_client(args) as client:
             print(export_map(client, args.out, args.threshold, **options))
     except (ConnectionError, MapQueryError, MapFileError, ValueError, OSError) as exc:
         return fail(str(exc))

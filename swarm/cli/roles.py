@@ -47,6 +47,13 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         help="auto (default): ask the coordinator (coord/assign) for targets and choose alone when it "
         "does not answer; none: always choose alone (eq. 35 on the shared map)",
     )
+    p.add_argument(
+        "--progress-every",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds between progress lines: frames fused, deltas sent and acked, map entropy (default 10)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     p.set_defaults(run=_run_agent)
 
@@ -58,32 +65,47 @@ def _run_agent(args: argparse.Namespace) -> int:
     from robot_agent.agent import Agent
     from swarm.config import ConfigError, load_mission
     from swarm.protocol import bus
+    from swarm.protocol.map_client import MissionMismatch
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
     )
+    if args.progress_every <= 0:
+        return fail(f"--progress-every {args.progress_every}: must be positive")
+    log = logging.getLogger("swarm.agent")
     try:
         mission = load_mission(args.config)
+        if args.robot_id not in mission.robot_ids:
+            known = ", ".join(mission.robot_ids)
+            raise ValueError(f"{args.config}: robots: no robot {args.robot_id!r} (robots: {known})")
+        log.info("%s: %s", args.robot_id, bus.describe_connection(args.listen, args.connect))
         session = bus.open_session(args.listen, args.connect)
+        log.info("%s: connected; mission %r (from %s)", args.robot_id, mission.mission, args.config)
         coordinated = args.coordination == "auto"
         agent = Agent(mission, args.robot_id, session, args.strategy, args.seed, coordination=coordinated)
+        agent.progress_every_s = args.progress_every
     except (ConfigError, ValueError, ConnectionError) as exc:
         return fail(str(exc))
     signal.signal(signal.SIGTERM, lambda *_: agent.stop())
     signal.signal(signal.SIGINT, lambda *_: agent.stop())
+    mismatch = None
     try:
         agent.run()
+    except MissionMismatch as exc:
+        mismatch = exc
     finally:
-        stats = agent.outbox.stats
-        print(
-            f"{args.robot_id}: {stats.deltas_sent} deltas, {stats.voxels_sent} voxels, "
-            f"{stats.bytes_sent} bytes sent, {stats.resent} resent; "
-            f"merged {dict(agent.merged_counts)}; coordinator {dict(agent.coordinator_counts)}; "
-            f"map entropy {agent.explorer.map_entropy:,.0f} bits",
-            flush=True,
-        )
+        if mismatch is None:  # after the shutdown flush: the final figures
+            stats = agent.outbox.stats
+            print(
+                f"{args.robot_id}: final, after the shutdown flush: {agent.frames_fused} frames fused, "
+                f"{stats.deltas_sent} deltas ({stats.voxels_sent} voxels, {stats.bytes_sent} bytes) sent, "
+                f"{agent.acked} acked, {stats.resent} resent; merged {dict(agent.merged_counts)}; "
+                f"coordinator {dict(agent.coordinator_counts)}; "
+                f"map entropy {agent.explorer.map_entropy:,.0f} bits",
+                flush=True,
+            )
         session.close()
-    return 0
+    return fail(f"{args.config}: mission: {mismatch}") if mismatch else 0
 
 
 # -- swarm coordinator --------------------------------------------------------------------

@@ -30,7 +30,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--map", type=Path, help="a ROS map_server map.yaml to explore instead of a mission")
     run.add_argument("--robots", type=int, help="number of robots (default: the mission's, 1 with --map)")
     run.add_argument("--out", type=Path, help="run folder (default runs/<mission>-<strategy>-s<seed>)")
-    run.add_argument("--strategy", choices=["entropy", "frontier", "random"], default="entropy")
+    run.add_argument(
+        "--strategy",
+        choices=["entropy", "frontier", "random"],
+        default="entropy",
+        help="exploration: entropy gradient (the paper, default), nearest frontier, or random",
+    )
     run.add_argument("--seed", type=int, default=0, help="random seed of the world and agents (default 0)")
     run.add_argument("--max-time", type=float, help="simulated seconds at most (default: the mission's)")
     run.add_argument(
@@ -65,7 +70,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "render",
         help="write what a robot sees (left/right images, true depth) as PNGs",
         description="Render robot ROBOT's first view of a mission config (or of a ROS map with "
-        "--map) and write left.png, right.png, depth.png and depth.npy to --out.",
+        "--map) and write left.png, right.png, depth.npy (float32 metres, NaN = no return) and "
+        "depth.png (near red, far blue, black = no return, with a colour bar in metres) to --out.",
     )
     world = ssub.add_parser(
         "world",

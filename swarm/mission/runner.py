@@ -185,6 +185,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     world: subprocess.Popen | None = None
     agents: list[subprocess.Popen] = []
     server_map = None
+    at_stop = (monitor.team_entropy, 0)
     client = MapClient(session, name, timeout=2.0)
     started = time.monotonic()
     reason = "starting"
@@ -252,6 +253,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                     flush=True,
                 )
             if reason != "running":
+                at_stop = (h, monitor.applied)  # what the last progress line showed
                 break
     finally:
         _stop(agents)  # agents flush their pending deltas on SIGTERM
@@ -267,6 +269,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         "wall_time_s": time.monotonic() - started,
         "threshold_bits": threshold,
         "server_map": server_map,
+        "at_stop": {"entropy_bits": at_stop[0], "deltas": at_stop[1], "deltas_after_flush": monitor.applied},
         "exit_codes": {
             "world": world.returncode if world is not None else None,
             "server": services[0].returncode if services else None,

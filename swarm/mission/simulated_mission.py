@@ -129,6 +129,22 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         "explored_fraction",
         "distance_m",
     )
+    print(final_line(metrics, facts), flush=True)
     print(json.dumps({k: metrics.get(k) for k in keys}, default=str))
     print(f"stopped: {facts['reason']}; evaluation {time.monotonic() - t0:.1f} s; wrote {out}/")
     return 0
+
+
+def final_line(metrics: dict, facts: dict) -> str:
+    """The run's last figures, after the agents' shutdown flush, as metrics.json holds them,
+    and what the flush did since the last progress line."""
+    stop = facts["at_stop"]
+    flushed = stop["deltas_after_flush"] - stop["deltas"]
+    h, h_stop = metrics["final_entropy_bits"], stop["entropy_bits"]
+    server = metrics.get("server_final_entropy_bits")
+    return (
+        f"final, after the shutdown flush: H={h:,.0f} bits (H_th {metrics['threshold_bits']:,.0f}), "
+        f"sim t={metrics['sim_time_s']:.1f} s; the flush brought {flushed} more delta(s) "
+        f"({h - h_stop:+,.0f} bits since the last progress line, H={h_stop:,.0f}); "
+        + (f"the map server's map: H={server:,.0f} bits" if server is not None else "no map from the server")
+    )

@@ -143,3 +143,16 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 def tcp_endpoint(port: int, host: str = "127.0.0.1") -> str:
     return f"tcp/{host}:{port}"
+
+
+def describe_connection(listen: list[str] | None, connect: list[str] | None, wait_s: float = 30.0) -> str:
+    """What a role says before opening its Zenoh session: where it listens or connects, and the wait."""
+    listen, connect = list(listen or []), list(connect or [])
+    if listen:
+        also = f", also connecting to {', '.join(connect)}" if connect else ""
+        return f"listening on {', '.join(listen)}{also}"
+    where = ", ".join(connect or [DEFAULT_ENDPOINT])
+    return (
+        f"connecting to {where}: waiting up to {wait_s:g} s for a Zenoh router there "
+        "(swarm server, or the runner of swarm sim)"
+    )

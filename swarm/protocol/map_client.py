@@ -130,6 +130,69 @@ class MapClient:
         )
 
 
+# -- which mission's server answers --------------------------------------------------------
+
+
+class MissionMismatch(MapQueryError):
+    """A map server answers, but for other missions than the one asked for (both are named)."""
+
+
+def missions_answering(session: zenoh.Session, timeout: float = DEFAULT_TIMEOUT_S) -> list[str]:
+    """Names of the missions whose map server answers ``swarm/*/map/stats`` within ``timeout`` s.
+
+    Asks again until one answers or the time is up (a session just opened may not know the
+    servers' queryables yet); returns the sorted names, empty when none answers.
+    """
+    pattern = f"{bus.ROOT}/*/map/stats"
+    deadline = time.monotonic() + timeout
+    while True:
+        names = set()
+        for reply in session.get(pattern, timeout=max(deadline - time.monotonic(), 0.05)):
+            if reply.ok is None:
+                continue
+            try:  # the reply's key is the query's pattern: the name is in the stats
+                name = json.loads(reply.ok.payload.to_bytes()).get("mission")
+            except (ValueError, AttributeError):
+                continue
+            if isinstance(name, str) and name:
+                names.add(name)
+        if names or time.monotonic() >= deadline:
+            return sorted(names)
+        time.sleep(0.05)
+
+
+def resolve_mission(
+    session: zenoh.Session, wanted: str | None, timeout: float, endpoint: str, origin: str = "--mission"
+) -> str:
+    """The mission to query: ``wanted`` if its server answers, else the only one that answers.
+
+    The rule every tool and role follows: the mission name is the config's ``mission`` (or
+    ``--mission``); a tool without a config takes the only mission whose server answers.
+    Raises :class:`MapServerUnavailable` when no server answers, :class:`MissionMismatch`
+    naming both sides when servers answer for other missions only, or for several when
+    ``wanted`` is None. ``origin`` says where ``wanted`` came from, for the message.
+    """
+    names = missions_answering(session, timeout)
+    if wanted is not None and wanted in names:
+        return wanted
+    if not names:
+        asked = f"mission {wanted!r}" if wanted else "any mission"
+        raise MapServerUnavailable(
+            f"no map server answered for {asked} at {endpoint} within {timeout:g} s "
+            "(is 'swarm server' running there?)"
+        )
+    serves = ", ".join(repr(n) for n in names)
+    if wanted is not None:
+        raise MissionMismatch(
+            f"{origin} names mission {wanted!r}, but the map server at {endpoint} serves mission {serves}"
+        )
+    if len(names) > 1:
+        raise MissionMismatch(
+            f"map servers of several missions answer at {endpoint}: {serves}; choose one with --mission"
+        )
+    return names[0]
+
+
 def _vec(v) -> str:
     v = np.asarray(v, dtype=np.float64).reshape(3)
     return ",".join(repr(float(x)) for x in v)

@@ -1,0 +1,66 @@
+"""Depth pictures (issue 18 case 10): one colour rule (near red, far blue, no return black), a
+colour bar in metres, `stereo depth --out` never a NumPy file under a picture's name, and
+`--help` text on every option of every command."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+from swarm.cli.main import build_parser
+from swarm.formats.depth_picture import BAR_WIDTH, depth_picture
+from tests.test_stereo import cli, pair_files  # noqa: F401 (a fixture)
+
+
+def test_near_is_red_far_is_blue_no_return_black_and_a_bar():
+    depth = np.tile(np.linspace(0.5, 4.5, 200), (150, 1))
+    depth[:10, :10] = np.nan
+    depth[-10:, -10:] = 0.0
+    picture = depth_picture(depth, 0.5, 4.5)
+    factor = 2  # 150 rows are enlarged to 300 (>= 240)
+    assert picture.shape == (300, 400 + BAR_WIDTH, 3)
+    image = picture[:, :400].astype(int)
+    b, _g, r = image[150, 4], image[150, 200], image[150, 396]
+    near, far = image[150, 2], image[150, 390]
+    assert near[2] > 150 and near[0] < 100, near  # BGR: red
+    assert far[0] > 100 and far[2] < 100, far  # blue
+    assert np.all(image[: 10 * factor, : 10 * factor] == 0) and np.all(
+        image[-10 * factor :, -10 * factor :] == 0
+    )
+    assert b is not None and r is not None
+    bar = picture[:, 400:].astype(int)
+    strip = bar[18:-8, 12]
+    assert (
+        strip[0][2] > strip[0][0] + 80 and strip[-1][0] > strip[-1][2] + 20
+    )  # the bar: near (red) on top, far (blue) below
+    assert (bar[:, 27:] < 80).all(axis=2).sum() > 100  # its labels are written
+    with pytest.raises(ValueError, match="near < far"):
+        depth_picture(depth, 3.0, 3.0)
+
+
+def test_stereo_depth_refuses_a_picture_name_for_the_npy(pair_files, capsys):  # noqa: F811
+    d, _ = pair_files
+    args = [str(d / "left.png"), str(d / "right.png"), "--calib", str(d / "calib.yaml")]
+    assert cli([*args, "--out", str(d / "d.png")]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "d.png" in err and ".npy" in err and "--png" in err
+    assert not (d / "d.png").exists()
+    assert cli([*args, "--out", str(d / "d.npy"), "--png", str(d / "d.jpg")]) == 2
+    assert "--png" in capsys.readouterr().err and not (d / "d.npy").exists()
+
+
+def test_every_option_of_every_command_explains_itself():
+    missing = []
+
+    def walk(parser: argparse.ArgumentParser, path: str) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, f"{path} {name}")
+            elif not isinstance(action, argparse._HelpAction) and not action.help:
+                missing.append(f"{path} {'/'.join(action.option_strings) or action.dest}")
+
+    walk(build_parser(), "swarm")
+    assert not missing, missing
