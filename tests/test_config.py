@@ -175,7 +175,10 @@ def test_mission_from_ros_map_places_robots_in_free_space():
     assert np.all(ros.free[cells[:, 0], cells[:, 1]])
     gaps = np.linalg.norm(starts[:, None] - starts[None], axis=-1)[np.triu_indices(3, 1)]
     assert np.all(gaps >= 1.0)
-    assert mission.stop.entropy_threshold_bits == pytest.approx(0.25 * 7 * mission.workspace.grid().size)
+    assert mission.stop.entropy_threshold_bits is None
+    assert mission.stop.observable_fraction == 0.16
+    with pytest.raises(ConfigError, match="stop.observable_fraction"):
+        mission.threshold_bits()  # only the simulator knows what can be observed
 
 
 def test_mission_from_ros_map_starts_near_the_requested_point():

@@ -80,6 +80,36 @@ def test_perfect_map_scores_perfectly():
     core = 4 * 10 * 5  # block voxels with six covered neighbours (outside the grid counts as covered)
     assert m["observable_voxels"] == GRID.size - core
     assert m["overlap_fraction"] is None  # no per-robot masks given
+    # the block's surface lies within 1.5 voxel edges of its mapped voxels, but its core is
+    # too far from any face to count as surface: with the core left unknown (as no sensor
+    # could see it) accuracy is perfect too
+    assert m["surface_completeness"] == 1.0 and 0.5 < m["surface_accuracy"] < 1.0
+    x, y, z = np.moveaxis(GRID.centres(), -1, 0)
+    to_surface = np.minimum.reduce([x - 1.5, 2.0 - x, y, 1.0 - y, 0.6 - z, z])  # inside the block
+    core = (truth > 0.5) & (to_surface >= 0.15 - 1e-9)  # 0.15 m or more from the faces and floor
+    lam[core.ravel()] = CoverageMap(GRID).lam[0]
+    eta = np.where(core.ravel(), CoverageMap(GRID).eta[0], lam * truth.ravel()).astype(np.float32)
+    m = compute_metrics(_record(), CoverageMap(GRID, lam=lam, eta=eta), truth)
+    assert m["surface_accuracy"] == 1.0 and m["surface_completeness"] == 1.0
+
+
+def test_surface_measures_see_a_shifted_wall_and_the_sensor_observable_mask():
+    truth = _truth()
+    shifted = np.zeros_like(truth)
+    shifted[10:15, :, :6] = 1.0  # the block mapped 0.5 m to the left: 3+ voxel edges off
+    lam = np.full(GRID.size, 1e8, np.float32)
+    m = compute_metrics(_record(), CoverageMap(GRID, lam=lam, eta=lam * shifted.ravel()), truth)
+    assert m["surface_accuracy"] < 0.6 and m["surface_completeness"] < 0.6
+    # with a sensor-observable mask: only surface whose air is observable counts, and the
+    # explored fraction is over that mask
+    cmap, observed = _fused_map()
+    seen = np.zeros(GRID.shape, bool)
+    seen[:15] = True  # everything left of the block
+    m = compute_metrics(_record(), cmap, truth, observed, seen)
+    assert m["observable_voxels"] == int(seen.sum())
+    full = compute_metrics(_record(), cmap, truth, observed)
+    assert m["surface"]["surface"] < full["surface"]["surface"]
+    assert m["surface_completeness"] > full["surface_completeness"]
 
 
 def test_metrics_of_a_fused_map():

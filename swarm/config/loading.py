@@ -9,6 +9,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from swarm.config.models import (
+    OBSERVABLE_FRACTION,
     ConfigError,
     Mission,
     RigConfig,
@@ -161,7 +162,9 @@ def mission_from_map(
     Robots start in known free space with at least robot radius + 0.15 m clearance (unknown
     cells count as obstacles), in the free region connected to ``start`` (default: the free
     cell closest to the middle of the known part of the map), at least ``spacing`` metres
-    apart, facing +x. H_th is 25% of the prior entropy (7 bits per voxel).
+    apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
+    OBSERVABLE_FRACTION): the entropy of the voxels no sensor can ever observe + 16% of the
+    observable prior, resolved by the simulator when the mission runs.
     """
     from scipy import ndimage
 
@@ -209,14 +212,13 @@ def mission_from_map(
             "voxel": voxel,
         },
         "floor_plan": {"path": str(map_yaml.resolve()), "wall_height": wall_height},
+        "stop": {"observable_fraction": OBSERVABLE_FRACTION},
         "robots": [
             {"id": f"r{i + 1}", "start": {"x": float(p[0]), "y": float(p[1]), "yaw": 0.0}}
             for i, p in enumerate(chosen)
         ],
     }
-    mission = mission_from_dict(data, source=map_yaml, base_dir=map_yaml.parent)
-    mission.stop.entropy_threshold_bits = mission.threshold_bits()
-    return mission
+    return mission_from_dict(data, source=map_yaml, base_dir=map_yaml.parent)
 
 
 def _safe_name(text: str) -> str:

@@ -31,6 +31,9 @@ from swarm.protocol.wire import Camera
 PRIOR_BITS_PER_VOXEL = 7.0
 #: Default stopping threshold H_th as a fraction of the initial map entropy.
 DEFAULT_THRESHOLD_FRACTION = 0.25
+#: The share of the observable prior left at H_th under the observable rule: the paper's
+#: end point (28,691 bits, 44% in never-observable voxels: an 84% decrease of the rest).
+OBSERVABLE_FRACTION = 0.16
 
 _NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
 
@@ -174,9 +177,17 @@ class RobotBodyConfig(_Section):
 
 
 class StopConfig(_Section):
-    """Stop when the map entropy reaches H_th (bits) or after ``max_time_s`` of sim time."""
+    """Stop when the map entropy reaches H_th (bits) or after ``max_time_s`` of sim time.
+
+    H_th is ``entropy_threshold_bits`` when given. Else, with ``observable_fraction`` f,
+    H_th = the entropy of the voxels no sensor of the mission can ever observe + f times
+    the prior entropy of the others; the simulator (``swarm sim``) computes it from the
+    floor plan and writes the figure into the run's config.yaml (docs/study.md, "The
+    threshold"). Else 25% of the prior entropy.
+    """
 
     entropy_threshold_bits: FiniteFloat | None = Field(default=None, ge=0)
+    observable_fraction: FiniteFloat | None = Field(default=None, ge=0, le=1)
     max_time_s: FiniteFloat = Field(default=600.0, gt=0)
 
 
@@ -276,9 +287,19 @@ class Mission(_Section):
         return self._plan
 
     def threshold_bits(self) -> float:
-        """H_th: the configured threshold, else 25% of the prior entropy (7 bits per voxel)."""
+        """H_th: the configured threshold, else 25% of the prior entropy (7 bits per voxel).
+
+        Raises ConfigError when the threshold is ``stop.observable_fraction`` and has not
+        been resolved to bits yet (``swarm.mission.threshold.resolve_threshold`` does that).
+        """
         if self.stop.entropy_threshold_bits is not None:
             return float(self.stop.entropy_threshold_bits)
+        if self.stop.observable_fraction is not None:
+            raise ConfigError(
+                f"{self.source or '<mission>'}: stop.observable_fraction: the threshold needs the "
+                "simulator's ground truth; run the mission with `swarm sim`, or set "
+                "stop.entropy_threshold_bits"
+            )
         return DEFAULT_THRESHOLD_FRACTION * PRIOR_BITS_PER_VOXEL * self.workspace.grid().size
 
     def to_yaml(self) -> str:

@@ -31,7 +31,7 @@ from swarm.formats.map_file import save_map
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_table import default_table
-from swarm.mission import evaluation
+from swarm.mission import evaluation, surface_quality
 
 #: Keys that ``metrics.json`` always has (DESIGN.md section 6, plus our additions).
 METRIC_KEYS = (
@@ -51,6 +51,8 @@ METRIC_KEYS = (
     "occupancy_f1_observed",
     "coverage_mae",
     "coverage_mae_observed",
+    "surface_accuracy",
+    "surface_completeness",
     "explored_fraction",
     "distance_m",
     "bytes_shared",
@@ -103,6 +105,7 @@ def compute_metrics(
     cmap: CoverageMap | None = None,
     true_coverage: np.ndarray | None = None,
     observed_by: dict[str, np.ndarray] | None = None,
+    sensor_observable: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The ``metrics.json`` dictionary of a run (keys: :data:`METRIC_KEYS`, plus ``occupancy``).
 
@@ -110,6 +113,14 @@ def compute_metrics(
     or above the floor counts as observable and the map-quality measures are None; without
     ``observed_by`` the overlap is None. ``reached_threshold`` is true when some sample of
     the entropy curve is at or below H_th, and ``mission_time_s`` is the first such time.
+
+    ``sensor_observable``: the voxels some sensor of the mission could ever observe
+    (:func:`swarm.mission.threshold.observable_mask_of`). When given, ``explored_fraction``,
+    ``entropy_split`` and ``observable_voxels`` count those, and surface completeness
+    counts only true surface whose air in front of it is among them; occupancy F1 and
+    coverage MAE keep the geometric mask (:func:`evaluation.observable_mask`) either way.
+    Surface accuracy and completeness (:mod:`swarm.mission.surface_quality`, tolerance 1.5
+    voxel edges) need ``record.floor_plan``; None without it.
     """
     cmap = cmap if cmap is not None else record.cmap
     if cmap is None:
@@ -137,6 +148,11 @@ def compute_metrics(
         mae = evaluation.coverage_mae(exp_cov, truth, observable)
         mae_observed = evaluation.coverage_mae(exp_cov, truth, observable & known)
 
+    if sensor_observable is not None:
+        observable = np.ravel(sensor_observable).astype(bool)
+    in_box = evaluation.observable_mask(np.zeros(grid.shape, np.float32), grid, record.workspace).ravel()
+    surface = _surface_quality(record, grid, exp_cov, in_box, sensor_observable)
+
     curve = [[float(t), float(h)] for t, h in record.entropy_curve]
     t_mission = evaluation.mission_time(curve, record.threshold_bits)
     robots = list(record.robots) + [r for r in record.trajectories if r not in record.robots]
@@ -158,6 +174,9 @@ def compute_metrics(
         "occupancy": quality,
         "coverage_mae": _finite(mae),
         "coverage_mae_observed": _finite(mae_observed),
+        "surface_accuracy": None if surface is None else surface["accuracy"],
+        "surface_completeness": None if surface is None else surface["completeness"],
+        "surface": surface,
         "explored_fraction": evaluation.explored_fraction(known, observable),
         "voxels": int(grid.size),
         "observable_voxels": int(np.count_nonzero(observable)),
@@ -169,6 +188,33 @@ def compute_metrics(
         "entropy_curve": curve,
     }
     return metrics
+
+
+def _surface_quality(
+    record: RunRecord,
+    grid,
+    exp_cov: np.ndarray,
+    in_workspace: np.ndarray,
+    sensor_observable: np.ndarray | None,
+) -> dict[str, Any] | None:
+    """Surface accuracy and completeness of the map against the record's floor plan."""
+    plan = record.floor_plan
+    if plan is None:
+        return None
+    lo, hi = grid.lo, grid.hi
+    if record.workspace is not None:
+        lo, hi = np.maximum(lo, record.workspace[0]), np.minimum(hi, record.workspace[1])
+    points, air = surface_quality.plan_surface_points(plan, lo, hi, 0.5 * grid.voxel)
+    if sensor_observable is not None and len(points):
+        flat = surface_quality.voxel_of(air, grid.lo, grid.voxel, grid.shape)
+        seen = np.ravel(sensor_observable).astype(bool)
+        points = points[(flat >= 0) & seen[np.maximum(flat, 0)]]
+    occupied = np.flatnonzero((np.ravel(exp_cov) > 0.5) & np.ravel(in_workspace))
+    centres = grid.centres().reshape(-1, 3)[occupied]
+    tolerance = surface_quality.TOLERANCE_EDGES * grid.voxel
+    out = surface_quality.surface_accuracy_completeness(centres, points, tolerance, floor_z=0.0)
+    out["tolerance_m"] = tolerance
+    return out
 
 
 def _get(d: dict | None, key: str) -> Any:

@@ -41,6 +41,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     from sim2d.ground_truth import coverage as true_coverage_of
     from swarm.mission.run_report import RunRecord, compute_metrics, write_run_folder
     from swarm.mission.runner import NEVER, MissionOptions, run_mission
+    from swarm.mission.threshold import resolve_threshold
 
     try:
         mission = resolve_mission(args, default_config)
@@ -56,6 +57,18 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
             return 2
         sharing = mission.sharing.model_copy(update={"share_min_bits": args.share_min_bits})
         mission = mission.model_copy(update={"sharing": sharing})
+    try:
+        mission, threshold_parts, sensor_observable = resolve_threshold(mission)
+    except ConfigError as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return 2
+    if threshold_parts is not None:
+        print(
+            f"H_th by the observable rule: {threshold_parts.unobservable_bits:,.0f} bits never observable "
+            f"({threshold_parts.unobservable_voxels:,} voxels) + {threshold_parts.fraction:.0%} of "
+            f"{threshold_parts.observable_prior_bits:,.0f} observable ({threshold_parts.seconds:.1f} s)",
+            flush=True,
+        )
     coordination = args.coordination if len(mission.robots) > 1 and args.strategy == "entropy" else "none"
     options = MissionOptions(
         out=out,
@@ -98,7 +111,8 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     )
     first_delta = monitor.first_delta_copy()  # one snapshot for the overlaps and observed_by.npz
     observed_by = {r: n != NEVER for r, n in first_delta.items()}
-    metrics = compute_metrics(record, monitor.cmap, truth, observed_by)
+    metrics = compute_metrics(record, monitor.cmap, truth, observed_by, sensor_observable)
+    metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
     metrics.update(
