@@ -64,6 +64,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="follow the mission with swarm view (rerun, pip install '.[view]'): a viewer window, "
         "or with a file name a recording to open later with `rerun RUN.rrd`",
     )
+    run.add_argument(
+        "--observable-threshold",
+        type=float,
+        metavar="F",
+        help="H_th = entropy of the voxels no sensor can ever observe + F x the observable prior "
+        "(F = 0.16 is the paper's end point; the default of --map missions); replaces the mission's H_th",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(

@@ -58,7 +58,10 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         sharing = mission.sharing.model_copy(update={"share_min_bits": args.share_min_bits})
         mission = mission.model_copy(update={"sharing": sharing})
     try:
-        mission, threshold_parts, sensor_observable = resolve_threshold(mission)
+        fraction = getattr(args, "observable_threshold", None)
+        if fraction is not None and not 0.0 <= fraction <= 1.0:
+            raise ConfigError(f"--observable-threshold must be in [0, 1] (got {fraction})")
+        mission, threshold_parts, sensor_observable = resolve_threshold(mission, fraction)
     except ConfigError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return 2

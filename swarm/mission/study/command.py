@@ -79,6 +79,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="simulated seconds at most per run (default: each mission's)",
     )
     parser.add_argument(
+        "--observable-threshold",
+        type=float,
+        metavar="F",
+        help="every run's H_th = entropy no sensor can ever observe + F x the observable prior "
+        "(swarm sim --observable-threshold; --map missions use F = 0.16 anyway)",
+    )
+    parser.add_argument(
         "--jobs",
         type=int,
         default=1,
@@ -104,6 +111,7 @@ def spec_from_args(args: argparse.Namespace) -> StudySpec:
             coordination=tuple(args.coordination),
             seeds=tuple(args.seeds),
             max_time_s=args.max_time,
+            observable_threshold=args.observable_threshold,
             jobs=args.jobs,
             out=args.out,
             resume=args.resume,

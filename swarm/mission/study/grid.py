@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 Strategy = Literal["entropy", "frontier", "random"]
 Coordination = Literal["coordinator", "none"]
@@ -25,6 +25,7 @@ OPTION_OF = {
     "coordination": "--coordination",
     "seeds": "--seeds",
     "max_time_s": "--max-time",
+    "observable_threshold": "--observable-threshold",
     "jobs": "--jobs",
     "out": "--out",
     "resume": "--resume",
@@ -59,6 +60,7 @@ class StudySpec(BaseModel):
     coordination: tuple[Coordination, ...] = ("coordinator", "none")
     seeds: tuple[int, ...] = (0, 1, 2)
     max_time_s: float | None = None
+    observable_threshold: float | None = Field(default=None, ge=0, le=1)
     jobs: int = 1
     out: Path
     resume: bool = False
@@ -164,13 +166,17 @@ class Cell:
         """The cell without its seed: (label, robots, strategy, coordination)."""
         return (self.label, self.robots, self.strategy, self.coordination)
 
-    def sim_args(self, out: Path, max_time_s: float | None) -> list[str]:
+    def sim_args(
+        self, out: Path, max_time_s: float | None, observable_threshold: float | None = None
+    ) -> list[str]:
         """Arguments of ``swarm`` that run this cell into run folder ``out``."""
         where = [str(self.source)] if self.kind == "config" else ["--map", str(self.source)]
         args = ["sim", "run", *where, "--robots", str(self.robots), "--strategy", self.strategy]
         args += ["--coordination", self.coordination, "--seed", str(self.seed), "--quiet", "--out", str(out)]
         if max_time_s is not None:
             args += ["--max-time", f"{max_time_s:g}"]
+        if observable_threshold is not None:
+            args += ["--observable-threshold", f"{observable_threshold:g}"]
         return args
 
 

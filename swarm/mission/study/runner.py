@@ -185,7 +185,7 @@ def execute(
                     if metrics is not None:
                         echo(f"[{k + 1}/{total}] {cell.name}: metrics.json does not match the cell; running")
                 echo(f"[{k + 1}/{total}] {cell.name}: started")
-                args = cell.sim_args(run_dir, spec.max_time_s)
+                args = cell.sim_args(run_dir, spec.max_time_s, spec.observable_threshold)
                 running[k] = (launch(args, out / "logs" / f"{cell.name}.log"), time.monotonic())
             for k in list(running):
                 proc, t0 = running[k]

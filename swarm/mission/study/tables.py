@@ -127,6 +127,9 @@ class SettingSummary:
     overlap_before_threshold_mean: float | None = None
     f1_mean: float | None = None
     f1_observed_mean: float | None = None
+    surface_accuracy_mean: float | None = None
+    surface_completeness_mean: float | None = None
+    mae_observed_mean: float | None = None
     explored_mean: float | None = None
     distance_total_mean_m: float | None = None
     distance_per_robot_mean_m: float | None = None
@@ -184,6 +187,9 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SettingSummary]:
         s.overlap_before_threshold_mean = _mean(r.get("overlap_before_threshold") for r in done)
         s.f1_mean = _mean(r["occupancy_f1"] for r in done)
         s.f1_observed_mean = _mean(r["occupancy_f1_observed"] for r in done)
+        s.surface_accuracy_mean = _mean(r.get("surface_accuracy") for r in done)
+        s.surface_completeness_mean = _mean(r.get("surface_completeness") for r in done)
+        s.mae_observed_mean = _mean(r.get("coverage_mae_observed") for r in done)
         s.explored_mean = _mean(r["explored_fraction"] for r in done)
         s.distance_total_mean_m = _mean(r["distance_total_m"] for r in done)
         s.distance_per_robot_mean_m = _mean(r["distance_mean_m"] for r in done)
@@ -263,10 +269,10 @@ def summary_markdown(
         "",
         "| config | robots | strategy | coordination | runs | reached H_th | time to H_th, all runs (s) "
         "| time, reached runs (s) | final H (bits) | overlap | overlap halfway | overlap before H_th "
-        "| F1 | F1 observed "
+        "| F1 | F1 observed | surface accuracy | surface completeness | coverage MAE observed "
         "| distance, team (m) "
         "| speed-up |",
-        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in summary:
         runs = f"{s.n_runs}" + (f" (+{s.n_failed} failed)" if s.n_failed else "")
@@ -290,6 +296,9 @@ def summary_markdown(
             _num(s.overlap_before_threshold_mean, ".3f"),
             _num(s.f1_mean, ".3f"),
             _num(s.f1_observed_mean, ".3f"),
+            _num(s.surface_accuracy_mean, ".3f"),
+            _num(s.surface_completeness_mean, ".3f"),
+            _num(s.mae_observed_mean, ".3f"),
             _num(s.distance_total_mean_m, ".1f"),
             speed,
         ]
@@ -309,7 +318,11 @@ def summary_markdown(
         "start to H_th; overlap before H_th: over what they had shared before the delta that brought "
         "the team map to H_th (usually the first agent's end-of-work flush, so: what the agents shared "
         "through their utility filter); "
-        "F1: occupancy F1 over observable voxels (F1 observed: over the voxels the team saw).",
+        "F1: occupancy F1 over observable voxels (F1 observed: over the voxels the team saw); "
+        "surface accuracy: share of mapped occupied voxels (E[C] > 0.5) within 1.5 voxel edges of the "
+        "true surface; surface completeness: share of the true surface (that a sensor could see) within "
+        "1.5 voxel edges of a mapped occupied voxel; coverage MAE observed: mean |E[C] - true coverage| "
+        "over the voxels the team saw.",
     ]
     if failed:
         lines += ["", "## Failed runs", ""]
