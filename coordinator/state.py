@@ -228,10 +228,15 @@ class CoordinatorState:
             return Answer(request.robot, AssignReply(None, None, 0.0), None, len(found), len(held))
         self.counts["assigned" if chosen is not None else "wander"] += 1
         xy, yaw = (chosen.xy, chosen.gaze_yaw) if chosen is not None else (wander.xy, wander.gaze_yaw)
+        # flush on demand: the robot gets back a target it had, so the team map may lack what
+        # it saw there (still in its outbox, under the utility filter)
+        flush = chosen is not None and _near(chosen.xy, recent, RECENT_RADIUS)
+        self.counts["flush_asked"] += int(flush)
         reply = AssignReply(
             target=(float(xy[0]), float(xy[1]), float(z)),
             gaze=(math.cos(yaw), math.sin(yaw), 0.0),
             utility=float(chosen.utility) if chosen is not None else 0.0,
+            flush=flush,
         )
         return Answer(request.robot, reply, chosen, len(found), len(held), wander)
 

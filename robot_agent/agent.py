@@ -275,6 +275,9 @@ class Agent:
             self.coordinator_counts["nothing_left"] += 1
             return None
         self.coordinator_counts["assigned"] += 1
+        if reply.flush:  # flush on demand: the coordinator lacks what this robot saw there
+            self.coordinator_counts["flushed"] += 1
+            self._share(flush=True)
         gaze = reply.gaze or (1.0, 0.0, 0.0)
         xy = np.array(reply.target[:2], dtype=np.float64)
         return ExplorationTarget(xy, math.atan2(gaze[1], gaze[0]), reply.utility, None, "assigned")

@@ -437,3 +437,22 @@ def test_command_line_runs_without_a_map_server_and_stops_on_sigterm(tmp_path: P
     assert proc.returncode == 0, err
     assert "coordinator: " in out and "requests 1" in out
     assert "assign r1 -> nothing left" in err
+
+
+def test_a_robot_given_back_its_own_old_target_is_asked_to_flush():
+    """Flush on demand: the replica has not changed since r1 was sent to the only place left,
+    so what r1 saw there is still in its outbox; handing the place back says "flush"."""
+    m = mission()
+    state = CoordinatorState(m)
+    for msg in deltas_of(m, corridor_map(m, 0.3, 1.8), "r9", 1, 2):
+        state.team.apply_payload(msg.encode())
+    first = state.answer(AssignRequest("r1", pose("r1")), now=0.0)
+    assert first.candidate is not None and not first.reply.flush
+    again = state.answer(AssignRequest("r1", pose("r1")), now=1.0)
+    assert again.candidate is not None
+    assert math.dist(again.reply.target[:2], first.reply.target[:2]) < 1.0
+    assert again.reply.flush and state.counts["flush_asked"] == 1
+    # the field travels, and a reply without it (an older coordinator) means no flush
+    assert AssignReply.decode(again.reply.encode()).flush
+    old = msgpack.packb({"v": 1, "target": None, "gaze": None, "utility": 0.0})
+    assert not AssignReply.decode(old).flush

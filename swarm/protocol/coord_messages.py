@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from swarm.protocol.codec import (
+    WireError,
     number,
     pack,
     require,
@@ -41,11 +42,17 @@ class AssignRequest:
 
 @dataclass(frozen=True)
 class AssignReply:
-    """The coordinator's answer: a target point and gaze direction (None: no target)."""
+    """The coordinator's answer: a target point and gaze direction (None: no target).
+
+    ``flush`` (an addition to protocol v1, optional on the wire, False when absent): the
+    target is one this robot was given before, so what it saw there may still sit in its
+    outbox; the robot should share all its pending deltas now ("flush on demand").
+    """
 
     target: tuple[float, float, float] | None
     gaze: tuple[float, float, float] | None
     utility: float
+    flush: bool = False
 
     KIND = "assign reply"
 
@@ -55,7 +62,12 @@ class AssignReply:
 
         return pack(
             self.KIND,
-            {"target": vec(self.target), "gaze": vec(self.gaze), "utility": float(self.utility)},
+            {
+                "target": vec(self.target),
+                "gaze": vec(self.gaze),
+                "utility": float(self.utility),
+                "flush": bool(self.flush),
+            },
         )
 
     @classmethod
@@ -63,8 +75,12 @@ class AssignReply:
         kind = cls.KIND
         msg = unpack(payload, kind)
         target, gaze = require(msg, "target", kind), require(msg, "gaze", kind)
+        flush = msg.get("flush", False)
+        if not isinstance(flush, bool):
+            raise WireError(f"{kind}: field 'flush' must be a boolean, got {type(flush).__name__}")
         return cls(
             target=None if target is None else vec3(target, "target", kind),
             gaze=None if gaze is None else vec3(gaze, "gaze", kind),
             utility=number(require(msg, "utility", kind), "utility", kind),
+            flush=flush,
         )
