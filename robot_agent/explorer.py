@@ -32,6 +32,7 @@ from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability
+from swarm.navigation.view_targets import CameraReach
 from swarm.protocol.wire import Frame
 
 STRATEGIES = ("entropy", "frontier", "random")
@@ -97,6 +98,11 @@ class Explorer:
         self.failures_in_a_row = 0
         self.looked_before_done = False
         self.looks_in_place = 0  # targets in a row at the robot's own cell
+        # where the camera can look (the head only ever looks up), for 3-D frontier views
+        self.camera = CameraReach.of_rig(
+            self.rig, self.sensor.max_range, looks_up=self.rig.tilt_range_deg > 0
+        )
+        self.tried_views: list[np.ndarray] = []  # x-y of the columns a view target was chosen for
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
         self.head = 0.0  # the tilt this robot asks for now
@@ -239,7 +245,12 @@ class Explorer:
             self.mission.exploration.radius,
             self.rng,
             exclude=exclude,
+            camera=self.camera,
+            tried=self.tried_views,
         )
+        if target is not None and target.kind in ("view", "frontier3d") and target.voxel is not None:
+            i, j, _k = np.unravel_index(target.voxel, self.grid.shape)
+            self.tried_views.append(self.grid.lo[:2] + (np.array([i, j]) + 0.5) * self.grid.voxel)
         if target is None:
             if not self.looked_before_done:
                 # Nothing reachable looks informative: turn once more (head raised, if it

@@ -45,6 +45,7 @@ from swarm.navigation.baselines import frontier_cells, frontier_target, random_c
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
+from swarm.navigation.view_targets import CameraReach, view_target
 
 __all__ = [
     "DEFAULT_MIN_STEP_BITS",
@@ -119,6 +120,8 @@ def choose_target(
     view: ViewGeometry = ViewGeometry(),
     exclude_radius: float = 1.0,
     widen: bool = True,
+    camera: CameraReach | None = None,
+    tried: Sequence[np.ndarray] = (),
 ) -> ExplorationTarget | None:
     """The next target of ``strategy`` ("entropy", "frontier" or "random"), or None when done.
 
@@ -131,12 +134,21 @@ def choose_target(
     35 units, bits/m) defaults to DEFAULT_MIN_STEP_BITS / voxel edge. ``view`` says where
     the robot may stand to look at an entropy target; ``widen=False`` keeps the paper's
     fixed radius (then wander, then None).
+
+    ``camera``: the camera's elevation band and range. When given, a strategy whose own
+    targets have run out (no eq. 35 target and no unknown slab voxel in view; no 2-D frontier)
+    goes on to the nearest 3-D frontier voxel it can be pointed at
+    (:func:`swarm.navigation.view_targets.view_target`, kind ``"view"``), skipping the
+    columns in ``tried`` (x-y); None only when none is left either.
     """
     ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     if strategy == "entropy":
-        return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen)
+        return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen, camera, tried)
     if strategy == "frontier":
-        return frontier_target(ctx, view.far)
+        found = frontier_target(ctx, view.far)
+        if found is None and camera is not None:
+            found = view_target(ctx, camera, tried, kind="frontier3d")
+        return found
     if strategy == "random":
         return random_target(ctx, 2.0 * radius, rng, view.far)
     raise ValueError(f"unknown exploration strategy {strategy!r}; expected one of {STRATEGIES}")
@@ -229,11 +241,18 @@ def _entropy_target(
     min_score: float | None = None,
     view: ViewGeometry = ViewGeometry(),
     widen: bool = True,
+    camera: CameraReach | None = None,
+    tried: Sequence[np.ndarray] = (),
 ) -> ExplorationTarget | None:
-    """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else wander/None."""
+    """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else a 3-D
+    frontier view (with ``camera``); else wander/None."""
     best = next(_entropy_candidates(ctx, entropy, radius, min_score, view, widen), None)
     if best is not None:
         return best.as_target()
+    if camera is not None:
+        seen = view_target(ctx, camera, tried)
+        if seen is not None:
+            return seen
     if not ctx.reach.any() or not ctx.unknown_in_view():
         return None
     return random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)

@@ -15,8 +15,10 @@ class ExplorationTarget:
     the robot's cell always counts as reachable, even when inflation marks it blocked).
 
     ``utility`` is the eq. 35 score for ``"entropy"``, the unknown floor area (m^2) within
-    viewing range for ``"frontier"`` and ``"random"``, 0 for ``"wander"``; ``voxel`` is the
-    flat index of l_s (entropy targets only).
+    viewing range for ``"frontier"`` and ``"random"``, 0 for ``"wander"``, the number of
+    unknown voxels of the column for a 3-D frontier view (``"view"`` for the entropy
+    strategy, ``"frontier3d"`` for the frontier one); ``voxel`` is the flat index of l_s
+    (entropy targets) or of the column's lowest 3-D frontier voxel (views).
     """
 
     xy: np.ndarray

@@ -1,0 +1,186 @@
+"""3-D frontier targets: unknown voxels at any height that the camera can still be pointed at.
+
+Eq. 30 looks for targets in the sensor's slab only, and the 2-D frontier of Yamauchi's
+method in the floor's columns only. Once the slab and the floor are known, a robot
+using either stops, though unknown voxels may be left above the slab (the upper part of a
+room, the top of furniture seen only edge-on) or below it (floor close to walls and boxes,
+which a level camera misses near the robot). This module finds those voxels and where to
+stand to see them:
+
+- *3-D frontier*: unknown voxels face-adjacent to a known free voxel (E[C] below the
+  opaque level), so a ray can reach them through known free space (Yamauchi's frontier,
+  "known free next to unknown", in three dimensions).
+- *Standing point*: a reachable cell whose horizontal distance d to the voxel's column lets
+  the camera, at ``sensor_height``, see the voxel within its elevation band (the vertical
+  field of view, widened upwards by a tilt head) and within range, with a straight line of
+  sight in the slab (no opaque slab voxel in between). The nearest such cell by path cost
+  is chosen; the gaze points at the column.
+
+Targets whose columns were already looked at (``tried``) are skipped, so a voxel that stays
+unknown when looked at (hidden in ways the slab test cannot tell) is given up after one try.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarm.map.entropy import expected_coverage
+from swarm.navigation.search_context import OPAQUE_COVERAGE, SearchContext
+from swarm.navigation.targets import ExplorationTarget
+
+#: Frontier columns examined per call, nearest first (straight-line distance to the robot).
+MAX_COLUMNS = 400
+
+
+@dataclass(frozen=True)
+class CameraReach:
+    """The elevation band (radians, positive up) and range (m) the camera can look along."""
+
+    elevation_lo: float
+    elevation_hi: float
+    max_range: float
+    min_range: float = 0.3
+
+    @classmethod
+    def of_rig(cls, rig, max_range: float, looks_up: bool = True) -> CameraReach:
+        """The band of a ``swarm.config.RigConfig``: mounting pitch +- half the vertical field
+        of view, raised by the tilt head's range when the agent looks up (``looks_up``)."""
+        half_v = math.atan(0.5 * rig.height / rig.fx)
+        centre = -math.radians(rig.pitch_deg)
+        up = math.radians(rig.tilt_range_deg) if looks_up else 0.0
+        reach = max_range if rig.max_range is None else min(max_range, rig.max_range)
+        return cls(centre - half_v, centre + half_v + up, reach)
+
+
+def frontier_voxels_3d(ctx: SearchContext) -> np.ndarray:
+    """Unknown voxels face-adjacent to a known free voxel, bool of shape ``grid.shape``."""
+    cmap = ctx.cmap
+    shape = cmap.grid.shape
+    known = cmap.known_mask().reshape(shape)
+    cov = expected_coverage(cmap.mean(), cmap.sigma()).reshape(shape)
+    free = known & (cov < OPAQUE_COVERAGE)
+    near_free = np.zeros(shape, dtype=bool)
+    near_free[1:] |= free[:-1]
+    near_free[:-1] |= free[1:]
+    near_free[:, 1:] |= free[:, :-1]
+    near_free[:, :-1] |= free[:, 1:]
+    near_free[:, :, 1:] |= free[:, :, :-1]
+    near_free[:, :, :-1] |= free[:, :, 1:]
+    return ~known & near_free
+
+
+def view_target(
+    ctx: SearchContext,
+    camera: CameraReach,
+    tried: Sequence[np.ndarray] = (),
+    tried_radius: float = 0.25,
+    kind: str = "view",
+) -> ExplorationTarget | None:
+    """Where to stand to see the nearest 3-D frontier voxel (see the module doc); None if no
+    frontier voxel has a reachable standing point. ``tried``: x-y of columns already looked at,
+    skipped within ``tried_radius``. ``utility``: the column's frontier voxels (count)."""
+    grid = ctx.cmap.grid
+    e = grid.voxel
+    front = frontier_voxels_3d(ctx)
+    counts = front.sum(axis=2)
+    cols = np.argwhere(counts > 0)
+    if cols.size == 0 or not ctx.reach.any():
+        return None
+    xy = np.stack([ctx.cx[cols[:, 0]], ctx.cy[cols[:, 1]]], axis=1)
+    for p in tried:
+        keep = np.hypot(*(xy - np.asarray(p)[:2]).T) > tried_radius
+        cols, xy = cols[keep], xy[keep]
+    if cols.size == 0:
+        return None
+    order = np.argsort(np.hypot(*(xy - ctx.position[:2]).T), kind="stable")[:MAX_COLUMNS]
+    z_centres = grid.lo[2] + (np.arange(grid.shape[2]) + 0.5) * e
+    h = float(ctx.position[2])
+    best: tuple[float, int, tuple[int, int]] | None = None
+    dist = np.hypot(*(xy - ctx.position[:2]).T)
+    for n in order:
+        # a path to a stand is at least as long as the straight line: D - d_hi
+        if best is not None and dist[n] - camera.max_range > best[0]:
+            break  # sorted by D: no farther column can do better
+        i, j = (int(v) for v in cols[n])
+        dz = z_centres[front[i, j]] - h
+        # horizontal distances from which some frontier voxel of the column is in the band
+        d_lo, d_hi = _distance_window(dz, camera, e)
+        if d_lo > d_hi or (best is not None and dist[n] - d_hi > best[0]):
+            continue
+        stand = _stand_for(ctx, i, j, d_lo, d_hi)
+        if stand is None:
+            continue
+        cost = 0.0 if stand == ctx.start else float(ctx.cost[stand])
+        if best is None or cost < best[0]:
+            best = (cost, n, stand)
+    if best is None:
+        return None
+    _cost, n, stand = best
+    at = ctx.centre(*stand)
+    look = xy[n] - at
+    yaw = math.atan2(look[1], look[0]) if np.linalg.norm(look) > 1e-9 else ctx.yaw
+    i, j = (int(v) for v in cols[n])
+    k = int(np.flatnonzero(front[i, j])[0])
+    return ExplorationTarget(
+        xy=at,
+        gaze_yaw=yaw,
+        utility=float(counts[i, j]),
+        voxel=(i * grid.shape[1] + j) * grid.shape[2] + k,
+        kind=kind,
+    )
+
+
+def _distance_window(dz: np.ndarray, camera: CameraReach, e: float) -> tuple[float, float]:
+    """The widest [d_lo, d_hi] of horizontal distances that see one of the heights ``dz``
+    (voxel centre minus camera, m) within the band and range (one voxel edge of slack)."""
+    lo_all, hi_all = math.inf, -math.inf
+    tan_hi = math.tan(min(camera.elevation_hi, math.radians(89)))
+    tan_lo = math.tan(max(camera.elevation_lo, -math.radians(89)))
+    for z in dz:
+        d_lo = camera.min_range
+        if z > 0:
+            d_lo = max(d_lo, z / tan_hi if tan_hi > 0 else math.inf)
+        elif z < 0:
+            d_lo = max(d_lo, z / tan_lo if tan_lo < 0 else math.inf)
+        d_hi = math.sqrt(max(camera.max_range**2 - z * z, 0.0)) - e
+        if d_lo <= d_hi:
+            lo_all, hi_all = min(lo_all, d_lo), max(hi_all, d_hi)
+    return lo_all, hi_all
+
+
+def _stand_for(ctx: SearchContext, i: int, j: int, d_lo: float, d_hi: float) -> tuple[int, int] | None:
+    """The reachable allowed cell of least path cost at horizontal distance [d_lo, d_hi] from
+    column (i, j) with a clear slab line of sight to it; None if none."""
+    e = ctx.voxel
+    n = int(math.ceil(d_hi / e)) + 1
+    nx, ny = ctx.reach.shape
+    i0, i1, j0, j1 = max(i - n, 0), min(i + n + 1, nx), max(j - n, 0), min(j + n + 1, ny)
+    pool = ctx.reach[i0:i1, j0:j1] & ctx.allowed[i0:i1, j0:j1]
+    ii, jj = np.nonzero(pool)
+    if ii.size == 0:
+        return None
+    ii, jj = ii + i0, jj + j0
+    d = np.hypot(ctx.cx[ii] - ctx.cx[i], ctx.cy[jj] - ctx.cy[j])
+    ok = (d >= d_lo - 1e-9) & (d <= d_hi + 1e-9)
+    ii, jj = ii[ok], jj[ok]
+    if ii.size == 0:
+        return None
+    cost = np.where((ii == ctx.start[0]) & (jj == ctx.start[1]), 0.0, ctx.cost[ii, jj])
+    for m in np.argsort(cost, kind="stable")[:64]:
+        if _clear(ctx, int(ii[m]), int(jj[m]), i, j):
+            return int(ii[m]), int(jj[m])
+    return None
+
+
+def _clear(ctx: SearchContext, a: int, b: int, i: int, j: int) -> bool:
+    """No opaque slab voxel on the segment from cell (a, b) to column (i, j), that column excepted."""
+    steps = max(abs(i - a), abs(j - b)) * 2 + 1
+    t = np.arange(1, steps) / steps
+    si = np.rint(a + t * (i - a)).astype(np.int64)
+    sj = np.rint(b + t * (j - b)).astype(np.int64)
+    blocked = ctx.opaque[si, sj] & ~((si == i) & (sj == j))
+    return not blocked.any()

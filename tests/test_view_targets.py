@@ -1,0 +1,78 @@
+"""3-D frontier views (swarm.navigation.view_targets): targets above the sensor slab."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.grid import Grid
+from swarm.navigation.exploration import choose_target
+from swarm.navigation.planner import GridPlanner
+from swarm.navigation.traversability import build_traversability
+from swarm.navigation.view_targets import CameraReach
+
+GRID = Grid((0.0, 0.0, 0.0), 0.1, (40, 20, 16))  # 4 m x 2 m x 1.6 m
+HALF_V = math.atan(0.5 * 120 / (0.5 * 160 / math.tan(math.radians(30))))  # the default rig's
+
+
+def _known_below(z_known: float) -> CoverageMap:
+    """Every voxel below ``z_known`` known free; the ones above unknown."""
+    cmap = CoverageMap(GRID)
+    z = GRID.lo[2] + (np.arange(GRID.shape[2]) + 0.5) * GRID.voxel
+    lam = cmap.lam.reshape(GRID.shape)
+    eta = cmap.eta.reshape(GRID.shape)
+    lam[:, :, z < z_known] = 1.0 / 0.02**2
+    eta[:, :, z < z_known] = 0.0
+    return cmap
+
+
+def _choose(strategy, cmap, camera, tried=(), pose=(1.0, 1.0, 0.0)):
+    trav = build_traversability(cmap, robot_height=0.5, robot_radius=0.18)
+    cell = tuple(int(c) for c in trav.cell_of(np.array(pose[:2])))
+    cost = GridPlanner(trav).cost_map(cell)
+    entropy = np.zeros(GRID.size)  # no eq. 35 gradient to follow
+    rng = np.random.default_rng(0)
+    return choose_target(strategy, cmap, entropy, pose, 0.4, trav, cost, 1.5, rng, camera=camera, tried=tried)
+
+
+@pytest.mark.parametrize(
+    ("tilt", "d_min"), [(35.0, 0.65 / math.tan(HALF_V + math.radians(35))), (0.0, 0.65 / math.tan(HALF_V))]
+)
+def test_unknown_air_above_the_slab_is_looked_at_from_where_the_band_reaches_it(tilt, d_min):
+    cmap = _known_below(1.0)  # the slab and the floor known, z >= 1.0 unknown
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(tilt), 5.0)
+    # without the camera's band the strategies see nothing left: the robot would stop here
+    assert _choose("entropy", cmap, None) is None
+    assert _choose("frontier", cmap, None) is None
+    for strategy, kind in (("entropy", "view"), ("frontier", "frontier3d")):
+        target = _choose(strategy, cmap, camera)
+        assert target is not None and target.kind == kind
+        i, j, k = np.unravel_index(target.voxel, GRID.shape)
+        column = GRID.lo[:2] + (np.array([i, j]) + 0.5) * 0.1
+        d = np.linalg.norm(column - target.xy)
+        assert k == 10  # the first unknown layer, z 1.0-1.1 m (centre 0.65 m above the camera)
+        assert d_min - 1e-9 <= d <= 5.0
+        assert math.atan2(0.65, d) <= camera.elevation_hi + 1e-9  # in the band
+        look = column - target.xy
+        assert math.cos(math.atan2(look[1], look[0]) - target.gaze_yaw) == pytest.approx(1.0)
+        assert np.linalg.norm(target.xy - np.array([1.0, 1.0])) < 0.6  # the nearest such place
+
+
+def test_columns_already_looked_at_are_not_chosen_again():
+    cmap = _known_below(1.0)
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(35), 5.0)
+    everywhere = [GRID.lo[:2] + (np.array([i, j]) + 0.5) * 0.1 for i in range(40) for j in range(20)]
+    assert _choose("entropy", cmap, camera, tried=everywhere) is None
+    first = _choose("entropy", cmap, camera)
+    i, j, _ = np.unravel_index(first.voxel, GRID.shape)
+    again = _choose("entropy", cmap, camera, tried=[GRID.lo[:2] + (np.array([i, j]) + 0.5) * 0.1])
+    assert again is not None and again.voxel != first.voxel
+
+
+def test_unknown_air_out_of_range_gives_nothing():
+    cmap = _known_below(1.0)
+    short = CameraReach(-HALF_V, HALF_V, 0.6)  # 0.65 m above the camera: out of a 0.6 m range
+    assert _choose("entropy", cmap, short) is None
