@@ -125,6 +125,11 @@ def test_metrics_of_a_fused_map():
     assert m["final_entropy_bits"] < 7.0 * GRID.size
     assert m["entropy_split"]["final_bits"] == pytest.approx(m["final_entropy_bits"])
     assert m["entropy_split"]["unobservable_share"] > 0.0  # the block's core keeps its prior
+    left = m["entropy_left"]
+    assert left["observable_bits"] == pytest.approx(m["entropy_split"]["final_observable_bits"])
+    assert left["unknown_bits"] + left["known_bits"] == pytest.approx(left["observable_bits"])
+    assert sum(left["bits_by_layer"]) == pytest.approx(left["observable_bits"])
+    assert len(left["bits_by_layer"]) == GRID.shape[2] and left["known_bits"] > 0
     assert m["reached_threshold"] and m["mission_time_s"] == 0.0  # 7840 <= 8000 at once
     m = compute_metrics(_record(threshold_bits=5500.0), cmap, _truth(), observed)
     assert m["reached_threshold"] and m["mission_time_s"] == 1.5

@@ -185,9 +185,23 @@ def compute_metrics(
         "bytes_shared": {str(r): int(b) for r, b in record.bytes_shared.items()},
         "overlap_fraction": None if observed_by is None else evaluation.overlap_fraction(observed_by),
         "entropy_split": evaluation.entropy_split(entropy, observable, prior_bits),
+        "entropy_left": _entropy_left(entropy, observable, known, grid),
         "entropy_curve": curve,
     }
     return metrics
+
+
+def _entropy_left(entropy: np.ndarray, observable: np.ndarray, known: np.ndarray, grid) -> dict[str, Any]:
+    """Where the observable entropy left at the end lies: in unknown or in known voxels, and
+    per z layer (bits, index 0 = the floor layer): what a robot that stopped left behind."""
+    h = np.ravel(entropy).astype(np.float64) * np.ravel(observable)
+    unknown = ~np.ravel(known)
+    return {
+        "observable_bits": float(h.sum()),
+        "unknown_bits": float(h[unknown].sum()),
+        "known_bits": float(h[~unknown].sum()),
+        "bits_by_layer": [float(v) for v in h.reshape(grid.shape).sum(axis=(0, 1))],
+    }
 
 
 def _surface_quality(
