@@ -8,11 +8,13 @@ map (DESIGN.md section 3, "Exploration", paper eq. 27-36); no I/O, no state.
   robot can *view* from reachable space; gaze along grad H_G(l_s) (eq. 34). The robot
   stands back from l_s, on the side the gradient comes from, so that l_s and the higher
   entropy beyond it are in its field of view. When nothing within xi is conclusive the
-  radius is doubled up to the whole map (our extension, so that missions finish); then
-  the robot wanders while unknown voxels bordering known free space remain in view of
-  reachable space; otherwise there is no reachable informative target (None, a mission
-  stop condition).
-- ``"frontier"`` (Yamauchi 1997): the nearest reachable frontier cell by path cost.
+  radius is doubled up to the whole map (our extension, so that missions finish); then,
+  given the camera's reach, the robot looks at the nearest 3-D frontier voxel above or
+  below the slab (:mod:`swarm.navigation.view_targets`); then it wanders while unknown
+  voxels bordering known free space remain in view of reachable space; otherwise there is
+  no reachable informative target (None, a mission stop condition).
+- ``"frontier"`` (Yamauchi 1997): the nearest reachable frontier cell by path cost; when the
+  2-D frontier is empty, the nearest 3-D frontier view (given the camera's reach).
 - ``"random"``: a uniformly random reachable cell within 2 xi.
 
 ``rank_entropy_targets`` lists the entropy candidates in the order ``choose_target`` tries
