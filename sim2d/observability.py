@@ -17,9 +17,11 @@ The model, from the mission alone:
   of view around its mounting pitch, widened by the tilt head's range.
 - *Rays*: cast in all those directions, ``angle_step`` apart, through the obstacles'
   height field (obstacles stand on the floor; the floor z = 0 returns too). A ray
-  observes the voxels it crosses up to and including the one it ends in, when it ends on
-  a surface at a range in [``min_range``, ``max_range``]; a ray that meets nothing within
-  range returns nothing and observes nothing (no return, no free-space evidence).
+  observes the voxels it crosses up to and including the one it ends in and the one
+  behind it (the fusion updates the voxel behind a hit too, ``swarm.map.fusion``), when
+  it ends on a surface at a range in [``min_range``, ``max_range``]; a ray that meets
+  nothing within range returns nothing and observes nothing (the agent drops returns
+  beyond the sensor's range, so no free-space evidence either).
 
 This is a sampling of poses and directions: a voxel seen by only a few grazing rays may be
 missed, so the mask errs towards "unobservable" at the fringes; the spacing and angle step
@@ -189,7 +191,7 @@ def _cast(top, origin, res, eyes, dirs, near, far, ds, ztop, glo, e, shape, seen
     nx, ny, nz = shape[0], shape[1], shape[2]
     hx, hy = top.shape
     steps = int(far / ds) + 1
-    buf = np.empty(steps + 1, dtype=np.int64)
+    buf = np.empty(steps + 2, dtype=np.int64)
     for p in range(eyes.shape[0]):
         ex, ey, ez = eyes[p, 0], eyes[p, 1], eyes[p, 2]
         for r in range(dirs.shape[0]):
@@ -222,6 +224,19 @@ def _cast(top, origin, res, eyes, dirs, near, far, ds, ztop, glo, e, shape, seen
                         last = flat
                 if hit:
                     if s >= near:
+                        # the fusion also updates the voxel behind the hit (the surface's far side)
+                        for b in range(1, int(2.0 * e / ds) + 2):
+                            sb = s + b * ds
+                            bi = int(math.floor((ex + sb * dx - glo[0]) / e))
+                            bj = int(math.floor((ey + sb * dy - glo[1]) / e))
+                            bk = int(math.floor((ez + sb * dz - glo[2]) / e))
+                            if not (0 <= bi < nx and 0 <= bj < ny and 0 <= bk < nz):
+                                break
+                            behind = (bi * ny + bj) * nz + bk
+                            if behind != last:
+                                buf[n] = behind
+                                n += 1
+                                break
                         for q in range(n):
                             seen[buf[q]] = 1
                     break

@@ -46,11 +46,9 @@ def observable_mask_of(mission: Mission) -> np.ndarray:
     """Voxels some robot of ``mission`` could ever observe, bool of shape ``grid.shape``.
 
     The sensor rays of :func:`sim2d.observability.observable_voxels` (reachable poses,
-    the rigs' reach), intersected with the workspace box, at or above the floor and not
-    strictly inside an obstacle (:func:`swarm.mission.evaluation.observable_mask`), since a
-    ray marched in half-voxel steps may end one voxel deep in a wall.
+    the rigs' reach), within the workspace box and at or above the floor
+    (:func:`swarm.mission.evaluation.observable_mask` of an empty world).
     """
-    from sim2d.ground_truth import coverage
     from sim2d.observability import ObservabilityModel, observable_voxels
     from swarm.mission.evaluation import observable_mask
 
@@ -58,8 +56,10 @@ def observable_mask_of(mission: Mission) -> np.ndarray:
     plan = mission.load_floor_plan()
     starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
     rays = observable_voxels(plan, grid, starts, ObservabilityModel.for_mission(mission))
-    truth = coverage(plan, grid) if plan is not None else np.zeros(grid.shape, np.float32)
-    return rays & observable_mask(truth, grid, (mission.workspace.lo, mission.workspace.hi))
+    box = observable_mask(
+        np.zeros(grid.shape, np.float32), grid, (mission.workspace.lo, mission.workspace.hi)
+    )
+    return rays & box
 
 
 def threshold_parts(
