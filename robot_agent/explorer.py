@@ -15,6 +15,7 @@ part of a room only from afar, and eq. 30 chooses targets in the sensor's slab a
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -103,6 +104,7 @@ class Explorer:
             self.rig, self.sensor.max_range, looks_up=self.rig.tilt_range_deg > 0
         )
         self.tried_views: list[np.ndarray] = []  # x-y of the columns a view target was chosen for
+        self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
         self.head = 0.0  # the tilt this robot asks for now
@@ -248,6 +250,8 @@ class Explorer:
             camera=self.camera,
             tried=self.tried_views,
         )
+        if target is not None:
+            self.target_kinds[target.kind] += 1
         if target is not None and target.kind in ("view", "frontier3d") and target.voxel is not None:
             i, j, _k = np.unravel_index(target.voxel, self.grid.shape)
             self.tried_views.append(self.grid.lo[:2] + (np.array([i, j]) + 0.5) * self.grid.voxel)
