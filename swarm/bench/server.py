@@ -334,6 +334,166 @@ def run(
     }
 
 
+# -- a flood: every publisher with no pause ----------------------------------------------------
+
+
+def _memory_kb(pid: int) -> tuple[int, int]:
+    """(current, peak) resident memory of a process in KiB, from /proc (Linux)."""
+    fields = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        name, _, value = line.partition(":")
+        if name in ("VmRSS", "VmHWM"):
+            fields[name] = int(value.split()[0])
+    return fields.get("VmRSS", 0), fields.get("VmHWM", 0)
+
+
+def flood_figures(
+    grid: Grid, deltas: list, agents: int, seconds: float, workdir: Path, settle_s: float = 300.0
+) -> dict:
+    """``agents`` sessions publish deltas back to back for ``seconds`` against a ``swarm server``
+    process; then each resends what ``map/acks`` does not cover, as an agent does, until all is
+    acked (or ``settle_s`` passes). Reports the server's peak memory, the inbox's high-water
+    mark and refusals, and whether every delta was applied exactly once."""
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    config = workdir / "mission.yaml"
+    config.write_text(_mission_yaml(agents))
+    log_path = workdir / "flood-server.log"
+    cmd = [sys.executable, "-m", "swarm.cli", "server", "--listen", endpoint, "--log-every", "5"]
+    cmd += ["--store", str(workdir / "flood-store"), "--config", str(config)]
+    with open(log_path, "w") as log_file:
+        server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
+    sessions, rss_mb = [], []
+    try:
+        probe = bus.open_session(connect=[endpoint], wait_s=30)
+        sessions.append(probe)
+        deadline = time.monotonic() + 30
+        while _acked(probe, "a1", 0) < 0:
+            if server.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the server did not start; see {log_path}")
+            time.sleep(0.1)
+        start_kb = _memory_kb(server.pid)[0]
+        for _ in range(agents):
+            sessions.append(bus.open_session(connect=[endpoint]))
+        pubs = [
+            bus.reliable_publisher(s, bus.key(MISSION, "delta", f"a{i + 1}"))
+            for i, s in enumerate(sessions[1:])
+        ]
+        bus.wait_for_subscribers(pubs, timeout=10)
+        epoch = 7
+        sent = [0] * agents
+        payload = {}  # (agent, seq) -> bytes, built lazily and kept for the resends
+
+        def message(a: int, seq: int) -> bytes:
+            if (a, seq) not in payload:
+                d = deltas[(a * 7 + seq) % len(deltas)]
+                payload[(a, seq)] = DeltaMessage(
+                    f"a{a + 1}", epoch, seq, 0.5 * seq, grid, d.idx, d.dlam, d.deta
+                ).encode()
+            return payload[(a, seq)]
+
+        stop = threading.Event()
+
+        def flood(a: int) -> None:
+            while not stop.is_set():
+                sent[a] += 1
+                pubs[a].put(message(a, sent[a]))
+
+        threads = [threading.Thread(target=flood, args=(a,)) for a in range(agents)]
+        t0 = time.perf_counter()
+        for t in threads:
+            t.start()
+        while time.perf_counter() - t0 < seconds:
+            rss_mb.append(_memory_kb(server.pid)[0] / 1024)
+            time.sleep(0.5)
+        stop.set()
+        for t in threads:
+            t.join()
+        flood_s = time.perf_counter() - t0
+        # the agents' resends: whatever map/acks does not cover yet, a few at a time per agent
+        rounds, resent = 0, 0
+        t1 = time.perf_counter()
+        while time.perf_counter() - t1 < settle_s:
+            acks = _acks(probe) or {}
+            behind = [(a, int(acks.get(f"a{a + 1}", {}).get(str(epoch), 0))) for a in range(agents)]
+            if all(acked >= sent[a] for a, acked in behind):
+                break
+            rounds += 1
+            for a, acked in behind:
+                for seq in range(acked + 1, min(acked + 32, sent[a]) + 1):
+                    pubs[a].put(message(a, seq))
+                    resent += 1
+            rss_mb.append(_memory_kb(server.pid)[0] / 1024)
+            time.sleep(0.2)
+        settle = time.perf_counter() - t1
+        stats = json.loads(
+            next(iter(probe.get(bus.key(MISSION, "map", "stats"), timeout=10))).ok.payload.to_bytes()
+        )
+        _, peak_kb = _memory_kb(server.pid)
+        robots = stats["robots"]
+        exactly_once = all(
+            robots.get(f"a{a + 1}", {}).get("deltas") == sent[a] == robots[f"a{a + 1}"]["acked_seq"]
+            for a in range(agents)
+        ) and stats["deltas_applied"] == sum(sent)
+        return {
+            "agents": agents,
+            "flood_s": flood_s,
+            "sent": sum(sent),
+            "sent_mb": sum(len(message(a, 1)) for a in range(agents)) / agents * sum(sent) / 2**20,
+            "resent": resent,
+            "resend_rounds": rounds,
+            "settle_s": settle,
+            "applied": stats["deltas_applied"],
+            "duplicates": stats["duplicates"],
+            "exactly_once": exactly_once,
+            "inbox": stats["inbox"],
+            "rejected": {k: v for k, v in stats["rejected"].items() if v},
+            "rss_start_mb": start_kb / 1024,
+            "rss_max_sampled_mb": max(rss_mb, default=0.0),
+            "peak_rss_mb": peak_kb / 1024,
+        }
+    finally:
+        for s in sessions:
+            s.close()
+        server.terminate()
+        try:
+            server.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            server.kill()
+
+
+def run_flood(agents: int = 16, seconds: float = 30.0, lo: int = 200, hi: int = 2000, seed: int = 0) -> dict:
+    """The flood figures (:func:`flood_figures`) on the benchmark's grid."""
+    grid = Grid.from_bounds(np.array(WORKSPACE[0]), np.array(WORKSPACE[1]), VOXEL)
+    deltas = make_deltas(grid, SensorModel(), 64, lo, hi, seed)
+    with tempfile.TemporaryDirectory(
+        prefix="swarm-bench-flood-", dir=os.environ.get("SWARM_BENCH_DIR")
+    ) as tmp:
+        figures = flood_figures(grid, deltas, agents, seconds, Path(tmp))
+    figures["delta_voxels_range"] = [min(len(d) for d in deltas), max(len(d) for d in deltas)]
+    return figures
+
+
+def format_flood(f: dict) -> str:
+    inbox = f["inbox"]
+    lo, hi = f["delta_voxels_range"]
+    refused = sum(inbox["refused"].values())
+    return "\n".join(
+        [
+            f"flood: {f['agents']} publishers with no pause for {f['flood_s']:.0f} s, deltas of "
+            f"{lo:,}-{hi:,} voxels, against a swarm server process (WAL fsync on), loopback",
+            f"  sent {f['sent']:,} deltas ({f['sent_mb']:,.0f} MB); inbox refused {refused:,}; "
+            f"resent {f['resent']:,} in {f['resend_rounds']} rounds over {f['settle_s']:.0f} s",
+            f"  server memory: {f['rss_start_mb']:.0f} MB at start, peak {f['peak_rss_mb']:.0f} MB "
+            f"(highest sample {f['rss_max_sampled_mb']:.0f} MB)",
+            f"  inbox high-water {inbox['high_water']} deltas / {inbox['high_water_bytes'] / 2**20:.1f} MB "
+            f"(bound {inbox['max_per_robot']} deltas or {inbox['max_bytes_per_robot'] / 2**20:.0f} MB "
+            "per robot)",
+            f"  applied {f['applied']:,}, duplicates {f['duplicates']:,}, rejected {f['rejected'] or 0}: "
+            f"every delta applied exactly once: {'yes' if f['exactly_once'] else 'NO'}",
+        ]
+    )
+
+
 def format_table(f: dict) -> str:
     r, z = f["merge_rates"], f["zenoh"]
     lo, hi = f["delta_voxels_range"]
