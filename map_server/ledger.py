@@ -38,6 +38,7 @@ REJECT_KINDS = (
     "stale_epoch",  # an epoch of the robot compacted away (or implausibly far in the future)
     "seq_out_of_window",  # seq too far beyond the robot's contiguous ack
     "map_overflow",  # would lift a voxel's information over LAM_MAX
+    "quarantined",  # the robot is quarantined (swarm server --quarantine, or at run time)
     "internal_error",  # any other exception while validating or applying this one delta
 )
 

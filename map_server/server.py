@@ -1,4 +1,4 @@
-"""The map server role over Zenoh (``swarm server``; DESIGN.md sections 4-5, docs/protocol.md).
+"""The map server role over Zenoh (``swarm server``; docs/protocol.md).
 
 Subscribes ``swarm/<mission>/delta/*``. Zenoh callbacks only enqueue; one worker thread
 validates each payload, drops duplicates, appends the new ones to the write-ahead log and
@@ -12,10 +12,8 @@ configured size, and :meth:`MapServer.stop` drains the queue and compacts once m
 
 from __future__ import annotations
 
-import json
 import logging
 import re
-import signal
 import threading
 import time
 from dataclasses import dataclass
@@ -23,9 +21,11 @@ from pathlib import Path
 
 import zenoh
 
+from map_server.contributions import Contributions
 from map_server.inbox import Inbox
 from map_server.ledger import MAX_EPOCHS, Ledger, Rejected, describe_grid, validate_delta
 from map_server.limits import SLACK_FRAMES, mission_bounds
+from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector
 from swarm.config import Mission
@@ -56,6 +56,7 @@ class ServerOptions:
     information_bound: bool = True
     slack_frames: int = SLACK_FRAMES
     max_epochs: int = MAX_EPOCHS
+    quarantine: tuple[str, ...] = ()
 
 
 def max_payload_for(grid: Grid) -> int:
@@ -84,7 +85,20 @@ class MapServer:
         ledger = Ledger.from_json(recovered.ledger_json)
         ledger.max_epochs = self.options.max_epochs
         ledger.restore_compaction(recovered.counters.get("ledger", {}))
-        self.team = TeamMap(grid, sensor, recovered.lam, recovered.eta, ledger)
+        try:
+            contributions = Contributions.from_arrays(recovered.arrays, grid.size)
+        except ValueError as exc:
+            raise StoreError(f"{self.store.path}: snapshot contributions unreadable: {exc}") from exc
+        quarantined = recovered.counters.get("quarantined", [])
+        self.team = TeamMap(
+            grid,
+            sensor,
+            recovered.lam,
+            recovered.eta,
+            ledger,
+            contributions=contributions,
+            quarantined=quarantined,
+        )
         if self.team.repaired:
             log.error(
                 "%d voxels of the stored map held impossible values: reset to the prior", self.team.repaired
@@ -109,6 +123,9 @@ class MapServer:
         self._default_bound = max(self.bounds.values(), key=lambda b: b.per_frame, default=None)
         self.max_payload = self.options.max_payload_bytes or max_payload_for(grid)
         self._lock = threading.Lock()
+        self._snapshot_due = threading.Event()  # set by a quarantine: the worker compacts soon
+        for robot in self.options.quarantine:
+            self.quarantine(robot)
         self._inbox = Inbox(
             self.options.inbox_messages, self.options.inbox_bytes or max(2 * self.max_payload, 16 << 20)
         )
@@ -135,7 +152,7 @@ class MapServer:
             "region": self._on_region,
         }
         for part, handler in handlers.items():
-            self._declared.append(self.session.declare_queryable(key("map", part), _guarded(handler)))
+            self._declared.append(self.session.declare_queryable(key("map", part), guarded(handler)))
         self._worker.start()
         self._delta_sub = self.session.declare_subscriber(
             bus.key_pattern(self.name, "delta", "*"), self._on_sample
@@ -161,7 +178,7 @@ class MapServer:
         self._stopping.set()
         if self._worker.is_alive():
             self._worker.join()
-        if self.store.wal_records:
+        if self.store.wal_records or self._snapshot_due.is_set():
             self._compact()
         for entity in self._declared:
             entity.undeclare()
@@ -216,6 +233,8 @@ class MapServer:
     def _work(self) -> None:
         while True:
             batch = self._inbox.take(self.options.max_batch, timeout=0.1)
+            if self._snapshot_due.is_set():
+                self._compact()
             if not batch:
                 if self._stopping.is_set():
                     break
@@ -278,7 +297,7 @@ class MapServer:
                     self.team.release(msg)
                 kind = exc.kind if isinstance(exc, Rejected) else "internal_error"
                 self._reject(msg.robot, msg, Rejected(kind, str(exc)))
-        for payload in applied:
+        for payload in applied if self._merged_pub is not None else ():
             try:
                 self._merged_pub.put(payload)
             except Exception:  # noqa: BLE001 (agents also start from the snapshot; keep merging)
@@ -288,20 +307,43 @@ class MapServer:
         return len(applied)
 
     def _compact(self) -> None:
+        self._snapshot_due.clear()
         t0 = time.perf_counter()
-        team = self.team  # only this thread (or stop(), after it) changes the map: no lock needed
-        self.store.compact(
-            team.grid,
-            team.cmap.lam,
-            team.cmap.eta,
-            team.ledger.to_json(),
-            {"updates": dict(team.updates), "ledger": team.ledger.compaction_json()},
-        )
+        team = self.team
+        with self._lock:  # a quarantine (another thread) may rebuild the map meanwhile
+            self.store.compact(
+                team.grid,
+                team.cmap.lam,
+                team.cmap.eta,
+                team.ledger.to_json(),
+                {
+                    "updates": dict(team.updates),
+                    "ledger": team.ledger.compaction_json(),
+                    "quarantined": sorted(team.quarantined),
+                },
+                team.contributions.to_arrays(),
+            )
         log.info(
             "compacted the store: snapshot of %d deltas in %.0f ms, log generation %d",
             len(team.ledger),
             (time.perf_counter() - t0) * 1e3,
             self.store.generation,
+        )
+
+    def quarantine(self, robot: str) -> None:
+        """Refuse ``robot``'s further deltas and take its past ones out of the map (thread-safe;
+        docs/protocol.md, "Quarantine"). The next compaction makes it durable."""
+        with self._lock:
+            if robot in self.team.quarantined and robot not in self.team.contributions.by_robot:
+                return
+            h_before = self.team.entropy.total
+            changed = self.team.quarantine(robot)
+            h_after = self.team.entropy.total
+        self._snapshot_due.set()  # durable at the worker's next round (or at stop)
+        log.warning(
+            "quarantined %s: its further deltas are refused%s",
+            short(robot, 40),
+            f"; its past ones left the map (H {h_before:,.0f} -> {h_after:,.0f} bits)" if changed else "",
         )
 
     # -- queries -------------------------------------------------------------------------
@@ -323,12 +365,12 @@ class MapServer:
         return stats
 
     def _on_stats(self, query: zenoh.Query) -> None:
-        _reply_json(query, self.stats())
+        reply_json(query, self.stats())
 
     def _on_acks(self, query: zenoh.Query) -> None:
         with self._lock:
             acks = self.team.acks()
-        _reply_json(query, {r: {str(e): s for e, s in by_epoch.items()} for r, by_epoch in acks.items()})
+        reply_json(query, {r: {str(e): s for e, s in by_epoch.items()} for r, by_epoch in acks.items()})
 
     def _on_snapshot(self, query: zenoh.Query) -> None:
         with self._lock:
@@ -368,60 +410,3 @@ class MapServer:
             )
         self._last_log = (now, n)
         log.info(msg)
-
-
-def _guarded(handler):
-    """A queryable callback that answers an error instead of raising into Zenoh."""
-
-    def callback(query: zenoh.Query) -> None:
-        try:
-            handler(query)
-        except Exception as exc:  # noqa: BLE001 (one bad query must not take the server down)
-            log.exception("query %s failed", short(str(query.selector), 200))
-            try:
-                query.reply_err(f"{query.key_expr}: server error: {short(exc, 200)}".encode())
-            except zenoh.ZError:
-                pass
-
-    return callback
-
-
-def _reply_json(query: zenoh.Query, obj: dict) -> None:
-    """Reply strict JSON: a NaN or inf raises (and the query gets an error reply), never ``NaN``."""
-    text = json.dumps(obj, allow_nan=False)
-    query.reply(query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
-
-
-# -- the process ---------------------------------------------------------------------------
-
-
-def serve(
-    mission: Mission,
-    listen: list[str],
-    store_dir: Path,
-    mission_name: str | None = None,
-    options: ServerOptions | None = None,
-    connect: list[str] | None = None,
-) -> None:
-    """Run the server until SIGTERM/SIGINT: recover the store, listen, merge; compact on exit."""
-    stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        server = MapServer(mission, store_dir, mission_name, options)
-        try:
-            session = bus.open_session(listen=listen, connect=connect or [])
-        except BaseException:
-            server.store.close()
-            raise
-        try:
-            server.start(session)
-            log.info("listening on %s", ", ".join(listen))
-            while not stop.wait(0.5):
-                pass
-            log.info("stopping: applying queued deltas and compacting the store")
-        finally:
-            server.stop()
-            session.close()
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)

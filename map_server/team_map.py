@@ -13,9 +13,11 @@ from __future__ import annotations
 import math
 import re
 from collections import Counter
+from collections.abc import Iterable
 
 import numpy as np
 
+from map_server.contributions import Contributions
 from map_server.ledger import ETA_TOLERANCE, REJECT_KINDS, DeltaId, Ledger, Rejected
 from map_server.limits import LAM_MAX, InformationBound, RobotBudget
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits, prior_information
@@ -45,11 +47,16 @@ class TeamMap:
         eta: np.ndarray | None = None,
         ledger: Ledger | None = None,
         updates: dict[str, int] | None = None,
+        contributions: Contributions | None = None,
+        quarantined: Iterable[str] = (),
     ) -> None:
         self.grid = grid
         self.sensor = sensor
         self.cmap = CoverageMap(grid, sensor, lam, eta)
         self.repaired = self._repair()
+        #: base + per-robot sums, to take a quarantined robot's deltas out (contributions.py)
+        self.contributions = contributions or Contributions(self.cmap.lam, self.cmap.eta)
+        self.quarantined: set[str] = set(quarantined)
         self.ledger = ledger or Ledger()
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
         self.initial_entropy_bits = prior_entropy_bits(grid, sensor)
@@ -87,6 +94,8 @@ class TeamMap:
         ``too_much_information``), or one that would lift a voxel over LAM_MAX (``map_overflow``).
         """
         ident = delta_id(msg)
+        if msg.robot in self.quarantined:
+            raise Rejected("quarantined", f"{msg.robot} is quarantined")
         if ident in self.ledger or ident in self._pending:
             self.duplicates += 1
             return False
@@ -125,6 +134,8 @@ class TeamMap:
         Indices are unique (validate_delta checks it), so a fancy-indexed sum is exact. Raises
         Rejected (``map_overflow``) and changes nothing when a voxel would pass LAM_MAX.
         """
+        if msg.robot in self.quarantined:  # quarantined between admit and apply
+            raise Rejected("quarantined", f"{msg.robot} is quarantined")
         idx = msg.idx.astype(np.int64)
         new_lam = self._check_overflow(msg)
         known_before = int(np.count_nonzero(self.cmap.lam[idx] > self._known_lam))
@@ -133,10 +144,26 @@ class TeamMap:
         lam, eta = self.cmap.lam[idx], self.cmap.eta[idx]
         self.entropy.update_information(idx, lam, eta)
         self.known += int(np.count_nonzero(lam > self._known_lam)) - known_before
+        self.contributions.add(msg.robot, idx, msg.dlam, msg.deta)
         ident = delta_id(msg)
         self._pending.pop(ident, None)
         self.ledger.add(ident)
         self.updates[msg.robot] += len(idx)
+
+    def quarantine(self, robot: str) -> bool:
+        """Refuse ``robot``'s further deltas and take its applied ones out of the map: the map is
+        rebuilt from the base and the other robots' contributions, the entropy cache and known
+        count with it. Its ids stay in the ledger (a resend is a duplicate, never re-applied).
+        Returns True when the map changed."""
+        self.quarantined.add(robot)
+        if not self.contributions.drop(robot):
+            return False
+        lam, eta = self.contributions.total()
+        self.cmap.lam[:] = lam
+        self.cmap.eta[:] = eta
+        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
+        self.known = int(np.count_nonzero(self.cmap.lam > self._known_lam))
+        return True
 
     def count_rejected(self, kind: str) -> int:
         """Count one refused payload of ``kind``; returns the count of that kind so far."""
@@ -152,6 +179,8 @@ class TeamMap:
         robots = self.ledger.robots()
         for robot, entry in robots.items():
             entry["voxel_updates"] = int(self.updates.get(robot, 0))
+            if robot in self.quarantined:
+                entry["quarantined"] = True
         s = self.sensor
         return {
             "voxels": self.grid.size,
@@ -167,6 +196,7 @@ class TeamMap:
             "duplicates": self.duplicates,
             "rejected": {kind: self.rejected.get(kind, 0) for kind in REJECT_KINDS},
             "robots": robots,
+            "quarantined": sorted(self.quarantined),
         }
 
     def snapshot(self) -> Snapshot:

@@ -348,7 +348,13 @@ def _memory_kb(pid: int) -> tuple[int, int]:
 
 
 def flood_figures(
-    grid: Grid, deltas: list, agents: int, seconds: float, workdir: Path, settle_s: float = 300.0
+    grid: Grid,
+    deltas: list,
+    agents: int,
+    seconds: float,
+    workdir: Path,
+    settle_s: float = 300.0,
+    window: int = 500,
 ) -> dict:
     """``agents`` sessions publish deltas back to back for ``seconds`` against a ``swarm server``
     process; then each resends what ``map/acks`` does not cover, as an agent does, until all is
@@ -380,24 +386,39 @@ def flood_figures(
         ]
         bus.wait_for_subscribers(pubs, timeout=10)
         epoch = 7
-        sent = [0] * agents
-        payload = {}  # (agent, seq) -> bytes, built lazily and kept for the resends
+        sent = [0] * agents  # highest seq each agent has published
+        puts = [0] * agents  # payloads published, resends included
+        acked = [0] * agents  # the agents' view of map/acks
 
         def message(a: int, seq: int) -> bytes:
-            if (a, seq) not in payload:
-                d = deltas[(a * 7 + seq) % len(deltas)]
-                payload[(a, seq)] = DeltaMessage(
-                    f"a{a + 1}", epoch, seq, 0.5 * seq, grid, d.idx, d.dlam, d.deta
-                ).encode()
-            return payload[(a, seq)]
+            d = deltas[(a * 7 + seq) % len(deltas)]
+            return DeltaMessage(f"a{a + 1}", epoch, seq, 0.5 * seq, grid, d.idx, d.dlam, d.deta).encode()
 
-        stop = threading.Event()
+        stop, done = threading.Event(), threading.Event()
+
+        def watch() -> None:
+            while not done.is_set():
+                acks = _acks(probe) or {}
+                for a in range(agents):
+                    acked[a] = max(acked[a], int(acks.get(f"a{a + 1}", {}).get(str(epoch), 0)))
+                time.sleep(0.1)
 
         def flood(a: int) -> None:
+            # no pause: a new seq while fewer than `window` are unacked (an agent keeps at most
+            # 2,000), else the unacked ones again from the oldest, round and round
+            cursor = 1
             while not stop.is_set():
-                sent[a] += 1
-                pubs[a].put(message(a, sent[a]))
+                if sent[a] < acked[a] + window:
+                    sent[a] += 1
+                    seq = sent[a]
+                else:
+                    cursor = cursor if acked[a] < cursor <= sent[a] else acked[a] + 1
+                    seq, cursor = cursor, cursor + 1
+                pubs[a].put(message(a, seq))
+                puts[a] += 1
 
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
         threads = [threading.Thread(target=flood, args=(a,)) for a in range(agents)]
         t0 = time.perf_counter()
         for t in threads:
@@ -409,21 +430,20 @@ def flood_figures(
         for t in threads:
             t.join()
         flood_s = time.perf_counter() - t0
-        # the agents' resends: whatever map/acks does not cover yet, a few at a time per agent
+        # then as agents do: resend what map/acks does not cover, a few at a time
         rounds, resent = 0, 0
         t1 = time.perf_counter()
         while time.perf_counter() - t1 < settle_s:
-            acks = _acks(probe) or {}
-            behind = [(a, int(acks.get(f"a{a + 1}", {}).get(str(epoch), 0))) for a in range(agents)]
-            if all(acked >= sent[a] for a, acked in behind):
+            if all(acked[a] >= sent[a] for a in range(agents)):
                 break
             rounds += 1
-            for a, acked in behind:
-                for seq in range(acked + 1, min(acked + 32, sent[a]) + 1):
+            for a in range(agents):
+                for seq in range(acked[a] + 1, min(acked[a] + 32, sent[a]) + 1):
                     pubs[a].put(message(a, seq))
                     resent += 1
             rss_mb.append(_memory_kb(server.pid)[0] / 1024)
-            time.sleep(0.2)
+            time.sleep(0.3)
+        done.set()
         settle = time.perf_counter() - t1
         stats = json.loads(
             next(iter(probe.get(bus.key(MISSION, "map", "stats"), timeout=10))).ok.payload.to_bytes()
@@ -438,7 +458,9 @@ def flood_figures(
             "agents": agents,
             "flood_s": flood_s,
             "sent": sum(sent),
-            "sent_mb": sum(len(message(a, 1)) for a in range(agents)) / agents * sum(sent) / 2**20,
+            "puts": sum(puts),
+            "puts_mb": sum(len(message(a, 1)) for a in range(agents)) / agents * sum(puts) / 2**20,
+            "window": window,
             "resent": resent,
             "resend_rounds": rounds,
             "settle_s": settle,
@@ -481,8 +503,10 @@ def format_flood(f: dict) -> str:
         [
             f"flood: {f['agents']} publishers with no pause for {f['flood_s']:.0f} s, deltas of "
             f"{lo:,}-{hi:,} voxels, against a swarm server process (WAL fsync on), loopback",
-            f"  sent {f['sent']:,} deltas ({f['sent_mb']:,.0f} MB); inbox refused {refused:,}; "
-            f"resent {f['resent']:,} in {f['resend_rounds']} rounds over {f['settle_s']:.0f} s",
+            f"  published {f['puts']:,} payloads ({f['puts_mb']:,.0f} MB) of {f['sent']:,} deltas (each "
+            f"agent at most {f['window']} unacked, sent again and again); inbox refused {refused:,}",
+            f"  then resent {f['resent']:,} in {f['resend_rounds']} rounds over {f['settle_s']:.0f} s "
+            "until map/acks covered every delta",
             f"  server memory: {f['rss_start_mb']:.0f} MB at start, peak {f['peak_rss_mb']:.0f} MB "
             f"(highest sample {f['rss_max_sampled_mb']:.0f} MB)",
             f"  inbox high-water {inbox['high_water']} deltas / {inbox['high_water_bytes'] / 2**20:.1f} MB "

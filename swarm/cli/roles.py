@@ -145,6 +145,14 @@ def register_server(sub: argparse._SubParsersAction) -> None:
         help="do not refuse deltas carrying more information than the robot's rig can gather "
         "(docs/protocol.md, Limits)",
     )
+    p.add_argument(
+        "--quarantine",
+        action="append",
+        default=[],
+        metavar="ROBOT",
+        help="refuse this robot's deltas and take its past ones out of the map (repeatable; at run "
+        "time: list ids in STORE/quarantine, one a line, and send the server SIGHUP)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     p.set_defaults(run=_run_server)
 
@@ -153,7 +161,8 @@ def _run_server(args: argparse.Namespace) -> int:
     import logging
     import re
 
-    from map_server.server import ServerOptions, serve
+    from map_server.process import serve
+    from map_server.server import ServerOptions
     from map_server.store import StoreError
     from swarm.config import ConfigError, load_mission
     from swarm.protocol import bus
@@ -180,6 +189,7 @@ def _run_server(args: argparse.Namespace) -> int:
         robots=robots,
         robot_pattern=args.robot_pattern,
         information_bound=not args.no_information_bound,
+        quarantine=tuple(args.quarantine),
     )
     try:
         mission = load_mission(args.config)
