@@ -10,9 +10,9 @@ on loopback, each publishing on its own ``delta/<rid>``. Throughput: every agent
 its deltas back to back, and resends what ``map/acks`` does not cover every 0.5 s (the
 server's bounded inbox refuses what does not fit); time until ``map/acks`` covers all of
 them. Latency: one watcher polls ``map/acks`` every millisecond; the time from a publish to
-the first reply that covers it is the publish-to-query latency, measured with every agent publishing at a
-steady pace (``period_s``), then saturated (each agent publishes as soon as its previous
-delta is acked).
+the first reply that covers it is the publish-to-query latency, measured with every agent
+publishing at a steady pace (``period_s``), then saturated (each agent publishes as soon as
+its previous delta is acked).
 """
 
 from __future__ import annotations
