@@ -159,3 +159,20 @@ def test_hostile_payloads_never_touch_the_valid_deltas(hostile, rnd):
     assert len(applied) == len(set(applied))
     assert np.all(np.isfinite(team.cmap.lam)) and np.all(np.isfinite(team.cmap.eta))
     assert math.isfinite(team.entropy.total)
+
+
+def test_inbox_is_bounded_per_robot_and_served_in_turn():
+    from map_server.inbox import Inbox
+
+    inbox = Inbox(max_messages=3, max_bytes=10)
+    assert [inbox.offer("a", b"1234") for _ in range(4)] == [
+        True,
+        True,
+        False,
+        False,
+    ]  # 8 bytes, then 12 > 10
+    assert inbox.offer("b", b"x") and inbox.offer("b", b"y")
+    assert [r for r, _ in inbox.take(10, timeout=0.1)] == ["a", "b", "a", "b"]
+    assert inbox.take(10, timeout=0.01) == []
+    stats = inbox.stats()
+    assert stats["refused"] == {"a": 2} and stats["high_water"] == 4 and stats["queued"] == 0
