@@ -250,7 +250,7 @@ def zenoh_figures(
         server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
     sessions = []
     try:
-        probe = bus.open_session(connect=[endpoint], wait_s=30)
+        probe = bus.open_session(connect=[endpoint], wait_s=120)  # a loaded machine starts slowly
         sessions.append(probe)
         deadline = time.monotonic() + 30
         while _acked(probe, "a1", 0) < 0:
@@ -382,7 +382,7 @@ def flood_figures(
         server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
     sessions, rss_mb = [], []
     try:
-        probe = bus.open_session(connect=[endpoint], wait_s=30)
+        probe = bus.open_session(connect=[endpoint], wait_s=120)  # a loaded machine starts slowly
         sessions.append(probe)
         deadline = time.monotonic() + 30
         while _acked(probe, "a1", 0) < 0:
