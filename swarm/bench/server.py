@@ -461,6 +461,7 @@ def flood_figures(
             next(iter(probe.get(bus.key(MISSION, "map", "stats"), timeout=10))).ok.payload.to_bytes()
         )
         _, peak_kb = _memory_kb(server.pid)
+        reasons = [line.strip() for line in log_path.read_text().splitlines() if "rejected delta" in line]
         robots = stats["robots"]
         exactly_once = all(
             robots.get(f"a{a + 1}", {}).get("deltas") == sent[a] == robots[f"a{a + 1}"]["acked_seq"]
@@ -481,6 +482,7 @@ def flood_figures(
             "exactly_once": exactly_once,
             "inbox": stats["inbox"],
             "rejected": {k: v for k, v in stats["rejected"].items() if v},
+            "rejection_lines": reasons[:5],
             "rss_start_mb": start_kb / 1024,
             "rss_max_sampled_mb": max(rss_mb, default=0.0),
             "peak_rss_mb": peak_kb / 1024,
@@ -526,6 +528,7 @@ def format_flood(f: dict) -> str:
             "per robot)",
             f"  applied {f['applied']:,}, duplicates {f['duplicates']:,}, rejected {f['rejected'] or 0}: "
             f"every delta applied exactly once: {'yes' if f['exactly_once'] else 'NO'}",
+            *(f"  server log: {line[:200]}" for line in f["rejection_lines"]),
         ]
     )
 
