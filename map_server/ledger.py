@@ -60,16 +60,20 @@ def describe_grid(grid: Grid) -> str:
     return f"shape {list(grid.shape)} voxel {grid.voxel:g} origin {[round(v, 6) for v in grid.origin]}"
 
 
-def validate_delta(payload: bytes, grid: Grid, robot: str | None = None) -> DeltaMessage:
+def validate_delta(
+    payload: bytes, grid: Grid, robot: str | None = None, increments: bool = True
+) -> DeltaMessage:
     """Decode a delta (once) and check it against ``grid`` (and the key's ``robot``); raise Rejected.
 
     Checks: wire decoding (version, fields, array lengths, index range, finite values,
     dlam >= 0), the grid equals ``grid``, the robot field equals ``robot``, indices unique,
-    0 <= deta <= dlam. Any exception at all becomes a Rejected (``malformed``, or
+    0 <= deta <= dlam (unless ``increments`` is False: a previous map's delta moves a belief
+    from the prior to another Gaussian, and its mean is checked on the resulting voxel by
+    TeamMap instead). Any exception at all becomes a Rejected (``malformed``, or
     ``internal_error`` for one that is not a WireError), so one payload can only ever be refused.
     """
     try:
-        return _validate(payload, grid, robot)
+        return _validate(payload, grid, robot, increments)
     except Rejected:
         raise
     except WireError as exc:
@@ -79,7 +83,7 @@ def validate_delta(payload: bytes, grid: Grid, robot: str | None = None) -> Delt
         raise Rejected("internal_error", f"delta: {type(exc).__name__}: {short(exc)}") from exc
 
 
-def _validate(payload: bytes, grid: Grid, robot: str | None) -> DeltaMessage:
+def _validate(payload: bytes, grid: Grid, robot: str | None, increments: bool) -> DeltaMessage:
     msg = DeltaMessage.decode(payload)
     if not grid.matches(msg.grid):
         raise Rejected(
@@ -92,7 +96,7 @@ def _validate(payload: bytes, grid: Grid, robot: str | None) -> DeltaMessage:
     idx = msg.idx
     if len(idx) > 1 and not np.all(idx[1:] > idx[:-1]) and len(np.unique(idx)) != len(idx):
         raise Rejected("duplicate_idx", "delta: a voxel index appears more than once")
-    if np.any(msg.deta < 0) or np.any(msg.deta > msg.dlam * np.float32(1 + ETA_TOLERANCE)):
+    if increments and (np.any(msg.deta < 0) or np.any(msg.deta > msg.dlam * np.float32(1 + ETA_TOLERANCE))):
         raise Rejected("mean_outside_unit", "delta: deta must lie in [0, dlam] (a coverage mean in [0, 1])")
     return msg
 

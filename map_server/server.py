@@ -32,6 +32,7 @@ from swarm.config import Mission
 from swarm.map.grid import Grid
 from swarm.protocol import bus
 from swarm.protocol.codec import short
+from swarm.protocol.map_messages import PRIOR_SOURCE
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
@@ -107,7 +108,7 @@ class MapServer:
         from_snapshot = len(self.team.ledger)
         for payload in recovered.wal_payloads:
             try:
-                msg = validate_delta(payload, grid)
+                msg = validate_delta(payload, grid, increments=False)
                 if self.team.admit(msg):  # bounds were checked when it was logged
                     self.team.apply(msg)
             except Rejected as exc:
@@ -116,6 +117,8 @@ class MapServer:
         self.team.rejected.clear()
         self.recovered = (from_snapshot, len(self.team.ledger) - from_snapshot, recovered.torn_bytes)
         self.robots = frozenset(self.options.robots or mission.robot_ids)
+        #: a mission with a previous map takes it on delta/prior (no rig: no information bound)
+        self.takes_prior = mission.prior_map is not None
         self._robot_pattern = re.compile(self.options.robot_pattern) if self.options.robot_pattern else None
         self.bounds = (
             mission_bounds(mission, self.options.slack_frames) if self.options.information_bound else {}
@@ -196,7 +199,7 @@ class MapServer:
     def accepts_robot(self, robot: str) -> bool:
         """Whether ``delta/<robot>`` is taken: one of the mission's (or configured) robots, or a
         full match of the configured pattern."""
-        if robot in self.robots:
+        if robot in self.robots or (robot == PRIOR_SOURCE and self.takes_prior):
             return True
         return self._robot_pattern is not None and self._robot_pattern.fullmatch(robot) is not None
 
@@ -251,8 +254,9 @@ class MapServer:
         Whatever one payload raises is confined to it."""
         msg = None
         try:
-            msg = validate_delta(payload, self.team.grid, robot)
-            bound = self.bounds.get(msg.robot, self._default_bound)
+            prior = robot == PRIOR_SOURCE and robot not in self.robots
+            msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
+            bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
             with self._lock:
                 return msg if self.team.admit(msg, bound) else None
         except Rejected as exc:

@@ -115,10 +115,15 @@ class TeamMap:
         return True
 
     def _check_overflow(self, msg: DeltaMessage) -> np.ndarray:
-        """The voxels' lam after adding ``msg`` (float32); Rejected when one would pass LAM_MAX."""
-        lam = self.cmap.lam[msg.idx.astype(np.int64)] + msg.dlam
+        """The voxels' lam after adding ``msg`` (float32); Rejected when one would pass LAM_MAX
+        (``map_overflow``) or leave a mean outside [0, 1] (``mean_outside_unit``)."""
+        idx = msg.idx.astype(np.int64)
+        lam = self.cmap.lam[idx] + msg.dlam
         if not np.all(lam <= LAM_MAX):  # also catches inf and NaN
             raise Rejected("map_overflow", f"delta of {msg.robot} would lift a voxel over {LAM_MAX:g}")
+        eta = self.cmap.eta[idx] + msg.deta
+        if not (np.all(eta >= 0) and np.all(eta <= lam * np.float32(1 + ETA_TOLERANCE))):
+            raise Rejected("mean_outside_unit", f"delta of {msg.robot} would move a mean outside [0, 1]")
         return lam
 
     def release(self, msg: DeltaMessage) -> None:

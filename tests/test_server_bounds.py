@@ -176,3 +176,38 @@ def test_inbox_is_bounded_per_robot_and_served_in_turn():
     assert inbox.take(10, timeout=0.01) == []
     stats = inbox.stats()
     assert stats["refused"] == {"a": 2} and stats["high_water"] == 4 and stats["queued"] == 0
+
+
+def test_a_previous_map_comes_on_delta_prior_only_when_the_mission_has_one(tmp_path):
+    """delta/prior (the runner's previous map) is taken without the rig bound, its mean checked
+    on the resulting voxel; a mission without prior_map refuses it as an unknown robot."""
+    import yaml
+
+    from map_server.server import MapServer
+    from swarm.config import mission_from_dict
+    from swarm.map.coverage_map import prior_information
+    from swarm.protocol.map_messages import PRIOR_SOURCE
+    from tests.test_server_merge import MISSION_YAML
+
+    plain = small_mission()
+    (tmp_path / "previous.npz").write_bytes(b"")  # only its name matters to the server
+    with_prior = mission_from_dict(
+        {**yaml.safe_load(MISSION_YAML), "prior_map": "previous.npz"}, base_dir=tmp_path
+    )
+    grid, sensor = plain.workspace.grid(), plain.sensor.model()
+    lam0, eta0 = prior_information(sensor)
+    idx = np.arange(grid.size, dtype=np.uint32)
+    dlam = np.full(grid.size, 1e6 - lam0, np.float32)  # certain, empty: far over any rig's bound
+    deta = np.full(grid.size, -eta0, np.float32)  # negative: fine for a previous map's delta
+    payload = DeltaMessage(PRIOR_SOURCE, EPOCH, 1, 0.0, grid, idx, dlam, deta).encode()
+    assert not MapServer(plain, tmp_path / "a").accepts_robot(PRIOR_SOURCE)
+    server = MapServer(with_prior, tmp_path / "b")
+    assert server.accepts_robot(PRIOR_SOURCE) and server.merge([(PRIOR_SOURCE, payload)]) == 1
+    assert server.team.known == grid.size
+    bad = DeltaMessage(PRIOR_SOURCE, EPOCH, 2, 0.0, grid, idx[:1], dlam[:1], -dlam[:1]).encode()
+    assert server.merge([(PRIOR_SOURCE, bad)]) == 0  # would leave a negative mean
+    assert server.stats()["rejected"]["mean_outside_unit"] == 1
+    server.stop()
+    again = MapServer(with_prior, tmp_path / "b")  # and it survives a restart (snapshot + log)
+    assert again.team.known == grid.size
+    again.stop()

@@ -25,6 +25,10 @@ from swarm.protocol.codec import (
 
 # -- delta/<rid> and merged ---------------------------------------------------------------
 
+#: The ``<rid>`` of the deltas that carry a mission's previous map (``prior_map:``), sent once by
+#: the mission runner before the robots start (swarm.mission.prior_map uses the same id).
+PRIOR_SOURCE = "prior"
+
 #: Voxels along one grid axis at most (the flat index is uint32).
 MAX_AXIS = 1 << 20
 
