@@ -12,25 +12,34 @@ server's grid; a refused payload raises :class:`Rejected` with one of :data:`REJ
 from __future__ import annotations
 
 import json
+from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
 
-import msgpack
 import numpy as np
 
 from swarm.map.grid import Grid
-from swarm.protocol.wire import VERSION, DeltaMessage, WireError
+from swarm.protocol.codec import short
+from swarm.protocol.wire import DeltaMessage, WireError
 
-#: Why a delta payload is refused, as counted in ``map/stats`` ``rejected``.
+#: Why a delta payload is refused, as counted in ``map/stats`` ``rejected`` (docs/protocol.md).
 REJECT_KINDS = (
     "malformed",  # not msgpack, missing or mistyped field, arrays of different lengths
-    "unsupported_version",  # "v" is not 1
+    "unsupported_version",  # "v" is not the integer 1
     "wrong_grid",  # grid differs from the mission's
     "robot_mismatch",  # the robot field differs from the <rid> of the key it came on
     "out_of_grid",  # a voxel index >= the number of voxels
-    "non_finite",  # NaN or inf in dlam/deta
+    "non_finite",  # NaN or inf in dlam/deta or t
     "negative_information",  # dlam < 0
     "duplicate_idx",  # a voxel listed twice in one delta
+    "mean_outside_unit",  # deta < 0 or deta > dlam: a coverage mean outside [0, 1]
+    "too_large",  # payload over the maximum size (refused before decoding)
+    "unknown_robot",  # <rid> is not one of the mission's robots (refused before decoding)
+    "too_much_information",  # more information than the robot's rig can gather (limits.py)
+    "stale_epoch",  # an epoch of the robot compacted away (or implausibly far in the future)
+    "seq_out_of_window",  # seq too far beyond the robot's contiguous ack
+    "map_overflow",  # would lift a voxel's information over LAM_MAX
+    "quarantined",  # the robot is quarantined (swarm server --quarantine, or at run time)
+    "internal_error",  # any other exception while validating or applying this one delta
 )
 
 DeltaId = tuple[str, int, int]
@@ -51,58 +60,49 @@ def describe_grid(grid: Grid) -> str:
     return f"shape {list(grid.shape)} voxel {grid.voxel:g} origin {[round(v, 6) for v in grid.origin]}"
 
 
-def validate_delta(payload: bytes, grid: Grid, robot: str | None = None) -> DeltaMessage:
-    """Decode a delta and check it against ``grid`` (and the key's ``robot``); raise Rejected.
+def validate_delta(
+    payload: bytes, grid: Grid, robot: str | None = None, increments: bool = True
+) -> DeltaMessage:
+    """Decode a delta (once) and check it against ``grid`` (and the key's ``robot``); raise Rejected.
 
     Checks: wire decoding (version, fields, array lengths, index range, finite values,
-    dlam >= 0), the grid equals ``grid``, the robot field equals ``robot``, indices unique.
+    dlam >= 0), the grid equals ``grid``, the robot field equals ``robot``, indices unique,
+    0 <= deta <= dlam (unless ``increments`` is False: a previous map's delta moves a belief
+    from the prior to another Gaussian, and its mean is checked on the resulting voxel by
+    TeamMap instead). Any exception at all becomes a Rejected (``malformed``, or
+    ``internal_error`` for one that is not a WireError), so one payload can only ever be refused.
     """
     try:
-        msg = DeltaMessage.decode(payload)
+        return _validate(payload, grid, robot, increments)
+    except Rejected:
+        raise
     except WireError as exc:
-        raise Rejected(_classify(payload, grid), str(exc)) from exc
+        kind = exc.kind if exc.kind in REJECT_KINDS else "malformed"
+        raise Rejected(kind, str(exc)) from exc
+    except Exception as exc:  # noqa: BLE001 (whatever a hostile payload triggers, refuse it alone)
+        raise Rejected("internal_error", f"delta: {type(exc).__name__}: {short(exc)}") from exc
+
+
+def _validate(payload: bytes, grid: Grid, robot: str | None, increments: bool) -> DeltaMessage:
+    msg = DeltaMessage.decode(payload)
     if not grid.matches(msg.grid):
         raise Rejected(
             "wrong_grid", f"delta: grid {describe_grid(msg.grid)} is not the mission's {describe_grid(grid)}"
         )
     if robot is not None and msg.robot != robot:
-        raise Rejected("robot_mismatch", f"delta: robot {msg.robot!r} published on the key of {robot!r}")
+        raise Rejected(
+            "robot_mismatch", f"delta: robot {short(msg.robot)} published on the key of {short(robot)}"
+        )
     idx = msg.idx
     if len(idx) > 1 and not np.all(idx[1:] > idx[:-1]) and len(np.unique(idx)) != len(idx):
         raise Rejected("duplicate_idx", "delta: a voxel index appears more than once")
+    if increments and (np.any(msg.deta < 0) or np.any(msg.deta > msg.dlam * np.float32(1 + ETA_TOLERANCE))):
+        raise Rejected("mean_outside_unit", "delta: deta must lie in [0, dlam] (a coverage mean in [0, 1])")
     return msg
 
 
-def _classify(payload: Any, grid: Grid) -> str:
-    """The REJECT_KINDS entry of a payload that DeltaMessage.decode refused."""
-    try:
-        data = payload.to_bytes() if hasattr(payload, "to_bytes") else bytes(payload)
-        msg = msgpack.unpackb(data, raw=False, strict_map_key=False)
-    except Exception:  # noqa: BLE001 (any failure to unpack means the same thing)
-        return "malformed"
-    if not isinstance(msg, dict):
-        return "malformed"
-    if msg.get("v") != VERSION:
-        return "unsupported_version"
-    try:
-        sent = Grid.from_dict(msg["grid"])
-    except (KeyError, TypeError, ValueError):
-        return "malformed"
-    if not grid.matches(sent):
-        return "wrong_grid"
-    arrays = [msg.get(name) for name in ("idx", "dlam", "deta")]
-    if not all(isinstance(a, bytes) for a in arrays) or len(arrays[0]) % 4:
-        return "malformed"
-    if not len(arrays[0]) == len(arrays[1]) == len(arrays[2]):
-        return "malformed"
-    idx, dlam, deta = (np.frombuffer(a, dtype=t) for a, t in zip(arrays, ("<u4", "<f4", "<f4"), strict=True))
-    if len(idx) and int(idx.max()) >= grid.size:
-        return "out_of_grid"
-    if not (np.all(np.isfinite(dlam)) and np.all(np.isfinite(deta))):
-        return "non_finite"
-    if np.any(dlam < 0):
-        return "negative_information"
-    return "malformed"
+#: Relative float32 rounding allowed in deta <= dlam (sums of mu * lam and of lam in float32).
+ETA_TOLERANCE = 1e-5
 
 
 # -- the ledger ----------------------------------------------------------------------------
@@ -136,31 +136,73 @@ class _Seqs:
         return max(self.above, default=self.contiguous)
 
 
-class Ledger:
-    """Applied delta ids per (robot, epoch); acks are the contiguous prefixes."""
+#: Epochs (agent runs) of one robot the ledger keeps; older ones are compacted away.
+MAX_EPOCHS = 4
+#: A seq may run at most this far beyond its epoch's contiguous ack (bounds the set above it).
+SEQ_WINDOW = 16384
 
-    def __init__(self) -> None:
+
+class Ledger:
+    """Applied delta ids per (robot, epoch); acks are the contiguous prefixes.
+
+    Bounded: at most ``max_epochs`` epochs per robot (the newest; an older one is compacted
+    away and its robot's ``floor`` remembers it, so a delta of it is refused, never applied
+    twice), and seqs at most ``seq_window`` beyond an epoch's contiguous prefix.
+    """
+
+    def __init__(self, max_epochs: int = MAX_EPOCHS, seq_window: int = SEQ_WINDOW) -> None:
         self._seqs: dict[tuple[str, int], _Seqs] = {}
+        self.max_epochs = max_epochs
+        self.seq_window = seq_window
+        #: per robot, the newest compacted epoch: every epoch <= it is refused
+        self.floors: dict[str, int] = {}
+        #: per robot, deltas applied in its compacted epochs
+        self.compacted: Counter[str] = Counter()
 
     def __contains__(self, delta_id: DeltaId) -> bool:
         robot, epoch, seq = delta_id
         seqs = self._seqs.get((robot, epoch))
         return seqs is not None and seq in seqs
 
+    def refusal(self, delta_id: DeltaId) -> tuple[str, str] | None:
+        """(kind, reason) when the ledger cannot take this id (a compacted epoch, a seq out of
+        the window), else None. An id already applied is not refused here (a duplicate)."""
+        robot, epoch, seq = delta_id
+        if epoch <= self.floors.get(robot, -1):
+            return "stale_epoch", f"epoch {epoch} of {robot} was compacted away"
+        seqs = self._seqs.get((robot, epoch))
+        if seqs is None:
+            epochs = self._epochs(robot)
+            if len(epochs) >= self.max_epochs and epoch < epochs[0]:
+                return "stale_epoch", f"epoch {epoch} of {robot} is older than the {len(epochs)} kept"
+        contiguous = 0 if seqs is None else seqs.contiguous
+        if seq > contiguous + self.seq_window:
+            return "seq_out_of_window", f"seq {seq} is over {self.seq_window} beyond the ack {contiguous}"
+        return None
+
+    def _epochs(self, robot: str) -> list[int]:
+        return sorted(e for r, e in self._seqs if r == robot)
+
     def add(self, delta_id: DeltaId) -> bool:
-        """Record an applied delta; False (and nothing changes) when it was already there."""
+        """Record an applied delta; False (and nothing changes) when it was already there.
+        A new epoch beyond ``max_epochs`` compacts the robot's oldest away."""
         robot, epoch, seq = delta_id
         if seq < 1:
             raise ValueError(f"seq must be >= 1, got {seq}")
-        seqs = self._seqs.setdefault((robot, epoch), _Seqs())
+        seqs = self._seqs.get((robot, epoch))
+        if seqs is None:
+            seqs = self._seqs[(robot, epoch)] = _Seqs()
+            for old in self._epochs(robot)[: -self.max_epochs]:
+                self.compacted[robot] += self._seqs.pop((robot, old)).count
+                self.floors[robot] = max(self.floors.get(robot, -1), old)
         if seq in seqs:
             return False
         seqs.add(seq)
         return True
 
     def __len__(self) -> int:
-        """Number of applied deltas."""
-        return sum(s.count for s in self._seqs.values())
+        """Number of applied deltas (compacted epochs included)."""
+        return sum(s.count for s in self._seqs.values()) + sum(self.compacted.values())
 
     def acks(self) -> dict[str, dict[int, int]]:
         """``{robot: {epoch: last contiguous seq}}`` (0 when seq 1 is still missing)."""
@@ -182,12 +224,21 @@ class Ledger:
         applied) and ``acked_seq`` (contiguous) of its latest epoch."""
         out: dict[str, dict[str, int]] = {}
         for (robot, epoch), seqs in sorted(self._seqs.items()):
-            entry = out.setdefault(robot, {"deltas": 0})
+            entry = out.setdefault(robot, {"deltas": self.compacted.get(robot, 0)})
             entry["deltas"] += seqs.count
             entry |= {"epoch": epoch, "last_seq": seqs.last, "acked_seq": seqs.contiguous}
         return out
 
     # -- persistence form ------------------------------------------------------------------
+    def compaction_json(self) -> dict:
+        """``{"floors": {robot: epoch}, "compacted": {robot: deltas}}``, kept in the snapshot's counters."""
+        return {"floors": dict(self.floors), "compacted": dict(self.compacted)}
+
+    def restore_compaction(self, data: dict) -> None:
+        """Take back what :meth:`compaction_json` saved (absent in older stores)."""
+        self.floors.update({str(r): int(e) for r, e in data.get("floors", {}).items()})
+        self.compacted.update({str(r): int(n) for r, n in data.get("compacted", {}).items()})
+
     def to_json(self) -> str:
         """``[[robot, epoch, contiguous, [seqs above]], ...]`` as JSON."""
         rows = [[r, e, s.contiguous, sorted(s.above)] for (r, e), s in sorted(self._seqs.items())]

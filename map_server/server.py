@@ -1,4 +1,4 @@
-"""The map server role over Zenoh (``swarm server``; DESIGN.md sections 4-5, docs/protocol.md).
+"""The map server role over Zenoh (``swarm server``; docs/protocol.md).
 
 Subscribes ``swarm/<mission>/delta/*``. Zenoh callbacks only enqueue; one worker thread
 validates each payload, drops duplicates, appends the new ones to the write-ahead log and
@@ -12,10 +12,8 @@ configured size, and :meth:`MapServer.stop` drains the queue and compacts once m
 
 from __future__ import annotations
 
-import json
 import logging
-import queue
-import signal
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -23,11 +21,18 @@ from pathlib import Path
 
 import zenoh
 
-from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
+from map_server.contributions import Contributions
+from map_server.inbox import Inbox
+from map_server.ledger import MAX_EPOCHS, Ledger, Rejected, describe_grid, validate_delta
+from map_server.limits import SLACK_FRAMES, mission_bounds
+from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector
 from swarm.config import Mission
+from swarm.map.grid import Grid
 from swarm.protocol import bus
+from swarm.protocol.codec import short
+from swarm.protocol.map_messages import PRIOR_SOURCE
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
@@ -35,13 +40,29 @@ log = logging.getLogger("swarm.server")
 
 @dataclass(frozen=True)
 class ServerOptions:
-    """Tuning of the server: compaction thresholds, group-commit size, progress interval."""
+    """Tuning of the server: compaction thresholds, group-commit size, progress interval, and
+    the limits of docs/protocol.md ("Limits"): payload size (None: derived from the grid),
+    inbox per robot, which robots may send (None: the mission's), the information bound."""
 
     compact_bytes: int = 256 << 20
     compact_records: int = 20_000
     max_batch: int = 64
     log_every_s: float = 10.0
     fsync: bool = True
+    max_payload_bytes: int | None = None
+    inbox_messages: int = 256
+    inbox_bytes: int | None = None
+    robots: tuple[str, ...] | None = None
+    robot_pattern: str | None = None
+    information_bound: bool = True
+    slack_frames: int = SLACK_FRAMES
+    max_epochs: int = MAX_EPOCHS
+    quarantine: tuple[str, ...] = ()
+
+
+def max_payload_for(grid: Grid) -> int:
+    """The default largest delta payload: every voxel once (12 bytes each) plus 64 KiB of fields."""
+    return 12 * grid.size + (64 << 10)
 
 
 class MapServer:
@@ -63,21 +84,54 @@ class MapServer:
             store_dir, StoreIdentity(self.name, grid, sensor), fsync=self.options.fsync
         )
         ledger = Ledger.from_json(recovered.ledger_json)
-        self.team = TeamMap(grid, sensor, recovered.lam, recovered.eta, ledger)
+        ledger.max_epochs = self.options.max_epochs
+        ledger.restore_compaction(recovered.counters.get("ledger", {}))
+        try:
+            contributions = Contributions.from_arrays(recovered.arrays, grid.size)
+        except ValueError as exc:
+            raise StoreError(f"{self.store.path}: snapshot contributions unreadable: {exc}") from exc
+        quarantined = recovered.counters.get("quarantined", [])
+        self.team = TeamMap(
+            grid,
+            sensor,
+            recovered.lam,
+            recovered.eta,
+            ledger,
+            contributions=contributions,
+            quarantined=quarantined,
+        )
+        if self.team.repaired:
+            log.error(
+                "%d voxels of the stored map held impossible values: reset to the prior", self.team.repaired
+            )
         self.team.updates.update(recovered.counters.get("updates", {}))
         from_snapshot = len(self.team.ledger)
         for payload in recovered.wal_payloads:
             try:
-                msg = validate_delta(payload, grid)
+                msg = validate_delta(payload, grid, increments=False)
+                if self.team.admit(msg):  # bounds were checked when it was logged
+                    self.team.apply(msg)
             except Rejected as exc:
                 log.warning("WAL record refused on replay (%s): %s", exc.kind, exc)
-                continue
-            if self.team.admit(msg):
-                self.team.apply(msg)
         self.team.duplicates = 0
+        self.team.rejected.clear()
         self.recovered = (from_snapshot, len(self.team.ledger) - from_snapshot, recovered.torn_bytes)
+        self.robots = frozenset(self.options.robots or mission.robot_ids)
+        #: a mission with a previous map takes it on delta/prior (no rig: no information bound)
+        self.takes_prior = mission.prior_map is not None
+        self._robot_pattern = re.compile(self.options.robot_pattern) if self.options.robot_pattern else None
+        self.bounds = (
+            mission_bounds(mission, self.options.slack_frames) if self.options.information_bound else {}
+        )
+        self._default_bound = max(self.bounds.values(), key=lambda b: b.per_frame, default=None)
+        self.max_payload = self.options.max_payload_bytes or max_payload_for(grid)
         self._lock = threading.Lock()
-        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._snapshot_due = threading.Event()  # set by a quarantine: the worker compacts soon
+        for robot in self.options.quarantine:
+            self.quarantine(robot)
+        self._inbox = Inbox(
+            self.options.inbox_messages, self.options.inbox_bytes or max(2 * self.max_payload, 16 << 20)
+        )
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
@@ -101,10 +155,10 @@ class MapServer:
             "region": self._on_region,
         }
         for part, handler in handlers.items():
-            self._declared.append(self.session.declare_queryable(key("map", part), _guarded(handler)))
+            self._declared.append(self.session.declare_queryable(key("map", part), guarded(handler)))
         self._worker.start()
-        self._delta_sub = bus.subscribe(
-            self.session, bus.key_pattern(self.name, "delta", "*"), self._on_delta
+        self._delta_sub = self.session.declare_subscriber(
+            bus.key_pattern(self.name, "delta", "*"), self._on_sample
         )
         applied, replayed, torn = self.recovered
         log.info(
@@ -127,7 +181,7 @@ class MapServer:
         self._stopping.set()
         if self._worker.is_alive():
             self._worker.join()
-        if self.store.wal_records:
+        if self.store.wal_records or self._snapshot_due.is_set():
             self._compact()
         for entity in self._declared:
             entity.undeclare()
@@ -142,46 +196,84 @@ class MapServer:
         return bus.key(self.name, *parts)
 
     # -- deltas --------------------------------------------------------------------------
-    def _on_delta(self, key_expr: str, payload: bytes) -> None:
-        self._inbox.put((key_expr.rsplit("/", 1)[-1], payload))
+    def accepts_robot(self, robot: str) -> bool:
+        """Whether ``delta/<robot>`` is taken: one of the mission's (or configured) robots, or a
+        full match of the configured pattern."""
+        if robot in self.robots or (robot == PRIOR_SOURCE and self.takes_prior):
+            return True
+        return self._robot_pattern is not None and self._robot_pattern.fullmatch(robot) is not None
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh's callback: refuse an unknown robot or an oversized payload before reading it,
+        else queue it (refused when the robot's queue is full). Never raises into Zenoh."""
+        try:
+            robot = str(sample.key_expr).rsplit("/", 1)[-1]
+            size = len(sample.payload)
+            if not self.accepts_robot(robot):
+                self._reject(robot, None, Rejected("unknown_robot", "not one of the mission's robots"))
+            elif size > self.max_payload:
+                reason = f"payload of {size:,} bytes over the maximum {self.max_payload:,}"
+                self._reject(robot, None, Rejected("too_large", reason))
+            elif not self._inbox.offer(robot, sample.payload.to_bytes()):
+                refused = self._inbox.refused[robot]
+                if refused <= 10 or refused % 1000 == 0:
+                    log.warning(
+                        "inbox of %s full: payload refused (#%d; its agent resends it)", robot, refused
+                    )
+        except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
+            log.exception("delta callback failed")
+
+    def _reject(self, robot: str, msg: DeltaMessage | None, exc: Rejected) -> None:
+        """Count a refused delta under its kind and log it (the first 10 of a kind, then every 1000th)."""
+        with self._lock:
+            count = self.team.count_rejected(exc.kind)
+        if count <= 10 or count % 1000 == 0:
+            ident = "" if msg is None else f" epoch {msg.epoch} seq {msg.seq}"
+            log.warning(
+                "rejected delta on delta/%s%s (%s, #%d): %s", short(robot, 40), ident, exc.kind, count, exc
+            )
 
     def _work(self) -> None:
         while True:
-            try:
-                first = self._inbox.get(timeout=0.1)
-            except queue.Empty:
+            batch = self._inbox.take(self.options.max_batch, timeout=0.1)
+            if self._snapshot_due.is_set():
+                self._compact()
+            if not batch:
                 if self._stopping.is_set():
                     break
                 self._log_progress()
                 continue
-            batch = [first]
-            while len(batch) < self.options.max_batch:
-                try:
-                    batch.append(self._inbox.get_nowait())
-                except queue.Empty:
-                    break
             try:
                 self.merge(batch)
-            except Exception:  # noqa: BLE001 (the worker must survive any one bad batch)
+            except Exception:  # noqa: BLE001 (the worker must survive anything; merge isolates each delta)
                 log.exception("merging a batch of %d deltas failed", len(batch))
             self._log_progress()
 
+    def _admit(self, robot: str, payload: bytes) -> DeltaMessage | None:
+        """The validated delta if it is new, else None (a duplicate, or refused and counted).
+        Whatever one payload raises is confined to it."""
+        msg = None
+        try:
+            prior = robot == PRIOR_SOURCE and robot not in self.robots
+            msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
+            bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
+            with self._lock:
+                return msg if self.team.admit(msg, bound) else None
+        except Rejected as exc:
+            self._reject(robot, msg, exc)
+        except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)
+            log.exception("unexpected failure admitting a delta of %s", short(robot, 40))
+            self._reject(robot, msg, Rejected("internal_error", f"{type(exc).__name__}: {short(exc)}"))
+        return None
+
     def merge(self, batch: list[tuple[str, bytes]]) -> int:
         """Validate, log durably, apply and republish a batch of (robot, payload); returns how many
-        were new. Called by the worker thread only."""
+        were applied. Each payload is decoded once; a refused one is counted and touches nothing
+        else. Called by the worker thread only."""
         admitted: list[tuple[DeltaMessage, bytes]] = []
         for robot, payload in batch:
-            try:
-                msg = validate_delta(payload, self.team.grid, robot)
-            except Rejected as exc:
-                with self._lock:
-                    count = self.team.count_rejected(exc.kind)
-                if count <= 10 or count % 1000 == 0:
-                    log.warning("rejected delta on delta/%s (%s, #%d): %s", robot, exc.kind, count, exc)
-                continue
-            with self._lock:
-                new = self.team.admit(msg)
-            if new:
+            msg = self._admit(robot, payload)
+            if msg is not None:
                 admitted.append((msg, payload))
         if not admitted:
             return 0
@@ -198,26 +290,64 @@ class MapServer:
                 for msg, _ in admitted:
                     self.team.release(msg)
             return 0
-        with self._lock:
-            for msg, _ in admitted:
-                self.team.apply(msg)
-        for _, payload in admitted:
-            self._merged_pub.put(payload)
+        applied = []
+        for msg, payload in admitted:
+            try:
+                with self._lock:
+                    self.team.apply(msg)
+                applied.append(payload)
+            except Exception as exc:  # noqa: BLE001 (e.g. map_overflow: this delta alone is refused)
+                with self._lock:
+                    self.team.release(msg)
+                kind = exc.kind if isinstance(exc, Rejected) else "internal_error"
+                self._reject(msg.robot, msg, Rejected(kind, str(exc)))
+        for payload in applied if self._merged_pub is not None else ():
+            try:
+                self._merged_pub.put(payload)
+            except Exception:  # noqa: BLE001 (agents also start from the snapshot; keep merging)
+                log.exception("republishing a merged delta failed")
         if self.store.should_compact(self.options.compact_bytes, self.options.compact_records):
             self._compact()
-        return len(admitted)
+        return len(applied)
 
     def _compact(self) -> None:
+        self._snapshot_due.clear()
         t0 = time.perf_counter()
-        team = self.team  # only this thread (or stop(), after it) changes the map: no lock needed
-        self.store.compact(
-            team.grid, team.cmap.lam, team.cmap.eta, team.ledger.to_json(), {"updates": dict(team.updates)}
-        )
+        team = self.team
+        with self._lock:  # a quarantine (another thread) may rebuild the map meanwhile
+            self.store.compact(
+                team.grid,
+                team.cmap.lam,
+                team.cmap.eta,
+                team.ledger.to_json(),
+                {
+                    "updates": dict(team.updates),
+                    "ledger": team.ledger.compaction_json(),
+                    "quarantined": sorted(team.quarantined),
+                },
+                team.contributions.to_arrays(),
+            )
         log.info(
             "compacted the store: snapshot of %d deltas in %.0f ms, log generation %d",
             len(team.ledger),
             (time.perf_counter() - t0) * 1e3,
             self.store.generation,
+        )
+
+    def quarantine(self, robot: str) -> None:
+        """Refuse ``robot``'s further deltas and take its past ones out of the map (thread-safe;
+        docs/protocol.md, "Quarantine"). The next compaction makes it durable."""
+        with self._lock:
+            if robot in self.team.quarantined and robot not in self.team.contributions.by_robot:
+                return
+            h_before = self.team.entropy.total
+            changed = self.team.quarantine(robot)
+            h_after = self.team.entropy.total
+        self._snapshot_due.set()  # durable at the worker's next round (or at stop)
+        log.warning(
+            "quarantined %s: its further deltas are refused%s",
+            short(robot, 40),
+            f"; its past ones left the map (H {h_before:,.0f} -> {h_after:,.0f} bits)" if changed else "",
         )
 
     # -- queries -------------------------------------------------------------------------
@@ -231,18 +361,20 @@ class MapServer:
             "wal_bytes": self.store.wal_bytes,
             "wal_generation": self.store.generation,
             "snapshots_written": self.store.snapshots_written,
-            "queued": self._inbox.qsize(),
+            "queued": len(self._inbox),
+            "inbox": self._inbox.stats(),
+            "max_payload_bytes": self.max_payload,
             "uptime_s": round(time.monotonic() - self._started, 3),
         }
         return stats
 
     def _on_stats(self, query: zenoh.Query) -> None:
-        _reply_json(query, self.stats())
+        reply_json(query, self.stats())
 
     def _on_acks(self, query: zenoh.Query) -> None:
         with self._lock:
             acks = self.team.acks()
-        _reply_json(query, {r: {str(e): s for e, s in by_epoch.items()} for r, by_epoch in acks.items()})
+        reply_json(query, {r: {str(e): s for e, s in by_epoch.items()} for r, by_epoch in acks.items()})
 
     def _on_snapshot(self, query: zenoh.Query) -> None:
         with self._lock:
@@ -257,7 +389,7 @@ class MapServer:
             with self._lock:
                 region = self.team.region(lo, hi)
         except ValueError as exc:
-            query.reply_err(f"map/region: {exc}".encode())
+            query.reply_err(f"map/region: {short(exc, 200)}".encode())
             return
         query.reply(query.key_expr, region.encode())
 
@@ -282,58 +414,3 @@ class MapServer:
             )
         self._last_log = (now, n)
         log.info(msg)
-
-
-def _guarded(handler):
-    """A queryable callback that answers an error instead of raising into Zenoh."""
-
-    def callback(query: zenoh.Query) -> None:
-        try:
-            handler(query)
-        except Exception as exc:  # noqa: BLE001 (one bad query must not take the server down)
-            log.exception("query %s failed", query.selector)
-            try:
-                query.reply_err(f"{query.key_expr}: server error: {exc}".encode())
-            except zenoh.ZError:
-                pass
-
-    return callback
-
-
-def _reply_json(query: zenoh.Query, obj: dict) -> None:
-    query.reply(query.key_expr, json.dumps(obj).encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
-
-
-# -- the process ---------------------------------------------------------------------------
-
-
-def serve(
-    mission: Mission,
-    listen: list[str],
-    store_dir: Path,
-    mission_name: str | None = None,
-    options: ServerOptions | None = None,
-    connect: list[str] | None = None,
-) -> None:
-    """Run the server until SIGTERM/SIGINT: recover the store, listen, merge; compact on exit."""
-    stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        server = MapServer(mission, store_dir, mission_name, options)
-        try:
-            session = bus.open_session(listen=listen, connect=connect or [])
-        except BaseException:
-            server.store.close()
-            raise
-        try:
-            server.start(session)
-            log.info("listening on %s", ", ".join(listen))
-            while not stop.wait(0.5):
-                pass
-            log.info("stopping: applying queued deltas and compacting the store")
-        finally:
-            server.stop()
-            session.close()
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)

@@ -93,6 +93,8 @@ class Recovered:
     counters: dict = field(default_factory=dict)
     wal_payloads: list[bytes] = field(default_factory=list)
     torn_bytes: int = 0
+    #: the snapshot's other arrays (the per-robot contributions of map_server.contributions)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -244,6 +246,8 @@ class Store:
                 out.ledger_json = str(data["ledger"])
                 out.counters = json.loads(str(data["counters"]))
                 generation = int(data["wal"])
+                standard = {"grid", "lam", "eta", "ledger", "counters", "wal"}
+                out.arrays = {name: data[name] for name in data.files if name not in standard}
         except (OSError, KeyError, ValueError) as exc:
             raise StoreError(f"{snap_path}: cannot read snapshot: {exc}") from exc
         if not grid.matches(identity.grid) or lam.shape != (grid.size,) or eta.shape != (grid.size,):
@@ -304,8 +308,17 @@ class Store:
     def should_compact(self, max_bytes: int, max_records: int) -> bool:
         return self.wal_records > 0 and (self.wal_bytes >= max_bytes or self.wal_records >= max_records)
 
-    def compact(self, grid: Grid, lam: np.ndarray, eta: np.ndarray, ledger_json: str, counters: dict) -> None:
-        """Write the snapshot atomically, then start the next log and delete the old one."""
+    def compact(
+        self,
+        grid: Grid,
+        lam: np.ndarray,
+        eta: np.ndarray,
+        ledger_json: str,
+        counters: dict,
+        arrays: dict[str, np.ndarray] | None = None,
+    ) -> None:
+        """Write the snapshot atomically (with ``arrays`` beside the map), then start the next
+        log and delete the old one."""
         nxt = self.generation + 1
         tmp = self.path / (SNAPSHOT_FILE + ".tmp")
         with open(tmp, "wb") as f:
@@ -317,6 +330,7 @@ class Store:
                 ledger=np.array(ledger_json),
                 counters=np.array(json.dumps(counters)),
                 wal=np.int64(nxt),
+                **{name: np.ascontiguousarray(a, np.float32) for name, a in (arrays or {}).items()},
             )
             f.flush()
             os.fsync(f.fileno())

@@ -11,13 +11,16 @@ delta (new, or a duplicate that is only counted), makes it durable, then
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
+from collections.abc import Iterable
 
 import numpy as np
 
-from map_server.ledger import REJECT_KINDS, DeltaId, Ledger
+from map_server.contributions import Contributions
+from map_server.ledger import ETA_TOLERANCE, REJECT_KINDS, DeltaId, Ledger, Rejected
+from map_server.limits import LAM_MAX, InformationBound, RobotBudget
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits, prior_information
-from swarm.map.delta import Delta
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
@@ -44,10 +47,16 @@ class TeamMap:
         eta: np.ndarray | None = None,
         ledger: Ledger | None = None,
         updates: dict[str, int] | None = None,
+        contributions: Contributions | None = None,
+        quarantined: Iterable[str] = (),
     ) -> None:
         self.grid = grid
         self.sensor = sensor
         self.cmap = CoverageMap(grid, sensor, lam, eta)
+        self.repaired = self._repair()
+        #: base + per-robot sums, to take a quarantined robot's deltas out (contributions.py)
+        self.contributions = contributions or Contributions(self.cmap.lam, self.cmap.eta)
+        self.quarantined: set[str] = set(quarantined)
         self.ledger = ledger or Ledger()
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
         self.initial_entropy_bits = prior_entropy_bits(grid, sensor)
@@ -58,41 +67,108 @@ class TeamMap:
         self.updates: Counter[str] = Counter(updates or {})
         self.rejected: Counter[str] = Counter()
         self.duplicates = 0
-        self._pending: set[DeltaId] = set()
+        self._pending: dict[DeltaId, float] = {}  # admitted, not yet applied: their information
+        self.budgets: dict[str, RobotBudget] = {}
+
+    def _repair(self) -> int:
+        """Reset to the prior every voxel a store written by an older server may hold with
+        non-finite, non-positive or over-LAM_MAX information (or eta outside [0, lam]); returns
+        how many. A map this server writes never holds one."""
+        lam, eta = self.cmap.lam, self.cmap.eta
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.isfinite(lam) & np.isfinite(eta) & (lam > 0) & (lam <= LAM_MAX))
+            bad |= ~((eta >= 0) & (eta <= lam * np.float32(1 + ETA_TOLERANCE)))
+        n = int(np.count_nonzero(bad))
+        if n:
+            lam0, eta0 = prior_information(self.sensor)
+            lam[bad], eta[bad] = lam0, eta0
+        return n
 
     # -- merging -------------------------------------------------------------------------
-    def admit(self, msg: DeltaMessage) -> bool:
+    def admit(self, msg: DeltaMessage, bound: InformationBound | None = None) -> bool:
         """True when ``msg`` is new (it is then pending until :meth:`apply` or :meth:`release`);
-        False for a delta already applied or pending, which is counted as a duplicate."""
+        False for a delta already applied or pending, which is counted as a duplicate.
+
+        Raises Rejected for a delta the ledger cannot take (``stale_epoch``,
+        ``seq_out_of_window``), one over the robot's information ``bound`` (when given:
+        ``too_much_information``), or one that would lift a voxel over LAM_MAX (``map_overflow``).
+        """
         ident = delta_id(msg)
+        if msg.robot in self.quarantined:
+            raise Rejected("quarantined", f"{msg.robot} is quarantined")
         if ident in self.ledger or ident in self._pending:
             self.duplicates += 1
             return False
-        self._pending.add(ident)
+        refusal = self.ledger.refusal(ident)
+        if refusal is not None:
+            raise Rejected(*refusal)
+        information = float(np.sum(msg.dlam, dtype=np.float64))
+        if bound is not None:
+            budget = self.budgets.setdefault(msg.robot, RobotBudget())
+            why = budget.check(bound, msg.t, information)
+            if why is not None:
+                raise Rejected("too_much_information", f"delta of {msg.robot}: {why}")
+        self._check_overflow(msg)
+        if bound is not None:
+            self.budgets[msg.robot].charge(msg.t, information)
+        self._pending[ident] = information
         return True
 
+    def _check_overflow(self, msg: DeltaMessage) -> np.ndarray:
+        """The voxels' lam after adding ``msg`` (float32); Rejected when one would pass LAM_MAX
+        (``map_overflow``) or leave a mean outside [0, 1] (``mean_outside_unit``)."""
+        idx = msg.idx.astype(np.int64)
+        lam = self.cmap.lam[idx] + msg.dlam
+        if not np.all(lam <= LAM_MAX):  # also catches inf and NaN
+            raise Rejected("map_overflow", f"delta of {msg.robot} would lift a voxel over {LAM_MAX:g}")
+        eta = self.cmap.eta[idx] + msg.deta
+        if not (np.all(eta >= 0) and np.all(eta <= lam * np.float32(1 + ETA_TOLERANCE))):
+            raise Rejected("mean_outside_unit", f"delta of {msg.robot} would move a mean outside [0, 1]")
+        return lam
+
     def release(self, msg: DeltaMessage) -> None:
-        """Forget an admitted delta that could not be made durable (its sender will resend it)."""
-        self._pending.discard(delta_id(msg))
+        """Forget an admitted delta that could not be made durable or applied (its sender will
+        resend it), and give its information back to the robot's budget."""
+        information = self._pending.pop(delta_id(msg), None)
+        if information is not None and msg.robot in self.budgets:
+            self.budgets[msg.robot].refund(information)
 
     def apply(self, msg: DeltaMessage) -> None:
-        """Add a validated, admitted delta to the map, the entropy and the ledger."""
+        """Add a validated, admitted delta to the map, the entropy and the ledger.
+
+        Indices are unique (validate_delta checks it), so a fancy-indexed sum is exact. Raises
+        Rejected (``map_overflow``) and changes nothing when a voxel would pass LAM_MAX.
+        """
+        if msg.robot in self.quarantined:  # quarantined between admit and apply
+            raise Rejected("quarantined", f"{msg.robot} is quarantined")
         idx = msg.idx.astype(np.int64)
+        new_lam = self._check_overflow(msg)
         known_before = int(np.count_nonzero(self.cmap.lam[idx] > self._known_lam))
-        if len(idx) > 1 and np.all(idx[1:] > idx[:-1]) and idx[-1] < self.grid.size and idx[0] >= 0:
-            # sorted, unique and in the grid, as the protocol asks: CoverageMap.apply's sum
-            # without its uniqueness check (a hash of every index, over half the merge time)
-            self.cmap.lam[idx] += msg.dlam
-            self.cmap.eta[idx] += msg.deta
-        else:
-            self.cmap.apply(Delta(msg.idx, msg.dlam, msg.deta))
+        self.cmap.lam[idx] = new_lam
+        self.cmap.eta[idx] += msg.deta
         lam, eta = self.cmap.lam[idx], self.cmap.eta[idx]
         self.entropy.update_information(idx, lam, eta)
         self.known += int(np.count_nonzero(lam > self._known_lam)) - known_before
+        self.contributions.add(msg.robot, idx, msg.dlam, msg.deta)
         ident = delta_id(msg)
-        self._pending.discard(ident)
+        self._pending.pop(ident, None)
         self.ledger.add(ident)
         self.updates[msg.robot] += len(idx)
+
+    def quarantine(self, robot: str) -> bool:
+        """Refuse ``robot``'s further deltas and take its applied ones out of the map: the map is
+        rebuilt from the base and the other robots' contributions, the entropy cache and known
+        count with it. Its ids stay in the ledger (a resend is a duplicate, never re-applied).
+        Returns True when the map changed."""
+        self.quarantined.add(robot)
+        if not self.contributions.drop(robot):
+            return False
+        lam, eta = self.contributions.total()
+        self.cmap.lam[:] = lam
+        self.cmap.eta[:] = eta
+        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
+        self.known = int(np.count_nonzero(self.cmap.lam > self._known_lam))
+        return True
 
     def count_rejected(self, kind: str) -> int:
         """Count one refused payload of ``kind``; returns the count of that kind so far."""
@@ -108,6 +184,8 @@ class TeamMap:
         robots = self.ledger.robots()
         for robot, entry in robots.items():
             entry["voxel_updates"] = int(self.updates.get(robot, 0))
+            if robot in self.quarantined:
+                entry["quarantined"] = True
         s = self.sensor
         return {
             "voxels": self.grid.size,
@@ -123,6 +201,7 @@ class TeamMap:
             "duplicates": self.duplicates,
             "rejected": {kind: self.rejected.get(kind, 0) for kind in REJECT_KINDS},
             "robots": robots,
+            "quarantined": sorted(self.quarantined),
         }
 
     def snapshot(self) -> Snapshot:
@@ -168,15 +247,24 @@ class TeamMap:
         )
 
 
+#: A selector number: ASCII digits, optional sign, fraction and exponent (no "_", no "inf").
+_NUMBER = re.compile(r"[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]{1,3})?", re.ASCII)
+#: Longest selector value a region query reads (3 numbers in any honest notation fit).
+MAX_PARAMETER_CHARS = 120
+
+
 def parse_vector(text: str | None, name: str) -> np.ndarray:
-    """``"x,y,z"`` as 3 finite floats; ValueError naming ``name`` otherwise."""
+    """``"x,y,z"`` as 3 finite floats written in ASCII decimal notation; ValueError naming
+    ``name`` otherwise, whose text echoes at most the first 40 characters of what was sent."""
     if text is None or text == "":
         raise ValueError(f"missing parameter {name} (expected {name}=x,y,z)")
+    shown = repr(text) if len(text) <= 40 else repr(text[:37] + "...")
+    if len(text) > MAX_PARAMETER_CHARS:
+        raise ValueError(f"{name}={shown}: longer than {MAX_PARAMETER_CHARS} characters")
     parts = text.split(",")
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise ValueError(f"{name}={text!r}: expected 3 comma-separated numbers") from None
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{name}={text!r}: expected 3 comma-separated finite numbers")
+    if len(parts) != 3 or not all(_NUMBER.fullmatch(p) for p in parts):
+        raise ValueError(f"{name}={shown}: expected 3 comma-separated decimal numbers")
+    values = [float(p) for p in parts]
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name}={shown}: expected 3 finite numbers")
     return np.array(values)

@@ -164,7 +164,12 @@ def test_snapshot_round_trip():
     assert back.acks == {"r1": {17: 4}} and back.above == {"r1": {17: [6, 7]}}
     assert Snapshot.decode(tamper(snap.encode(), above=None)).above == {}  # optional: older servers
     with pytest.raises(WireError, match="above must be"):
-        Snapshot.decode(tamper(snap.encode(), above={"r1": {17: 5}}))
+        Snapshot.decode(tamper(snap.encode(), above={"r1": {"17": 5}}))
+    with pytest.raises(WireError, match="map key"):  # keys are strings (revision 2): epochs in decimal
+        Snapshot.decode(tamper(snap.encode(), acks={"r1": {17: 4}}))
+    with pytest.raises(WireError, match="decimal string"):
+        Snapshot.decode(tamper(snap.encode(), acks={"r1": {"1_7": 4}}))
+    assert msgpack.unpackb(snap.encode())["acks"] == {"r1": {"17": 4}}  # msgpack's strict default reads it
     np.testing.assert_array_equal(back.lam, snap.lam)
     with pytest.raises(WireError, match="lam has 28 bytes"):
         Snapshot.decode(tamper(snap.encode(), lam=np.zeros(7, "<f4").tobytes()))

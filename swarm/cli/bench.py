@@ -91,6 +91,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     server.add_argument(
         "--period", type=float, default=0.25, help="paced latency: seconds between an agent's deltas"
     )
+    server.add_argument(
+        "--flood",
+        type=float,
+        metavar="SECONDS",
+        help="instead: --agents publishers with no pause for SECONDS, then their resends; prints the "
+        "server's peak memory, the inbox's high-water mark and refusals, and whether every delta "
+        "was applied exactly once (deltas of --min-voxels to --max-voxels; try 200 and 2000)",
+    )
     server.set_defaults(run=_run_bench_server)
 
 
@@ -138,6 +146,12 @@ def _run_bench_server(args: argparse.Namespace) -> int:
 
     if args.agents < 1 or args.deltas < 1 or not 1 <= args.min_voxels <= args.max_voxels or args.period <= 0:
         return fail("--agents, --deltas, --period must be positive, and --min-voxels <= --max-voxels")
+    if args.flood is not None:
+        if not args.flood > 0:
+            return fail("--flood takes a positive number of seconds")
+        figures = server.run_flood(args.agents, args.flood, args.min_voxels, args.max_voxels)
+        print(server.format_flood(figures))
+        return 0
     figures = server.run(args.agents, args.deltas, args.min_voxels, args.max_voxels, args.period)
     print(server.format_table(figures))
     return 0

@@ -146,14 +146,45 @@ def register_server(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compact-mb", type=float, default=256, help="compact when the log reaches this (MB)")
     p.add_argument("--compact-records", type=int, default=20000, help="... or this many deltas")
     p.add_argument("--log-every", type=float, default=10.0, help="seconds between progress lines")
+    p.add_argument(
+        "--max-payload-mb",
+        type=float,
+        help="refuse a delta payload larger than this, before decoding it "
+        "(default: 12 bytes per voxel of the grid + 64 KiB, the largest honest delta)",
+    )
+    p.add_argument(
+        "--inbox", type=int, default=256, help="deltas queued per robot at most; more are refused and "
+        "counted, and their agents resend them (default 256)"
+    )  # fmt: skip
+    p.add_argument(
+        "--robots",
+        help="comma-separated robot ids whose deltas are taken (default: the mission's robots)",
+    )
+    p.add_argument("--robot-pattern", help="also take robot ids that fully match this regular expression")
+    p.add_argument(
+        "--no-information-bound",
+        action="store_true",
+        help="do not refuse deltas carrying more information than the robot's rig can gather "
+        "(docs/protocol.md, Limits)",
+    )
+    p.add_argument(
+        "--quarantine",
+        action="append",
+        default=[],
+        metavar="ROBOT",
+        help="refuse this robot's deltas and take its past ones out of the map (repeatable; at run "
+        "time: list ids in STORE/quarantine, one a line, and send the server SIGHUP)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     p.set_defaults(run=_run_server)
 
 
 def _run_server(args: argparse.Namespace) -> int:
     import logging
+    import re
 
-    from map_server.server import ServerOptions, serve
+    from map_server.process import serve
+    from map_server.server import ServerOptions
     from map_server.store import StoreError
     from swarm.config import ConfigError, load_mission
     from swarm.protocol import bus
@@ -161,9 +192,27 @@ def _run_server(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
     )
-    if args.compact_mb <= 0 or args.compact_records < 1 or args.log_every <= 0:
-        return fail("--compact-mb, --compact-records and --log-every must be positive")
-    options = ServerOptions(int(args.compact_mb * 2**20), args.compact_records, log_every_s=args.log_every)
+    if args.compact_mb <= 0 or args.compact_records < 1 or args.log_every <= 0 or args.inbox < 1:
+        return fail("--compact-mb, --compact-records, --log-every and --inbox must be positive")
+    if args.max_payload_mb is not None and not args.max_payload_mb > 0:
+        return fail("--max-payload-mb must be positive")
+    robots = tuple(r.strip() for r in args.robots.split(",") if r.strip()) if args.robots else None
+    try:
+        if args.robot_pattern:
+            re.compile(args.robot_pattern)
+    except re.error as exc:
+        return fail(f"--robot-pattern: not a regular expression: {exc}")
+    options = ServerOptions(
+        int(args.compact_mb * 2**20),
+        args.compact_records,
+        log_every_s=args.log_every,
+        max_payload_bytes=None if args.max_payload_mb is None else int(args.max_payload_mb * 2**20),
+        inbox_messages=args.inbox,
+        robots=robots,
+        robot_pattern=args.robot_pattern,
+        information_bound=not args.no_information_bound,
+        quarantine=tuple(args.quarantine),
+    )
     try:
         mission = load_mission(args.config)
         serve(mission, args.listen or [bus.DEFAULT_ENDPOINT], args.store, args.mission, options, args.connect)

@@ -1,9 +1,16 @@
 """The wire's encoding rules: msgpack maps with ``"v": 1``, little-endian raw arrays, and the
-field checks every message decoder uses; a malformed field raises :class:`WireError` naming it."""
+field checks every message decoder uses; a malformed field raises :class:`WireError` naming it.
+
+Strict (docs/protocol.md, revision 2): ``v`` is the integer 1 (not ``true``, not ``1.0``), map
+keys are strings, integers are integers and booleans are not numbers. :func:`unpack` caps the
+length msgpack may declare for an array, a map or a string, so a small payload cannot make
+the decoder build a huge object.
+"""
 
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import msgpack
@@ -14,8 +21,18 @@ STEREO_ENCODINGS = ("raw8", "png")
 DEPTH_ENCODING = "f32"
 
 
+#: The longest array, map and string a message may declare (bin arrays are bounded by the payload).
+MAX_CONTAINER_LEN = 1 << 16
+MAX_STR_LEN = 4096
+
+
 class WireError(ValueError):
-    """A malformed message; the text says what is wrong."""
+    """A malformed message; the text says what is wrong and ``kind`` names the way it is wrong
+    (``malformed``, ``unsupported_version``, ``out_of_grid``, ``non_finite``, ...)."""
+
+    def __init__(self, reason: str, kind: str = "malformed") -> None:
+        super().__init__(reason)
+        self.kind = kind
 
 
 # -- decoding helpers ------------------------------------------------------------------
@@ -30,17 +47,39 @@ def as_bytes(payload: Any) -> bytes:
 
 
 def unpack(payload: Any, kind: str) -> dict:
+    """The msgpack map of a payload, decoded once; WireError unless it is a map of string keys
+    whose ``v`` is the integer VERSION (kind ``unsupported_version`` for another ``v``)."""
     try:
-        msg = msgpack.unpackb(as_bytes(payload), raw=False, strict_map_key=False)
+        msg = msgpack.unpackb(
+            as_bytes(payload),
+            raw=False,
+            strict_map_key=True,
+            max_array_len=MAX_CONTAINER_LEN,
+            max_map_len=MAX_CONTAINER_LEN,
+            max_str_len=MAX_STR_LEN,
+            max_ext_len=0,
+        )
     except WireError:
         raise
     except Exception as e:  # msgpack raises several unrelated exception types
-        raise WireError(f"{kind}: not a msgpack payload ({e})") from e
+        raise WireError(f"{kind}: not a msgpack payload ({short(e)})") from e
     if not isinstance(msg, dict):
         raise WireError(f"{kind}: payload must be a map, got {type(msg).__name__}")
-    if msg.get("v") != VERSION:
-        raise WireError(f"{kind}: unsupported version {msg.get('v')!r} (expected {VERSION})")
+    if not all(isinstance(k, str) for k in msg):
+        raise WireError(f"{kind}: map keys must be strings")
+    version = msg.get("v")
+    if type(version) is not int or version != VERSION:  # True == 1 and 1.0 == 1 in Python
+        raise WireError(
+            f"{kind}: unsupported version {short(version)} (expected the integer {VERSION})",
+            "unsupported_version",
+        )
     return msg
+
+
+def short(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for error texts that echo what was sent."""
+    text = repr(value) if not isinstance(value, BaseException) else str(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def pack(kind: str, fields: dict) -> bytes:
@@ -57,27 +96,37 @@ def number(value: Any, name: str, kind: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise WireError(f"{kind}: {name} must be a number, got {type(value).__name__}")
     if not math.isfinite(value):
-        raise WireError(f"{kind}: {name} must be finite, got {value!r}")
+        raise WireError(f"{kind}: {name} must be finite, got {value!r}", "non_finite")
     return float(value)
 
 
 def integer(value: Any, name: str, kind: str, minimum: int = 0) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise WireError(f"{kind}: {name} must be an integer, got {value!r}")
+        raise WireError(f"{kind}: {name} must be an integer, got {short(value)}")
     if value < minimum:
         raise WireError(f"{kind}: {name} must be >= {minimum}, got {value}")
     return value
 
 
+_DECIMAL = re.compile(r"(0|[1-9][0-9]{0,19})", re.ASCII)
+
+
+def decimal(value: Any, name: str, kind: str) -> int:
+    """A map key that is a non-negative integer written as ASCII decimal digits (epochs)."""
+    if not isinstance(value, str) or not _DECIMAL.fullmatch(value):
+        raise WireError(f"{kind}: {name} must be a decimal string, got {short(value)}")
+    return int(value)
+
+
 def text(value: Any, name: str, kind: str) -> str:
     if not isinstance(value, str) or not value:
-        raise WireError(f"{kind}: {name} must be a non-empty string, got {value!r}")
+        raise WireError(f"{kind}: {name} must be a non-empty string, got {short(value)}")
     return value
 
 
 def vec3(value: Any, name: str, kind: str) -> tuple[float, float, float]:
     if not isinstance(value, list | tuple) or len(value) != 3:
-        raise WireError(f"{kind}: {name} must be 3 numbers, got {value!r}")
+        raise WireError(f"{kind}: {name} must be 3 numbers, got {short(value)}")
     return tuple(number(v, f"{name}[{i}]", kind) for i, v in enumerate(value))
 
 
@@ -98,7 +147,7 @@ def indices(value: Any, kind: str, grid_size: int) -> np.ndarray:
         raise WireError(f"{kind}: idx must be raw uint32 bytes")
     idx = raw(value, "<u4", len(value) // 4, "idx", kind)
     if len(idx) and int(idx.max()) >= grid_size:
-        raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid_size}")
+        raise WireError(f"{kind}: voxel index {int(idx.max())} outside grid of {grid_size}", "out_of_grid")
     return idx
 
 

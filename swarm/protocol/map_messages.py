@@ -10,6 +10,7 @@ import numpy as np
 from swarm.map.grid import Grid
 from swarm.protocol.codec import (
     WireError,
+    decimal,
     indices,
     integer,
     le,
@@ -24,6 +25,13 @@ from swarm.protocol.codec import (
 
 # -- delta/<rid> and merged ---------------------------------------------------------------
 
+#: The ``<rid>`` of the deltas that carry a mission's previous map (``prior_map:``), sent once by
+#: the mission runner before the robots start (swarm.mission.prior_map uses the same id).
+PRIOR_SOURCE = "prior"
+
+#: Voxels along one grid axis at most (the flat index is uint32).
+MAX_AXIS = 1 << 20
+
 
 def _grid(value: Any, kind: str) -> Grid:
     if not isinstance(value, dict):
@@ -34,16 +42,26 @@ def _grid(value: Any, kind: str) -> Grid:
     if not isinstance(shape, list | tuple) or len(shape) != 3:
         raise WireError(f"{kind}: grid.shape must be 3 integers, got {shape!r}")
     shape = tuple(integer(n, f"grid.shape[{i}]", kind, 1) for i, n in enumerate(shape))
+    if any(n > MAX_AXIS for n in shape):
+        raise WireError(f"{kind}: grid.shape {list(shape)} has an axis over {MAX_AXIS} voxels")
     if voxel <= 0:
         raise WireError(f"{kind}: grid.voxel must be > 0, got {voxel}")
-    return Grid(origin, voxel, shape)
+    try:
+        grid = Grid(origin, voxel, shape)
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise WireError(f"{kind}: bad grid ({exc})") from exc
+    if grid.size > 1 << 32:
+        raise WireError(f"{kind}: grid of {grid.size} voxels (a flat index is uint32)")
+    return grid
 
 
 def _information(dlam: np.ndarray, deta: np.ndarray, kind: str, names: tuple[str, str]) -> None:
     if not np.all(np.isfinite(dlam)) or not np.all(np.isfinite(deta)):
-        raise WireError(f"{kind}: {names[0]}/{names[1]} must be finite")
+        raise WireError(f"{kind}: {names[0]}/{names[1]} must be finite", "non_finite")
     if np.any(dlam < 0):
-        raise WireError(f"{kind}: {names[0]} must be >= 0 (information cannot be negative)")
+        raise WireError(
+            f"{kind}: {names[0]} must be >= 0 (information cannot be negative)", "negative_information"
+        )
 
 
 @dataclass
@@ -135,10 +153,11 @@ class Snapshot:
                 "lam": le(np.ravel(self.lam), "<f4"),
                 "eta": le(np.ravel(self.eta), "<f4"),
                 "acks": {
-                    str(r): {int(e): int(s) for e, s in by_epoch.items()} for r, by_epoch in self.acks.items()
+                    str(r): {str(int(e)): int(s) for e, s in by_epoch.items()}
+                    for r, by_epoch in self.acks.items()
                 },
                 "above": {
-                    str(r): {int(e): sorted(int(s) for s in seqs) for e, seqs in by_epoch.items()}
+                    str(r): {str(int(e)): sorted(int(s) for s in seqs) for e, seqs in by_epoch.items()}
                     for r, by_epoch in self.above.items()
                 },
             },
@@ -157,7 +176,9 @@ class Snapshot:
         if not isinstance(acks, dict) or not all(isinstance(v, dict) for v in acks.values()):
             raise WireError(f"{kind}: acks must be a map robot -> {{epoch: seq}}")
         acks = {
-            str(r): {int(e): integer(s, f"acks.{r}", kind) for e, s in by_epoch.items()}
+            text(r, "acks robot", kind): {
+                decimal(e, "acks epoch", kind): integer(s, "acks seq", kind) for e, s in by_epoch.items()
+            }
             for r, by_epoch in acks.items()
         }
         above = msg.get("above", {})
@@ -168,7 +189,10 @@ class Snapshot:
         ):
             raise WireError(f"{kind}: above must be a map robot -> {{epoch: [seq, ...]}}")
         above = {
-            str(r): {int(e): [integer(s, f"above.{r}", kind) for s in seqs] for e, seqs in by_epoch.items()}
+            text(r, "above robot", kind): {
+                decimal(e, "above epoch", kind): [integer(s, "above seq", kind) for s in seqs]
+                for e, seqs in by_epoch.items()
+            }
             for r, by_epoch in above.items()
         }
         return cls(grid, lam, eta, acks, above)

@@ -1,0 +1,66 @@
+"""The ``swarm server`` process: a :class:`~map_server.server.MapServer` on a listening Zenoh
+session until SIGTERM/SIGINT; SIGHUP quarantines the robots listed in ``<store>/quarantine``."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from pathlib import Path
+
+from map_server.server import MapServer, ServerOptions
+from swarm.config import Mission
+from swarm.protocol import bus
+
+log = logging.getLogger("swarm.server")
+
+QUARANTINE_FILE = "quarantine"
+
+
+def quarantine_list(path: Path) -> list[str]:
+    """The robot ids of a quarantine file: one a line, ``#`` starts a comment; [] when absent."""
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        return []
+    except OSError as exc:
+        log.error("cannot read %s: %s", path, exc)
+        return []
+    return [r for r in (line.split("#", 1)[0].strip() for line in lines) if r]
+
+
+def serve(
+    mission: Mission,
+    listen: list[str],
+    store_dir: Path,
+    mission_name: str | None = None,
+    options: ServerOptions | None = None,
+    connect: list[str] | None = None,
+) -> None:
+    """Run the server until SIGTERM/SIGINT: recover the store, listen, merge; compact on exit.
+    SIGHUP quarantines the robots listed in ``<store>/quarantine`` (one id a line)."""
+    stop, reread = threading.Event(), threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
+    previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: reread.set())
+    try:
+        server = MapServer(mission, store_dir, mission_name, options)
+        try:
+            session = bus.open_session(listen=listen, connect=connect or [])
+        except BaseException:
+            server.store.close()
+            raise
+        try:
+            server.start(session)
+            log.info("listening on %s", ", ".join(listen))
+            while not stop.wait(0.5):
+                if reread.is_set():
+                    reread.clear()
+                    for robot in quarantine_list(Path(store_dir) / QUARANTINE_FILE):
+                        server.quarantine(robot)
+            log.info("stopping: applying queued deltas and compacting the store")
+        finally:
+            server.stop()
+            session.close()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)

@@ -1,0 +1,34 @@
+"""How the map server's queryables answer: strict JSON, and an error reply instead of a crash."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import zenoh
+
+from swarm.protocol.codec import short
+
+log = logging.getLogger("swarm.server")
+
+
+def guarded(handler):
+    """A queryable callback that answers an error instead of raising into Zenoh."""
+
+    def callback(query: zenoh.Query) -> None:
+        try:
+            handler(query)
+        except Exception as exc:  # noqa: BLE001 (one bad query must not take the server down)
+            log.exception("query %s failed", short(str(query.selector), 200))
+            try:
+                query.reply_err(f"{query.key_expr}: server error: {short(exc, 200)}".encode())
+            except zenoh.ZError:
+                pass
+
+    return callback
+
+
+def reply_json(query: zenoh.Query, obj: dict) -> None:
+    """Reply strict JSON: a NaN or inf raises (and the query gets an error reply), never ``NaN``."""
+    text = json.dumps(obj, allow_nan=False)
+    query.reply(query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
