@@ -82,7 +82,11 @@ def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, marg
             kind[r] = NONFINITE
             continue
         scale = max(abs(vx), abs(vy), abs(vz))  # a norm that cannot overflow
-        dist = 0.0 if scale == 0.0 else scale * math.sqrt((vx / scale) ** 2 + (vy / scale) ** 2 + (vz / scale) ** 2)
+        dist = (
+            0.0
+            if scale == 0.0
+            else scale * math.sqrt((vx / scale) ** 2 + (vy / scale) ** 2 + (vz / scale) ** 2)
+        )
         if not dist > 1e-9:
             kind[r] = DEGENERATE
             continue
@@ -139,7 +143,9 @@ def discretize_rays(start, voxel, ends, d, returned, shape, slots):
     voxels = np.empty(m, np.int64)
     groups = 0
     for r in range(m):
-        v = _brick(int(math.floor(ends[r, 0])), int(math.floor(ends[r, 1])), int(math.floor(ends[r, 2])), nbj, nbk)
+        v = _brick(
+            int(math.floor(ends[r, 0])), int(math.floor(ends[r, 1])), int(math.floor(ends[r, 2])), nbj, nbk
+        )
         g = slots[v]
         if g < 0:
             g = groups
@@ -228,8 +234,21 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
     if precedence:
         for r in range(m):
             if returned[r]:
-                i, j, k = int(math.floor(ends[r, 0])), int(math.floor(ends[r, 1])), int(math.floor(ends[r, 2]))
-                s, n_touched = _slot(_brick(i, j, k, nbj, nbk), (i * ny + j) * nz + k, slots, touched, acc_lam, acc_eta, is_hit, n_touched)
+                i, j, k = (
+                    int(math.floor(ends[r, 0])),
+                    int(math.floor(ends[r, 1])),
+                    int(math.floor(ends[r, 2])),
+                )
+                s, n_touched = _slot(
+                    _brick(i, j, k, nbj, nbk),
+                    (i * ny + j) * nz + k,
+                    slots,
+                    touched,
+                    acc_lam,
+                    acc_eta,
+                    is_hit,
+                    n_touched,
+                )
                 is_hit[s] = True
 
     # Per voxel, float32 is enough (as the numpy oracle's float32 path): eq. 14 in float32, sums in float64.
@@ -275,7 +294,9 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
                 excess = max(abs(diff) - half32, np.float32(0.0))
                 lam = min(np.float64(math.exp(excess * two_over_tau32)) * inv_s2, LAM_MAX)
                 if s < 0:
-                    s, n_touched = _slot(b, (i * ny + j) * nz + k, slots, touched, acc_lam, acc_eta, is_hit, n_touched)
+                    s, n_touched = _slot(
+                        b, (i * ny + j) * nz + k, slots, touched, acc_lam, acc_eta, is_hit, n_touched
+                    )
                 acc_lam[s] += lam
                 if hit:
                     mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
@@ -326,7 +347,16 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         excess = max(abs(diff) - half32, np.float32(0.0))
         lam = min(np.float64(math.exp(excess * two_over_tau32)) * inv_s2, LAM_MAX)
         mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
-        s, n_touched = _slot(_brick(bi, bj, bk, nbj, nbk), (bi * ny + bj) * nz + bk, slots, touched, acc_lam, acc_eta, is_hit, n_touched)
+        s, n_touched = _slot(
+            _brick(bi, bj, bk, nbj, nbk),
+            (bi * ny + bj) * nz + bk,
+            slots,
+            touched,
+            acc_lam,
+            acc_eta,
+            is_hit,
+            n_touched,
+        )
         acc_lam[s] += lam
         acc_eta[s] += mu * lam
         updates += 1

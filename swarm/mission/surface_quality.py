@@ -33,7 +33,10 @@ class SurfaceQuality:
 
 
 def surface_quality(
-    occupied_centres: np.ndarray, surface_points: np.ndarray, voxel: float, tolerance_voxels: float = TOLERANCE_VOXELS
+    occupied_centres: np.ndarray,
+    surface_points: np.ndarray,
+    voxel: float,
+    tolerance_voxels: float = TOLERANCE_VOXELS,
 ) -> SurfaceQuality:
     """Precision and recall of occupied voxel centres (M, 3) against surface points (P, 3), metres.
 
@@ -48,9 +51,13 @@ def surface_quality(
     radius = tolerance_voxels * voxel
     precision = recall = float("nan")
     if len(occupied_centres) and len(surface_points):
-        near_surface, _ = cKDTree(surface_points).query(occupied_centres, distance_upper_bound=radius * (1 + 1e-9))
+        near_surface, _ = cKDTree(surface_points).query(
+            occupied_centres, distance_upper_bound=radius * (1 + 1e-9)
+        )
         precision = float(np.mean(np.isfinite(near_surface)))
-        near_map, _ = cKDTree(occupied_centres).query(surface_points, distance_upper_bound=radius * (1 + 1e-9))
+        near_map, _ = cKDTree(occupied_centres).query(
+            surface_points, distance_upper_bound=radius * (1 + 1e-9)
+        )
         recall = float(np.mean(np.isfinite(near_map)))
     elif len(surface_points):
         recall = 0.0
