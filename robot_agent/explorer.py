@@ -72,8 +72,8 @@ class Explorer:
         self.strategy = strategy
         self.rng = np.random.default_rng([seed, sum(robot_id.encode())])
         self.grid = mission.workspace.grid()
-        self.sensor = mission.sensor.model()
         self.rig = mission.rig_for(robot_id)
+        self.sensor = mission.sensor.model(pixels=self.rig.width * self.rig.height)
         self.map = CoverageMap(self.grid, self.sensor)
         self.table = default_table()
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)

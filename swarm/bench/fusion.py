@@ -212,7 +212,8 @@ def format_table(figures: list[FusionFigures]) -> str:
         octo_r = "n/a" if none else f"{f.rays / f.octomap_seconds:,.0f}"
         ratio = "n/a" if none else f"{f.ratio:.2f}x ({f.cpu_ratio:.2f}x)"
         rows.append(
-            f"| {f.cloud} | {mr} | {'on' if f.discretize else 'off'} | {f.rays:,} | {f.seconds:.4f} ({f.cpu_seconds:.4f}) "
+            f"| {f.cloud} | {mr} | {'on' if f.discretize else 'off'} | {f.rays:,} "
+            f"| {f.seconds:.4f} ({f.cpu_seconds:.4f}) "
             f"| {f.rays / f.seconds:,.0f} | {f.voxel_updates / f.seconds:,.0f} | {octo_s} | {octo_r} "
             f"| {ratio} | {_pr(f.surface)} | {_pr(f.octomap_surface)} |"
         )

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--euroc",
         type=Path,
         default=DEFAULT_EUROC,
-        help=f"EuRoC (ASL layout) folder whose first stereo pair gives the dense cloud (default: {DEFAULT_EUROC})",
+        help=f"EuRoC folder (ASL layout); its first pair is the dense cloud (default {DEFAULT_EUROC})",
     )
     fusion.add_argument("--voxel", type=float, default=0.1, help="voxel edge (default 0.1 m)")
     fusion.add_argument("--repeat", type=int, default=3, help="take the best of N runs (default 3)")
@@ -80,10 +80,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="time per frame of stereo, fusion and planning",
         description="Time per frame of the agent's stages (stereo: SGBM + depth + points; fusion; "
         "planning: traversability + Dijkstra + one path) on frames rendered from a mission, at "
-        "160x120 and 640x480 by default.",
+        "160x120, 640x480 and 752x480 by default; fusion with one measurement per ray and with "
+        "discretize (one per end voxel).",
     )
     agent.add_argument("--config", type=Path, default=Path("configs/office.yaml"), help="mission to render")
-    agent.add_argument("--sizes", nargs="+", default=["160x120", "640x480"], help="image sizes WxH")
+    agent.add_argument(
+        "--sizes", nargs="+", default=["160x120", "640x480", "752x480"], help="image sizes WxH"
+    )
     agent.add_argument("--repeat", type=int, default=5, help="take the best of N runs (default 5)")
     agent.set_defaults(run=_run_bench_agent)
     server = bsub.add_parser(

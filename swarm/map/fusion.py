@@ -89,11 +89,9 @@ def batch_information(
         raise ValueError(f"sensor origin must be finite, got {origin.tolist()}")
 
     lo, hi, e = grid.lo, grid.hi, grid.voxel
-    ends, d, kind, truncated, clipped = kernel.prepare_rays(
+    ends, d, returned, counts = kernel.prepare_rays(
         origin, points, lo, hi, e, float(sensor.max_range), BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS
     )
-    fused = kind >= kernel.RETURNED
-    ends, d, returned = ends[fused], d[fused], kind[fused] == kernel.RETURNED
     start = (origin - lo) / e
     shape = np.asarray(grid.shape, dtype=np.int64)
     slots = _slots(grid)
@@ -123,9 +121,9 @@ def batch_information(
         rays=rays,
         measurements=len(ends),
         voxel_updates=int(updates),
-        truncated=int(np.count_nonzero(truncated)),
-        skipped_nonfinite=int(np.count_nonzero(kind == kernel.NONFINITE)),
-        skipped_outside=int(np.count_nonzero(kind == kernel.OUTSIDE)),
-        skipped_degenerate=int(np.count_nonzero(kind == kernel.DEGENERATE)),
-        clipped=int(np.count_nonzero(clipped)),
+        truncated=int(counts[kernel.TRUNCATED]),
+        skipped_nonfinite=int(counts[kernel.NONFINITE]),
+        skipped_outside=int(counts[kernel.OUTSIDE]),
+        skipped_degenerate=int(counts[kernel.DEGENERATE]),
+        clipped=int(counts[kernel.CLIPPED]),
     )

@@ -52,49 +52,49 @@ def _brick(i, j, k, nbj, nbk):
     return (brick << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m)
 
 
-# Ray kinds returned by prepare_rays (per point).
-NONFINITE, DEGENERATE, OUTSIDE, RETURNED, FREE = 0, 1, 2, 3, 4
+# The counts prepare_rays returns, by position.
+NONFINITE, DEGENERATE, OUTSIDE, TRUNCATED, CLIPPED = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, margin_voxels):
-    """Rays of a batch as fusion sees them (see ``swarm.map.fusion.batch_information``).
+    """The rays of a batch that fusion traverses (see ``swarm.map.fusion.batch_information``).
 
-    Returns ``ends`` (N, 3) in voxel units from ``lo``, ``d`` (N,) the sensor model's range
-    (metres; min(true range, max range)), ``kind`` (N,) int8 (NONFINITE, DEGENERATE,
-    OUTSIDE, RETURNED or FREE), ``truncated`` and ``clipped`` (N,) bool.
+    Returns ``ends`` (M, 3) in voxel units from ``lo``, ``d`` (M,) the sensor model's range
+    (metres; min(true range, max range)), ``returned`` (M,) bool, packed in input order, and
+    ``counts`` (5,): points skipped as NaN/inf, as zero-length, as outside (sensor outside
+    the grid, or end just beyond it), then fused rays truncated at max range and clipped at
+    the grid's boundary.
     """
     n = points.shape[0]
     ends = np.empty((n, 3))
-    d = np.zeros(n)
-    kind = np.empty(n, np.int8)
-    truncated = np.zeros(n, np.bool_)
-    clipped = np.zeros(n, np.bool_)
+    d = np.empty(n)
+    returned = np.empty(n, np.bool_)
+    counts = np.zeros(5, np.int64)
     origin_inside = True
     for a in range(3):
         if not (origin[a] >= lo[a] and origin[a] < hi[a]):
             origin_inside = False
+    m = 0
     for r in range(n):
         vx = points[r, 0] - origin[0]
         vy = points[r, 1] - origin[1]
         vz = points[r, 2] - origin[2]
         if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
-            kind[r] = NONFINITE
+            counts[NONFINITE] += 1
             continue
         scale = max(abs(vx), abs(vy), abs(vz))  # a norm that cannot overflow
-        dist = (
-            0.0
-            if scale == 0.0
-            else scale * math.sqrt((vx / scale) ** 2 + (vy / scale) ** 2 + (vz / scale) ** 2)
-        )
+        dist = 0.0
+        if scale > 0.0:
+            dist = scale * math.sqrt((vx / scale) ** 2 + (vy / scale) ** 2 + (vz / scale) ** 2)
         if not dist > 1e-9:
-            kind[r] = DEGENERATE
+            counts[DEGENERATE] += 1
             continue
         if not origin_inside:
-            kind[r] = OUTSIDE
+            counts[OUTSIDE] += 1
             continue
-        returned = dist <= max_range
-        reach = 1.0 if returned else max_range / dist
+        hit = dist <= max_range
+        reach = 1.0 if hit else max_range / dist
         exit_at = np.inf
         for a, va in ((0, vx), (1, vy), (2, vz)):
             if va > 0:
@@ -105,7 +105,7 @@ def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, marg
         cut = reach >= exit_at and (1.0 - exit_at) * dist > margin
         if cut:
             reach = exit_at - 1e-6 * voxel / dist
-            returned = False
+            hit = False
         ex = origin[0] + vx * reach
         ey = origin[1] + vy * reach
         ez = origin[2] + vz * reach
@@ -114,16 +114,17 @@ def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, marg
             if not (ea >= lo[a] and ea < hi[a]):
                 inside = False
         if not inside:
-            kind[r] = OUTSIDE
+            counts[OUTSIDE] += 1
             continue
-        ends[r, 0] = (ex - lo[0]) / voxel
-        ends[r, 1] = (ey - lo[1]) / voxel
-        ends[r, 2] = (ez - lo[2]) / voxel
-        d[r] = min(dist, max_range)
-        kind[r] = RETURNED if returned else FREE
-        truncated[r] = dist > max_range
-        clipped[r] = cut
-    return ends, d, kind, truncated, clipped
+        ends[m, 0] = (ex - lo[0]) / voxel
+        ends[m, 1] = (ey - lo[1]) / voxel
+        ends[m, 2] = (ez - lo[2]) / voxel
+        d[m] = min(dist, max_range)
+        returned[m] = hit
+        counts[TRUNCATED] += dist > max_range
+        counts[CLIPPED] += cut
+        m += 1
+    return ends[:m], d[:m], returned[:m], counts
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
