@@ -47,6 +47,11 @@ class BatchResult:
 _local = threading.local()
 
 
+def reserve(grid: Grid) -> None:
+    """Allocate this thread's slot map for ``grid`` now (it is kept between batches on one grid)."""
+    _slots(grid)
+
+
 def _slots(grid: Grid) -> np.ndarray:
     """This thread's slot map for ``grid`` (int32, all -1), kept between batches."""
     size = kernel.slot_map_size(grid.shape)
