@@ -28,6 +28,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
+from swarm.map.fusion import warm_up
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
@@ -74,9 +75,10 @@ class Explorer:
         self.strategy = strategy
         self.rng = np.random.default_rng([seed, sum(robot_id.encode())])
         self.grid = mission.workspace.grid()
-        self.sensor = mission.sensor.model()
         self.rig = mission.rig_for(robot_id)
+        self.sensor = mission.sensor.model(pixels=self.rig.width * self.rig.height)
         self.map = CoverageMap(self.grid, self.sensor)
+        warm_up()  # the compiled fusion kernels, before the first frame (see swarm.map.fusion)
         self.table = default_table()
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
         self.threshold = mission.threshold_bits()

@@ -23,28 +23,41 @@ def random_batch(rng, n=200):
     return origin, points
 
 
-def test_batch_equals_independent_per_ray_sum():
-    """Each ray's voxels (exact reference traversal) get lam = 1/sigma^2, eta = mu/sigma^2 (eq. 14)."""
+@pytest.mark.parametrize("hit_precedence", [False, True])
+def test_batch_equals_independent_per_ray_sum(hit_precedence):
+    """Each ray's voxels (exact reference traversal) get lam = 1/sigma^2, eta = mu/sigma^2 (eq. 14).
+
+    A ray beyond max range is free space (mu = 0) with the sigma of a ray of length max range;
+    with hit precedence a voxel holding a return gets nothing from the other rays but as the
+    voxel behind their hit.
+    """
     rng = np.random.default_rng(0)
     origin, points = random_batch(rng, 40)
     flat = np.array([[1.0, 0.2, 0.05], [-0.3, 1.0, 0.1], [-1, -1, 0], [0.2, -1, -0.1], [1, 1, 0.2]])
     points[:5] = origin + 4.0 * flat / np.linalg.norm(flat, axis=1, keepdims=True)  # beyond max range
-    lam, eta = {}, {}
+    rays = []
     for p in points:
         dist = float(np.linalg.norm(p - origin))
         returned = dist <= SENSOR.max_range
         end = p if returned else origin + (p - origin) * SENSOR.max_range / dist
-        voxels, _, _ = reference(GRID, origin, end, hit=returned)
+        voxels, _, behind = reference(GRID, origin, end, hit=returned)
+        rays.append((min(dist, SENSOR.max_range), returned, voxels, behind, tuple(GRID.index_of(end))))
+    hits = {r[4] for r in rays if r[1]}
+    lam, eta = {}, {}
+    for d, returned, voxels, behind, hit_voxel in rays:
         for v in voxels:
             if not GRID.contains_index(np.array(v)):
                 continue
+            own = returned and tuple(v) == hit_voxel
+            if hit_precedence and tuple(v) in hits and not own and tuple(v) != behind:
+                continue
             d_l = float(np.linalg.norm(GRID.centre(np.array(v)) - origin))
-            mu = SENSOR.mean(dist, d_l, GRID.voxel)
-            sigma = SENSOR.sigma(dist, d_l, GRID.voxel)
+            mu = SENSOR.mean(d, d_l, GRID.voxel) if returned else 0.0
+            sigma = SENSOR.sigma(d, d_l, GRID.voxel)
             key = int(GRID.flat(np.array(v)))
             lam[key] = lam.get(key, 0.0) + 1 / sigma**2
             eta[key] = eta.get(key, 0.0) + mu / sigma**2
-    result = batch_information(GRID, SENSOR, origin, points)
+    result = batch_information(GRID, SENSOR, origin, points, hit_precedence=hit_precedence)
     assert result.truncated == 5
     assert sorted(lam) == result.delta.idx.tolist()
     keys = result.delta.idx.tolist()

@@ -1,22 +1,25 @@
 """``swarm bench agent``: time per frame of the agent's stages, stereo, fusion and planning.
 
 Frames are rendered by sim2d from the office mission (a robot in the corridor). Stereo is
-OpenCV SGBM plus depth and world points; fusion is one batch into the local map; planning
-is a traversability grid from the map, a Dijkstra cost map and one path.
+OpenCV SGBM plus depth and world points; fusion is one batch into the local map, under both
+information models (one measurement per ray, and ``discretize``: one per end voxel);
+planning is a traversability grid from the map, a Dijkstra cost map and one path.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from robot_agent.stereo import StereoMatcher, points_from_depth
 from sim2d.render import Renderer, camera_pose
-from swarm.bench import best_seconds
+from swarm.bench import best_cpu_seconds, best_seconds
 from swarm.config import load_mission
 from swarm.map.coverage_map import CoverageMap
+from swarm.map.fusion import batch_information
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability
 
@@ -58,6 +61,11 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     points = stereo()
     cmap = look_around_map(mission, rid)
     origin = np.asarray(pose.xyz)
+    per_ray = replace(cmap.sensor, discretize=False)
+    per_voxel = replace(cmap.sensor, discretize=True)
+
+    def fuse(sensor) -> None:
+        cmap.apply(batch_information(cmap.grid, sensor, origin, points).delta)
 
     def plan() -> None:
         trav = build_traversability(cmap, robot_radius=mission.robot.radius, swept=origin[None, :2])
@@ -72,8 +80,13 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
         "size": f"{width}x{height}",
         "points": len(points),
         "stereo_s": best_seconds(stereo, repeat),
-        "fusion_s": best_seconds(lambda: cmap.integrate(origin, points), repeat),
+        "fusion_s": best_seconds(lambda: fuse(per_ray), repeat),
+        "discretized_fusion_s": best_seconds(lambda: fuse(per_voxel), repeat),
+        "measurements": batch_information(cmap.grid, per_voxel, origin, points).measurements,
         "planning_s": best_seconds(plan, repeat),
+        "fusion_cpu_s": best_cpu_seconds(lambda: fuse(per_ray), repeat),
+        "discretized_fusion_cpu_s": best_cpu_seconds(lambda: fuse(per_voxel), repeat),
+        "planning_cpu_s": best_cpu_seconds(plan, repeat),
         "voxels": cmap.grid.size,
     }
 
@@ -86,12 +99,23 @@ def run(config: Path, sizes: list[tuple[int, int]], repeat: int = 5) -> list[dic
 
 def format_table(rows: list[dict]) -> str:
     lines = [
-        "| image | points | stereo ms | fusion ms | planning ms | map voxels |",
-        "|---|---|---|---|---|---|",
+        "| image | points | stereo ms | fusion ms, one per ray | us/ray | fusion ms, discretize "
+        "| end voxels | planning ms | fusion + planning ms, per ray | fusion + planning ms, discretize "
+        "| map voxels |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        wall = [r[k] * 1e3 for k in ("fusion_s", "discretized_fusion_s", "planning_s")]
+        cpu = [r[k] * 1e3 for k in ("fusion_cpu_s", "discretized_fusion_cpu_s", "planning_cpu_s")]
+        cells = [f"{w:.1f} ({c:.1f})" for w, c in zip(wall, cpu, strict=True)]
+        totals = [f"{wall[i] + wall[2]:.1f} ({cpu[i] + cpu[2]:.1f})" for i in (0, 1)]
         lines.append(
-            f"| {r['size']} | {r['points']:,} | {r['stereo_s'] * 1e3:.1f} | {r['fusion_s'] * 1e3:.1f} "
-            f"| {r['planning_s'] * 1e3:.1f} | {r['voxels']:,} |"
+            f"| {r['size']} | {r['points']:,} | {r['stereo_s'] * 1e3:.1f} | {cells[0]} "
+            f"| {cpu[0] * 1e3 / max(r['points'], 1):.3f} | {cells[1]} | {r['measurements']:,} | {cells[2]} "
+            f"| {totals[0]} | {totals[1]} | {r['voxels']:,} |"
         )
+    lines.append(
+        "\nms: best wall time of the repeats (in parentheses: best CPU time of the thread, which a shared "
+        "machine disturbs less); us/ray from the CPU time."
+    )
     return "\n".join(lines)

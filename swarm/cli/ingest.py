@@ -44,6 +44,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zeta", type=float, default=0.0375, help="sensor model zeta per metre (default 0.0375)")
     p.add_argument("--tau", type=float, default=2.0, help="sensor model damping tau in metres (default 2)")
     p.add_argument(
+        "--discretize",
+        action="store_true",
+        help="one measurement per end voxel: the mean end point of the rays ending there (OctoMap's option)",
+    )
+    p.add_argument(
+        "--no-hit-precedence",
+        action="store_true",
+        help="let rays clear voxels that hold another ray's return (the paper's text; default: they do not)",
+    )
+    p.add_argument(
         "--bounds",
         type=float,
         nargs=6,
@@ -63,7 +73,14 @@ def _run_ingest(args: argparse.Namespace) -> int:
     if not (args.voxel > 0 and np.isfinite(args.voxel)):
         return fail(f"--voxel must be a positive number, got {args.voxel}")
     try:
-        sensor = SensorModel(args.sigma_min, args.zeta, args.tau, args.max_range)
+        sensor = SensorModel(
+            args.sigma_min,
+            args.zeta,
+            args.tau,
+            args.max_range,
+            hit_precedence=not args.no_hit_precedence,
+            discretize=args.discretize,
+        )
         points = read_point_cloud(args.cloud)
         bounds = None
         if args.bounds is not None:

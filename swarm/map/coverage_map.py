@@ -57,7 +57,8 @@ class CoverageMap:
         if not delta.is_finite():
             raise ValueError("delta holds NaN or inf information")
         idx = delta.idx.astype(np.int64)
-        if len(np.unique(idx)) != len(idx):
+        # Deltas are sorted and unique by construction; only others need the slow path.
+        if len(idx) > 1 and not np.all(idx[1:] > idx[:-1]):
             np.add.at(self.lam, idx, delta.dlam)
             np.add.at(self.eta, idx, delta.deta)
         else:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -13,12 +13,21 @@ class SensorModel:
 
     Defaults are DESIGN.md's: the paper prints sigma_min = -0.06 mm, which cannot be a
     standard deviation; we read it as 0.06 (coverage units) and zeta = 0.0375 per metre.
+
+    How a batch is fused (``swarm.map.fusion``; docs/map-core.md): ``hit_precedence`` (a
+    departure from the paper's text, as OctoMap does): a voxel holding a return of the batch
+    gets no free-space update from the batch's other rays. ``discretize`` (OctoMap's
+    option): one measurement per end voxel, the mean end point of the rays ending there.
+    These two say how batches are fused, not what the map means: they take no part in
+    equality (a map saved with one setting is the same mission's map under the other).
     """
 
     sigma_min: float = 0.06
     zeta: float = 0.0375
     tau: float = 2.0
     max_range: float = 5.0
+    hit_precedence: bool = field(default=True, compare=False)
+    discretize: bool = field(default=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("sigma_min", "tau", "max_range"):

@@ -71,6 +71,9 @@ def default_mission(
             "baseline": cam.baseline,
             "camera_height": float(max(pos[0, 2], 0.05)),
         },
+        # Real stereo: rays grazing the floor would clear the voxels their neighbours hit
+        # (docs/map-core.md, hit precedence); missions in the simulator keep it off.
+        "sensor": {"hit_precedence": True},
     }
     return mission_from_dict(data)
 

@@ -31,6 +31,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
+from swarm.map.fusion import warm_up
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
@@ -171,6 +172,9 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     config_path = out / "config.yaml"
     config_path.write_text(mission.to_yaml())
     threshold = mission.threshold_bits()
+    # Compile the fusion kernels once here (a no-op load when Numba's cache is warm), so that
+    # the agents load them from the cache instead of each compiling them at start.
+    warm_up()
 
     endpoint = bus.tcp_endpoint(bus.free_port())
     monitor = TeamMonitor(mission)

@@ -3,8 +3,8 @@
 Occupancy F1 compares voxels with the truth voxel by voxel, so a wall that does not sit on
 the voxel grid costs it whatever the map does: a voxel half inside the wall is "free" in the
 truth and may well be "occupied" in the map. The reconstruction measures ask instead how far
-the map's surface is from the true one (DESIGN.md section 7, the definition used by the
-mission metrics and by ``swarm bench fusion`` alike):
+the map's surface is from the true one (docs/design.md section 7; one implementation for the
+mission metrics and ``swarm bench fusion`` alike, which calls them precision and recall):
 
 - **accuracy**: the share of mapped occupied voxels (E[C] > 0.5) whose centre lies within
   ``tolerance`` (1.5 voxel edges) of the true surface;
@@ -18,6 +18,8 @@ floor is not an obstacle the robots are asked to map as occupied).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -64,6 +66,34 @@ def surface_accuracy_completeness(
         "mapped": len(mapped),
         "surface": len(surface),
     }
+
+
+@dataclass(frozen=True)
+class SurfaceQuality:
+    """Precision (= accuracy) and recall (= completeness) of a map's occupied voxels against a
+    true surface, as ``swarm bench fusion`` prints them (NaN when undefined)."""
+
+    precision: float
+    recall: float
+    occupied: int  # mapped occupied voxels
+    surface: int  # true surface points
+
+
+def surface_quality(
+    occupied_centres: np.ndarray,
+    surface_points: np.ndarray,
+    voxel: float,
+    tolerance_edges: float = TOLERANCE_EDGES,
+) -> SurfaceQuality:
+    """:func:`surface_accuracy_completeness` with the tolerance in voxel edges of ``voxel`` (metres),
+    and NaN for a share with nothing to count. Raises ValueError for a voxel that is not > 0."""
+    if not voxel > 0:
+        raise ValueError(f"voxel must be > 0, got {voxel!r}")
+    out = surface_accuracy_completeness(occupied_centres, surface_points, tolerance_edges * voxel)
+    nan = float("nan")
+    precision = nan if out["accuracy"] is None else out["accuracy"]
+    recall = nan if out["completeness"] is None else out["completeness"]
+    return SurfaceQuality(precision, recall, out["mapped"], out["surface"])
 
 
 def plan_surface_points(

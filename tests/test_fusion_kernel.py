@@ -1,0 +1,189 @@
+"""The compiled fusion kernel: equal to the numpy oracle, hit precedence, far rays, Numba's cache."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.fusion import batch_information
+from swarm.map.fusion_kernel import LAM_MAX
+from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
+from tests.fusion_oracle import reference_batch_information
+
+GRID = Grid((-2.0, -2.0, -1.0), 0.1, (40, 40, 20))
+OPTIONS = [(False, False), (True, False), (False, True), (True, True)]  # (hit precedence, discretize)
+
+
+def assert_same(grid, sensor, origin, points, hit_precedence, discretize):
+    ours = batch_information(grid, sensor, origin, points, hit_precedence, discretize)
+    oracle = reference_batch_information(grid, sensor, origin, points, hit_precedence, discretize)
+    for field in ("rays", "measurements", "voxel_updates", "truncated", "clipped"):
+        assert getattr(ours, field) == getattr(oracle, field), field
+    for field in ("skipped_nonfinite", "skipped_outside", "skipped_degenerate"):
+        assert getattr(ours, field) == getattr(oracle, field), field
+    np.testing.assert_array_equal(ours.delta.idx, oracle.delta.idx)
+    np.testing.assert_allclose(ours.delta.dlam, oracle.delta.dlam, rtol=1e-5)
+    # eta = mu * lam with mu in [0, 1]: compare on the scale of lam
+    np.testing.assert_allclose(
+        ours.delta.deta, oracle.delta.deta, rtol=1e-5, atol=1e-5 * ours.delta.dlam.max()
+    )
+    return ours
+
+
+@pytest.mark.parametrize(("hit_precedence", "discretize"), OPTIONS)
+def test_random_rays_equal_the_numpy_oracle(hit_precedence, discretize):
+    rng = np.random.default_rng(7)
+    for max_range in (1.2, 5.0):
+        sensor = SensorModel(max_range=max_range)
+        for _ in range(3):
+            origin = rng.uniform(-1.0, 1.0, 3) * [1, 1, 0.5]
+            direction = rng.normal(size=(400, 3))
+            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+            # near, far (beyond max range), beyond the grid, and a few NaN and zero-length rays
+            points = origin + direction * rng.uniform(0.05, 3.5, (400, 1))
+            points[:5] = np.nan
+            points[5:8] = origin
+            assert_same(GRID, sensor, origin, points, hit_precedence, discretize)
+
+
+def adversarial_rays() -> tuple[np.ndarray, np.ndarray]:
+    """Rays on grid planes: along axes, through edges and corners, leaving the grid, behind outside."""
+    e = GRID.voxel
+    lo, hi = GRID.lo, GRID.hi
+    origin = lo + np.array([20, 20, 10]) * e  # exactly on a corner of eight voxels
+    ends = []
+    for axis in range(3):
+        for sign in (1, -1):
+            step = np.zeros(3)
+            step[axis] = sign * e
+            ends += [origin + 7 * step, origin + 7.5 * step, origin + 9.999999 * step]
+    for v in ([1, 1, 0], [1, -1, 0], [1, 1, 1], [-1, 1, -1], [2, 1, 0], [3, 2, 1], [1, 0, 1]):
+        ends += [origin + np.array(v) * 4 * e, origin + np.array(v) * 4.5 * e]
+    # ends exactly on planes, edges and corners off the origin's planes
+    ends += [
+        origin + np.array([0.3, 0.5, 0.7]),
+        origin + np.array([0.35, 0.5, 0.0]),
+        origin + [0.5, 0.5, 0.5],
+    ]
+    # rays that leave the grid (cut at the boundary), far beyond it, and just beyond it (skipped)
+    ends += [origin + [5.0, 0.0, 0.0], origin + [3.0, 3.0, 1.0], origin + [0.0, 0.0, -0.99999]]
+    # the voxel behind the hit outside the grid: hits in the outer layer
+    ends += [
+        np.array([hi[0] - 0.01, 0.0, 0.0]),
+        np.array([lo[0] + 0.01, 0.3, -0.2]),
+        np.array([0.2, hi[1] - 1e-6, 0.1]),
+    ]
+    ends += [np.array([lo[0] + 1e-6, lo[1] + 1e-6, lo[2] + 1e-6])]
+    return origin, np.array(ends)
+
+
+@pytest.mark.parametrize(("hit_precedence", "discretize"), OPTIONS)
+def test_adversarial_rays_equal_the_numpy_oracle(hit_precedence, discretize):
+    origin, ends = adversarial_rays()
+    result = assert_same(GRID, SensorModel(max_range=3.0), origin, ends, hit_precedence, discretize)
+    assert result.clipped >= 2 and result.truncated >= 1
+    # the same rays from a sensor inside a voxel, and from the grid's corner voxel
+    for start in (origin + [0.013, 0.021, 0.037], GRID.lo + 1e-9):
+        assert_same(GRID, SensorModel(max_range=3.0), start, ends, hit_precedence, discretize)
+
+
+def test_hit_precedence_on_a_hand_built_batch():
+    """Ray A ends in voxel V; ray B passes through V to a farther wall. V keeps A's return only."""
+    grid = Grid((0.0, 0.0, 0.0), 0.1, (20, 5, 5))
+    sensor = SensorModel(max_range=5.0)
+    origin = np.array([0.05, 0.25, 0.25])
+    a = np.array([0.55, 0.25, 0.25])  # voxel (5, 2, 2), at its centre
+    b = np.array([1.25, 0.25, 0.25])  # voxel (12, 2, 2)
+    v = int(grid.flat(np.array([5, 2, 2])))
+    behind_a = int(grid.flat(np.array([6, 2, 2])))
+
+    def at(result, flat):
+        k = int(np.searchsorted(result.delta.idx, flat))
+        return float(result.delta.dlam[k]), float(result.delta.deta[k])
+
+    # eq. 14 by hand: V's centre is A's hit (d_l = d = 0.5 m): mu = 1/2, sigma = sigma_s(0.5)
+    lam_a = 1.0 / (sensor.sigma_min + sensor.zeta * 0.5) ** 2
+    # from B at d = 1.2 m, V (d_l = 0.5) is free: mu = 0, sigma = sigma_s(1.2) exp(-(0.7 - 0.05) / tau)
+    lam_b = 1.0 / ((sensor.sigma_min + sensor.zeta * 1.2) * np.exp(-0.65 / sensor.tau)) ** 2
+
+    kept = batch_information(grid, sensor, origin, np.array([a, b]), hit_precedence=True)
+    lam, eta = at(kept, v)
+    assert lam == pytest.approx(lam_a, rel=1e-5) and eta / lam == pytest.approx(0.5, abs=1e-5)
+
+    paper = batch_information(grid, sensor, origin, np.array([a, b]), hit_precedence=False)
+    lam, eta = at(paper, v)
+    assert lam == pytest.approx(lam_a + lam_b, rel=1e-5)
+    assert eta / lam < 0.3  # B's free-space update outweighs A's return: the surface is lost
+
+    # the voxel behind A still gets B's free-space update and A's behind update, either way
+    assert at(kept, behind_a) == at(paper, behind_a)
+    assert kept.voxel_updates == paper.voxel_updates - 1
+
+
+@pytest.mark.parametrize("far", [1e3, 1e6, 1e9])
+def test_far_points_give_finite_information(far):
+    rng = np.random.default_rng(3)
+    direction = rng.normal(size=(50, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    origin = np.zeros(3)
+    for max_range in (5.0, 1e4):  # 1e4 m: a max range whose eq. 14 would overflow unbounded
+        sensor = SensorModel(max_range=max_range)
+        result = batch_information(GRID, sensor, origin, direction * far)
+        assert result.delta.is_finite() and len(result.delta) > 0
+        assert result.delta.dlam.max() <= np.float32(LAM_MAX) * 50
+        CoverageMap(GRID, sensor).apply(result.delta)  # the map accepts it
+
+
+def test_a_mix_of_near_and_far_points_fuses_the_near_and_counts_the_far():
+    rng = np.random.default_rng(4)
+    origin = np.array([0.03, 0.02, 0.01])
+    direction = rng.normal(size=(866, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    near = origin + direction * rng.uniform(0.3, 0.9, (866, 1))
+    far = origin + direction[:5] * np.array([[1e3], [1e6], [1e9], [1e12], [1e300]])
+    sensor = SensorModel(max_range=5.0)
+    mixed = batch_information(GRID, sensor, origin, np.vstack([near, far]))
+    assert mixed.rays == 871 and mixed.truncated == 5 and mixed.delta.is_finite()
+    alone = batch_information(GRID, sensor, origin, near)
+    # every near ray is fused as it would be alone: with hit precedence the far rays' free space
+    # leaves the near hits' voxels untouched, and adds to the rest
+    hit = np.unique(GRID.flat(GRID.index_of(near)))
+    np.testing.assert_allclose(
+        mixed.delta.dlam[np.searchsorted(mixed.delta.idx, hit)],
+        alone.delta.dlam[np.searchsorted(alone.delta.idx, hit)],
+        rtol=1e-6,
+    )
+    assert set(alone.delta.idx.tolist()) <= set(mixed.delta.idx.tolist())
+    assert mixed.voxel_updates > alone.voxel_updates
+
+
+def test_a_second_process_loads_the_kernels_from_numbas_cache():
+    """Numba's own statistics: a fresh interpreter compiles nothing and hits the cache."""
+    script = (
+        "import json, numpy as np\n"
+        "from swarm.map import fusion_kernel as k\n"
+        "from swarm.map.fusion import batch_information\n"
+        "from swarm.map.grid import Grid\n"
+        "from swarm.map.sensor_model import SensorModel\n"
+        "g = Grid((0, 0, 0), 0.1, (10, 10, 10))\n"
+        "batch_information(g, SensorModel(discretize=True), np.full(3, 0.05), np.full((3, 3), 0.5))\n"
+        "print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]"
+        " for f in (k.prepare_rays, k.discretize_rays, k.fuse_rays)}))\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    runs = []
+    for _ in range(2):  # the first may compile and write the cache; the second must load it
+        out = subprocess.run(
+            [sys.executable, "-c", script], cwd=root, env=env, capture_output=True, text=True, timeout=600
+        )
+        assert out.returncode == 0, out.stderr
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    for name, (hits, misses) in runs[1].items():
+        assert hits >= 1 and misses == 0, (name, runs)
