@@ -1,6 +1,6 @@
 """Which deltas the map server has applied, and which payloads it refuses (pure, no I/O).
 
-A delta is identified by ``(robot, epoch, seq)`` (DESIGN.md section 5). The :class:`Ledger`
+A delta is identified by ``(robot, epoch, seq)`` (docs/design.md section 5). The :class:`Ledger`
 keeps, per ``(robot, epoch)``, the contiguous prefix ``1..n`` of applied seqs plus the
 applied seqs above it, so each delta is applied exactly once whatever the order and
 however often it arrives; the acks are the contiguous prefixes.

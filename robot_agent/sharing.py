@@ -1,4 +1,4 @@
-"""Sharing only what is useful: the agent's delta outbox (DESIGN.md sections 3 and 5).
+"""Sharing only what is useful: the agent's delta outbox (docs/design.md sections 3 and 5).
 
 Information gathered locally accumulates per voxel as a pending delta. A voxel is sent once
 its pending information is worth at least ``share_min_bits``: the entropy the team belief

@@ -1,4 +1,4 @@
-"""Stereo to range: SGBM disparity, depth, and world points (DESIGN.md section 4, robot_agent).
+"""Stereo to range: SGBM disparity, depth, and world points (docs/design.md section 4, robot_agent).
 
 Conventions
 -----------

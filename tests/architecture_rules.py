@@ -30,7 +30,7 @@ ALLOWED: dict[str, set[str]] = {
     **{role: {"swarm", *CORE} for role in ROLES},
     "swarm.view": {"swarm", *CORE},  # the live view: a bus client like a role, never a role itself
 }
-#: Third-party packages the maths may use (DESIGN: numpy, scipy and numba only).
+#: Third-party packages the maths may use (docs/design.md: numpy, scipy and numba only).
 MATHS_THIRD_PARTY = {"numpy", "scipy", "numba"}
 
 

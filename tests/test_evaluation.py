@@ -1,4 +1,4 @@
-"""Measures of DESIGN.md section 7 against hand-computed examples."""
+"""Measures of docs/design.md section 7 against hand-computed examples."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Run folder: metrics of a run record and the files of DESIGN.md section 6."""
+"""Run folder: metrics of a run record and the files of docs/design.md section 6."""
 
 from __future__ import annotations
 

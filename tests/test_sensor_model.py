@@ -1,4 +1,4 @@
-"""The sensor model of DESIGN.md section 3 at hand-computed points."""
+"""The sensor model of docs/design.md section 3 at hand-computed points."""
 
 import math
 

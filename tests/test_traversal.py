@@ -13,7 +13,7 @@ GRID = Grid((0.0, 0.0, 0.0), 0.25, (12, 12, 12))
 
 
 def reference(grid: Grid, start, end, hit=True):
-    """Voxels of DESIGN's traversal semantics, by exact enumeration of every plane crossing.
+    """Voxels of the design's traversal semantics, by exact enumeration of every plane crossing.
 
     The segment occupies floor(p(t)) (half-open voxels). Collect every t at which any
     coordinate crosses an integer plane on the extended line, sort them, and take the

@@ -1,6 +1,6 @@
 """``swarm bench entropy``: map entropy of a large map through the lookup table.
 
-DESIGN.md asks for the entropy of a 1,000,000-voxel map in under 50 ms; the exact
+docs/design.md asks for the entropy of a 1,000,000-voxel map in under 50 ms; the exact
 formula is timed on a sample beside it for scale.
 """
 

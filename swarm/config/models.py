@@ -132,7 +132,7 @@ AUTO_DISCRETIZE_PIXELS = 100_000
 
 
 class SensorConfig(_Section):
-    """Parameters of the Gaussian sensor model (DESIGN.md section 3)."""
+    """Parameters of the Gaussian sensor model (docs/design.md section 3)."""
 
     sigma_min: FiniteFloat = Field(default=0.06, gt=0)
     zeta: FiniteFloat = Field(default=0.0375, ge=0)

@@ -51,7 +51,7 @@ def save_map(path: str | Path, cmap: CoverageMap) -> None:
 
 
 def load_map(path: str | Path) -> CoverageMap:
-    """Read a map written by :func:`save_map` (or any npz with the DESIGN.md keys)."""
+    """Read a map written by :func:`save_map` (or any npz with the docs/design.md keys)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as data:

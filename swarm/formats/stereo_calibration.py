@@ -1,4 +1,4 @@
-"""Stereo calibration files (DESIGN.md section 6): a rectified rig or a full OpenCV calibration.
+"""Stereo calibration files (docs/design.md section 6): a rectified rig or a full OpenCV calibration.
 
 Two YAML forms are accepted; every error names the file and the field.
 

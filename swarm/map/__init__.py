@@ -1,1 +1,1 @@
-"""The coverage-map model of DESIGN.md section 3: pure numpy/scipy, no I/O."""
+"""The coverage-map model of docs/design.md section 3: pure numpy/scipy, no I/O."""

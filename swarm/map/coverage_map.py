@@ -1,4 +1,4 @@
-"""The coverage map: a Gaussian belief per voxel, kept in information form (DESIGN.md section 3).
+"""The coverage map: a Gaussian belief per voxel, kept in information form (docs/design.md section 3).
 
 lam = 1/sigma^2 and eta = mu/sigma^2, two float32 arrays (the paper's "two values per
 voxel"). The Gaussian product of eq. 24-25 becomes a sum, so the map is

@@ -1,4 +1,4 @@
-"""Voxel deltas: the information (dlam, deta) a robot gathered, per voxel (DESIGN.md section 3).
+"""Voxel deltas: the information (dlam, deta) a robot gathered, per voxel (docs/design.md section 3).
 
 In information form a Gaussian product is a sum, so deltas from any robots, applied in
 any order, give the same map (paper eq. 24-25). A delta is sparse: sorted unique flat

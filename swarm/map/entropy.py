@@ -1,7 +1,7 @@
 """Voxel entropy and expected coverage of truncated Gaussian beliefs (paper eq. 16-17, 31).
 
 A voxel's belief is N(mu, sigma) over its coverage, truncated to [0, 1] only when
-probabilities are computed (DESIGN.md section 3). Its entropy discretises the truncated
+probabilities are computed (docs/design.md section 3). Its entropy discretises the truncated
 belief into ``BINS = 128`` equal bins c_i = i / 128 of [0, 1]::
 
     p_i = (Phi((c_{i+1} - mu) / sigma) - Phi((c_i - mu) / sigma)) / Z,

@@ -1,4 +1,4 @@
-"""Entropy-gradient exploration geometry (paper eq. 27-35, DESIGN.md section 3).
+"""Entropy-gradient exploration geometry (paper eq. 27-35, docs/design.md section 3).
 
 Pure functions over numpy arrays, no I/O:
 
@@ -169,7 +169,7 @@ def select_target(grad_plane, expected_cov, candidates, min_score: float = 0.0) 
     :func:`projected_gradient`), ``expected_cov`` the expected-coverage field, both read
     in flat C order. The gaze is grad H_G(l_s) / |grad H_G(l_s)| (eq. 34): it points
     towards higher entropy (the paper's minus sign belongs to its difference convention,
-    DESIGN.md). Ties go to the first candidate in the given order. Returns None when there
+    docs/design.md). Ties go to the first candidate in the given order. Returns None when there
     is no candidate or the best score is not above ``min_score`` (the criterion is not
     conclusive: the caller wanders). Non-finite scores never win.
     """

@@ -1,4 +1,4 @@
-"""Grid geometry of DESIGN.md section 3: axis-aligned voxels of edge e over a box.
+"""Grid geometry of docs/design.md section 3: axis-aligned voxels of edge e over a box.
 
 Index (i, j, k) = floor((p - origin) / e); the flat index is C order over
 ``shape = (nx, ny, nz)``. Voxel centres are w(l) = origin + (index + 0.5) * e.

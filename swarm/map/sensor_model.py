@@ -1,4 +1,4 @@
-"""The Gaussian range-sensor model (paper eq. 10-14, with the mean DESIGN.md restores)."""
+"""The Gaussian range-sensor model (paper eq. 10-14, with the mean docs/design.md restores)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 class SensorModel:
     """Parameters of eq. 14: sigma_s(d) = sigma_min + zeta * d, damping ``tau``; ``max_range`` in metres.
 
-    Defaults are DESIGN.md's: the paper prints sigma_min = -0.06 mm, which cannot be a
+    Defaults are docs/design.md's: the paper prints sigma_min = -0.06 mm, which cannot be a
     standard deviation; we read it as 0.06 (coverage units) and zeta = 0.0375 per metre.
 
     How a batch is fused (``swarm.map.fusion``; docs/map-core.md): ``hit_precedence`` (a
@@ -42,7 +42,7 @@ class SensorModel:
         return self.sigma_min + self.zeta * np.asarray(d)
 
     def prior_sigma(self) -> float:
-        """Prior standard deviation: ten times the sensor's at max range (DESIGN.md, Prior)."""
+        """Prior standard deviation: ten times the sensor's at max range (docs/design.md, Prior)."""
         return float(10.0 * self.sigma_s(self.max_range))
 
     def mean(self, d: np.ndarray, d_l: np.ndarray, voxel: float) -> np.ndarray:

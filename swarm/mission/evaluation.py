@@ -1,4 +1,4 @@
-"""Map-quality and exploration measures of DESIGN.md section 7: pure functions over numpy arrays.
+"""Map-quality and exploration measures of docs/design.md section 7: pure functions over numpy arrays.
 
 Arrays of per-voxel values may be given flat (C order, as ``CoverageMap`` keeps them) or
 shaped (nx, ny, nz); every function ravels its inputs, so the two forms mix freely.
@@ -158,7 +158,7 @@ def halfway_level(entropy_curve: Sequence[Sequence[float]], threshold: float) ->
 def overlaps_during_mission(
     first_delta: Mapping[str, np.ndarray], entropy_curve: Sequence[Sequence[float]], threshold: float
 ) -> dict[str, float | None]:
-    """DESIGN.md's overlap over what the robots had shared at two moments of the mission.
+    """docs/design.md's overlap over what the robots had shared at two moments of the mission.
 
     ``overlap_halfway``: up to the delta that first brought the team entropy halfway from
     its start to H_th. ``overlap_before_threshold``: up to the delta before the one that

@@ -1,4 +1,4 @@
-"""The run folder of DESIGN.md section 6: ``metrics.json``, ``map.npz``, ``config.yaml`` and plots.
+"""The run folder of docs/design.md section 6: ``metrics.json``, ``map.npz``, ``config.yaml`` and plots.
 
 A finished mission is described by a :class:`RunRecord`; :func:`compute_metrics` turns it
 into the ``metrics.json`` dictionary (measures of :mod:`swarm.mission.evaluation`) and
@@ -33,7 +33,7 @@ from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation, surface_quality
 
-#: Keys that ``metrics.json`` always has (DESIGN.md section 6, plus our additions).
+#: Keys that ``metrics.json`` always has (docs/design.md section 6, plus our additions).
 METRIC_KEYS = (
     "config",
     "robots",

@@ -1,7 +1,7 @@
 """Where a robot should go next: the paper's entropy-gradient target and two baselines.
 
 Pure functions of the map, the robot's pose, its traversability grid and its planner cost
-map (DESIGN.md section 3, "Exploration", paper eq. 27-36); no I/O, no state.
+map (docs/design.md section 3, "Exploration", paper eq. 27-36); no I/O, no state.
 
 - ``"entropy"`` (the paper): l_s = argmax |grad H_G(l)| (1 - E[C_l]) over the slab of
   voxels at sensor height within xi of the robot (eq. 30, 32, 33, 35), among voxels the

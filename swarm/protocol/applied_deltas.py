@@ -1,6 +1,6 @@
 """Which deltas a replica of the team map holds: each (robot, epoch, seq) at most once.
 
-DESIGN.md section 5: the server applies every (robot, epoch, seq) once and acks the
+docs/design.md section 5: the server applies every (robot, epoch, seq) once and acks the
 contiguous prefix per (robot, epoch). Every holder of a copy of the team map (agents, the
 coordinator, the mission runner) keeps the same record for the ``merged`` stream, so a
 repeated message changes nothing and a snapshot's acks count as already applied.

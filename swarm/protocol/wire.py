@@ -1,4 +1,4 @@
-"""Wire protocol v1 (DESIGN.md section 5): msgpack messages as dataclasses; import them from here.
+"""Wire protocol v1 (docs/design.md section 5): msgpack messages as dataclasses; import them from here.
 
 Every message is a msgpack map with ``"v": 1``; arrays travel as little-endian raw bytes.
 ``Message.encode()`` gives the payload, ``Message.decode(payload)`` validates one and

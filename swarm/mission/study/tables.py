@@ -313,7 +313,7 @@ def summary_markdown(
         "- speed-up = time of 1 robot (same config and strategy) / time of the row, both over all runs; "
         '">=" when only the 1-robot time is a lower bound, "<=" when only the row\'s is, "?" when both are.',
         "- final H: map entropy at the end of the run; overlap: fraction of observed voxels seen by 2+ "
-        "robots (DESIGN.md section 7: every delta, the agents' flushes included); overlap halfway: "
+        "robots (docs/design.md section 7: every delta, the agents' flushes included); overlap halfway: "
         "the same over what the robots had shared when the team entropy was first halfway from its "
         "start to H_th; overlap before H_th: over what they had shared before the delta that brought "
         "the team map to H_th (usually the first agent's end-of-work flush, so: what the agents shared "
