@@ -33,8 +33,7 @@ from coordinator.assignment import (
 )
 from coordinator.state import Answer, CoordinatorState
 from swarm.config import Mission
-from swarm.protocol import bus
-from swarm.protocol.coord_client import reply_text
+from swarm.protocol import bus, replies
 from swarm.protocol.wire import Snapshot, WireError
 
 log = logging.getLogger("coordinator")
@@ -110,15 +109,13 @@ class Coordinator:
 
     def _load_snapshot(self) -> None:
         try:
-            replies = self.session.get(bus.key(self.name, "map", "snapshot"), timeout=self.snapshot_timeout)
-            for reply in replies:
-                if reply.ok is None:
-                    log.warning("map/snapshot answered an error: %s", reply_text(reply.err.payload))
-                    continue
-                self.state.team.load_snapshot(Snapshot.decode(reply.ok.payload.to_bytes()))
+            answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), self.snapshot_timeout)
+            if answer is not None and answer.ok is None:
+                log.warning("map/snapshot answered an error: %s", answer.error)
+            elif answer is not None:
+                self.state.team.load_snapshot(Snapshot.decode(answer.ok))
                 self.started_from_snapshot = True
-                return
-        except (zenoh.ZError, ValueError) as exc:  # WireError is a ValueError
+        except (zenoh.ZError, ValueError, replies.ConflictingReplies) as exc:  # WireError is a ValueError
             log.warning("no usable map snapshot (%s); starting from the prior", exc)
 
     def _on_merged(self, _key: str, payload: bytes) -> None:

@@ -31,7 +31,7 @@ from robot_agent.sharing import DeltaOutbox
 from swarm.config import Mission
 from swarm.map.delta import Delta
 from swarm.navigation.exploration import ExplorationTarget
-from swarm.protocol import bus
+from swarm.protocol import bus, replies
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.coord_client import ask_for_target
 from swarm.protocol.map_client import (
@@ -301,12 +301,13 @@ class Agent:
     def query_acks(self, timeout: float = 1.0) -> int | None:
         """This agent's last contiguous acked seq per the map server, or None if none answers."""
         try:
-            replies = self.session.get(self._acks_key, timeout=timeout)
-            for reply in replies:
-                if reply.ok is None:
-                    continue
-                acks = json.loads(reply.ok.payload.to_bytes())
-                return int(acks.get(self.robot_id, {}).get(str(self.epoch), 0))
+            answer = replies.ask(self.session, self._acks_key, timeout=timeout)
+            if answer is None or answer.ok is None:
+                return None
+            acks = json.loads(answer.ok)
+            return int(acks.get(self.robot_id, {}).get(str(self.epoch), 0))
+        except replies.ConflictingReplies as exc:  # someone besides the server answers: trust none
+            log.warning("acks refused: %s", exc)
         except (zenoh.ZError, ValueError, AttributeError) as exc:
             log.debug("acks query failed: %s", exc)
         return None

@@ -5,20 +5,36 @@ Processes meet through explicit endpoints (the map server listens on
 unless asked for, so tests and parallel runs do not find each other by accident. Deltas
 and commands use reliable delivery with congestion control BLOCK: a full queue makes the
 publisher wait instead of dropping the message.
+
+A Zenoh configuration file (JSON5, ``--zenoh-config FILE`` or the ``ZENOH_CONFIG``
+environment variable) carries what the command line does not: TLS certificates, access
+control, timeouts (``swarm security init`` writes one per identity; docs/security.md).
+Endpoints given on the command line replace the file's.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import queue
 import socket
 import time
 from collections.abc import Callable, Iterable
+from pathlib import Path
 
 import zenoh
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ROOT = "swarm"
+CONFIG_ENV = "ZENOH_CONFIG"
+# TLS options naming files: a relative path in a config file is relative to that file
+_TLS_FILES = (
+    "root_ca_certificate",
+    "listen_private_key",
+    "listen_certificate",
+    "connect_private_key",
+    "connect_certificate",
+)
 
 
 def key(mission: str, *parts: str) -> str:
@@ -41,14 +57,86 @@ def make_config(
     *,
     multicast_scouting: bool = False,
     mode: str = "peer",
+    base: zenoh.Config | None = None,
 ) -> zenoh.Config:
-    """A Zenoh config with explicit listen/connect endpoints; multicast scouting off by default."""
-    conf = zenoh.Config()
+    """A Zenoh config with explicit listen/connect endpoints; multicast scouting off by default.
+
+    With ``base`` (a config read from a file) the endpoints and mode are written over it and
+    its scouting setting is kept.
+    """
+    conf = base if base is not None else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+    if base is None:
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     return conf
+
+
+def config_path(config_file: str | Path | None = None) -> Path | None:
+    """The Zenoh config file to use: ``config_file``, else ``$ZENOH_CONFIG``, else None."""
+    chosen = config_file if config_file else os.environ.get(CONFIG_ENV) or None
+    return Path(chosen) if chosen else None
+
+
+def load_config(path: str | Path) -> zenoh.Config:
+    """Read a Zenoh JSON5 config file; relative TLS file paths are taken from the file's folder.
+
+    Raises ``ValueError`` naming the file (and the field, for a missing certificate or key).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such Zenoh config file")
+    try:
+        conf = zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise ValueError(f"{path}: not a valid Zenoh config: {exc}") from exc
+    for option in _TLS_FILES:
+        field = f"transport/link/tls/{option}"
+        value = json.loads(conf.get_json(field))
+        if not value:
+            continue
+        target = Path(value) if Path(value).is_absolute() else (path.parent / value)
+        if not target.is_file():
+            raise ValueError(f"{path}: {field}: no such file {target}")
+        conf.insert_json5(field, json.dumps(str(target.resolve())))
+    return conf
+
+
+def _endpoints(conf: zenoh.Config, which: str, mode: str) -> list[str]:
+    """A config's ``listen``/``connect`` endpoints (a list, or a per-mode map)."""
+    value = json.loads(conf.get_json(f"{which}/endpoints"))
+    if isinstance(value, dict):
+        value = value.get(mode, [])
+    return [str(v) for v in value or []]
+
+
+def session_config(
+    listen: Iterable[str] | None = None,
+    connect: Iterable[str] | None = None,
+    *,
+    config_file: str | Path | None = None,
+    multicast_scouting: bool = False,
+) -> tuple[zenoh.Config, list[str], list[str]]:
+    """The config a role opens its session with, and the effective listen/connect endpoints.
+
+    Endpoints given here win over the file's (``config_file`` or ``$ZENOH_CONFIG``); with
+    neither, the session connects to ``DEFAULT_ENDPOINT``. A session that listens is a
+    router, one that only connects a client.
+    """
+    listen = list(listen or [])
+    connect = list(connect or [])
+    path = config_path(config_file)
+    base = load_config(path) if path is not None else None
+    if base is not None:
+        file_mode = json.loads(base.get_json("mode"))
+        listen = listen or (_endpoints(base, "listen", file_mode) if file_mode == "router" else [])
+        connect = connect or _endpoints(base, "connect", file_mode)
+    if not listen and not connect:
+        connect = [DEFAULT_ENDPOINT]
+    mode = "router" if listen else "client"
+    conf = make_config(listen, connect, multicast_scouting=multicast_scouting, mode=mode, base=base)
+    return conf, listen, connect
 
 
 def open_session(
@@ -57,6 +145,7 @@ def open_session(
     *,
     multicast_scouting: bool = False,
     wait_s: float = 30.0,
+    config_file: str | Path | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default.
 
@@ -64,24 +153,34 @@ def open_session(
     connected to it (the map server, or the mission runner inside ``swarm sim``). A session
     that only connects is a *client* of such a router; it tries for ``wait_s`` seconds, so a
     process may start before its router. A zenohd router between sites fits in unchanged.
+    ``config_file`` (else ``$ZENOH_CONFIG``) is a Zenoh JSON5 config: TLS, access control;
+    its endpoints are used when none are given here. Raises ``ValueError`` for a bad config
+    file and ``ConnectionError`` when no router accepts the connection in time (for TLS: a
+    wrong certificate looks the same from this side).
     """
-    listen = list(listen or [])
-    connect = list(connect or [])
-    if not listen and not connect:
-        connect = [DEFAULT_ENDPOINT]
+    conf, listen, connect = session_config(
+        listen, connect, config_file=config_file, multicast_scouting=multicast_scouting
+    )
     if listen:
-        return zenoh.open(make_config(listen, connect, multicast_scouting=multicast_scouting, mode="router"))
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as exc:
+            raise ConnectionError(f"cannot listen on {', '.join(listen)}: {exc}") from exc
     deadline = time.monotonic() + wait_s
     while True:
         try:
-            return zenoh.open(make_config([], connect, multicast_scouting=multicast_scouting, mode="client"))
+            return zenoh.open(conf)
         except zenoh.ZError as exc:
             if time.monotonic() >= deadline:
                 raise ConnectionError(
                     f"no Zenoh router answered at {', '.join(connect)} within {wait_s:g} s "
-                    "(start the map server or the simulator first, or check --connect)"
+                    "(start the map server or the simulator first, or check --connect; "
+                    "over TLS, check the certificates in the --zenoh-config file)"
                 ) from exc
             time.sleep(0.5)
+            conf = session_config(
+                listen, connect, config_file=config_file, multicast_scouting=multicast_scouting
+            )[0]
 
 
 def reliable_publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:

@@ -7,6 +7,7 @@ import logging
 import zenoh
 
 from swarm.protocol import bus
+from swarm.protocol.replies import ConflictingReplies, ask
 from swarm.protocol.wire import AssignReply, AssignRequest, Pose, WireError
 
 log = logging.getLogger("swarm.coord_client")
@@ -24,20 +25,27 @@ def ask_for_target(
     """Ask the coordinator of ``mission`` for a target for ``robot`` at ``pose``.
 
     Returns the reply (its ``target`` is None when the coordinator has nothing left), or None
-    when no coordinator answered within ``timeout`` seconds or it answered with an error
-    (logged): the agent then chooses by itself. The reply's target is where to stand (x, y of
+    when no coordinator answered within ``timeout`` seconds, it answered with an error, or
+    several repliers answered differently (logged; ``swarm.protocol.replies``): the agent then
+    chooses by itself. The reply's target is where to stand (x, y of
     a reachable cell; z of the request's pose), its gaze the unit direction to face there.
     """
     payload = AssignRequest(robot, pose).encode()
     try:
-        for reply in session.get(bus.key(mission, "coord", "assign"), payload=payload, timeout=timeout):
-            if reply.ok is None:
-                log.warning("%s: coordinator error: %s", robot, reply_text(reply.err.payload))
-                continue
-            try:
-                return AssignReply.decode(reply.ok.payload.to_bytes())
-            except WireError as exc:
-                log.warning("%s: malformed coordinator reply: %s", robot, exc)
+        answer = ask(session, bus.key(mission, "coord", "assign"), timeout=timeout, payload=payload)
+    except ConflictingReplies as exc:
+        log.warning("%s: refused the coordinator's answer: %s", robot, exc)
+        return None
     except zenoh.ZError as exc:
         log.warning("%s: coord/assign query failed: %s", robot, exc)
+        return None
+    if answer is None:
+        return None
+    if answer.ok is None:
+        log.warning("%s: coordinator error: %s", robot, answer.error)
+        return None
+    try:
+        return AssignReply.decode(answer.ok)
+    except WireError as exc:
+        log.warning("%s: malformed coordinator reply: %s", robot, exc)
     return None

@@ -4,7 +4,9 @@
 ``MapClient.connect(endpoints, mission)`` opens its own Zenoh session; ``MapClient(session,
 mission)`` borrows one. Every query raises :class:`MapServerUnavailable` (a
 ``ConnectionError``) naming the endpoint when nothing answers in time, and
-:class:`MapQueryError` when the server answers with an error.
+:class:`MapQueryError` when the server answers with an error, or when more than one replier
+answers and the answers differ (:class:`ConflictingMapReplies`: someone besides the server is
+answering; see docs/security.md).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import zenoh
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
+from swarm.protocol.replies import ConflictingReplies, ask
 from swarm.protocol.wire import Region, Snapshot, WireError
 
 DEFAULT_TIMEOUT_S = 5.0
@@ -30,6 +33,10 @@ class MapServerUnavailable(ConnectionError):
 
 class MapQueryError(RuntimeError):
     """The map server answered a query with an error, or with a reply that cannot be read."""
+
+
+class ConflictingMapReplies(MapQueryError):
+    """Several repliers answered one map query with different answers; none was taken."""
 
 
 class MapClient:
@@ -51,13 +58,21 @@ class MapClient:
 
     @classmethod
     def connect(
-        cls, endpoints: list[str] | None = None, mission: str = "default", timeout: float = DEFAULT_TIMEOUT_S
+        cls,
+        endpoints: list[str] | None = None,
+        mission: str = "default",
+        timeout: float = DEFAULT_TIMEOUT_S,
+        zenoh_config: str | Path | None = None,
     ) -> MapClient:
-        """Open a client session to ``endpoints`` (default tcp/127.0.0.1:7447) within ``timeout``."""
-        endpoints = list(endpoints or [bus.DEFAULT_ENDPOINT])
+        """Open a client session to ``endpoints`` within ``timeout``.
+
+        Without endpoints: the ``zenoh_config`` file's (else ``$ZENOH_CONFIG``'s), else
+        tcp/127.0.0.1:7447. Raises ``ValueError`` for a bad config file.
+        """
+        _conf, _listen, endpoints = bus.session_config([], endpoints, config_file=zenoh_config)
         where = ", ".join(endpoints)
         try:
-            session = bus.open_session(connect=endpoints, wait_s=timeout)
+            session = bus.open_session(connect=endpoints, wait_s=timeout, config_file=zenoh_config)
         except ConnectionError as exc:
             raise MapServerUnavailable(f"no map server reachable at {where} within {timeout:g} s") from exc
         return cls(session, mission, timeout, where, owns_session=True)
@@ -117,10 +132,14 @@ class MapClient:
         while True:
             # A query that no queryable matches yet (a server still starting, or one whose
             # declarations have not reached this session) ends at once with no reply: ask again.
-            for reply in self.session.get(selector, timeout=max(deadline - time.monotonic(), 0.05)):
-                if reply.ok is not None:
-                    return reply.ok.payload.to_bytes()
-                raise MapQueryError(reply.err.payload.to_string())
+            try:
+                answer = ask(self.session, selector, timeout=max(deadline - time.monotonic(), 0.05))
+            except ConflictingReplies as exc:
+                raise ConflictingMapReplies(str(exc)) from exc
+            if answer is not None:
+                if answer.ok is None:
+                    raise MapQueryError(str(answer.error))
+                return answer.ok
             if time.monotonic() >= deadline:
                 break
             time.sleep(0.05)
