@@ -1,0 +1,223 @@
+"""The team bus over Zenoh's mutual TLS and access control, with the configs `swarm security init`
+writes: real sessions on loopback TLS endpoints, a real map server behind them.
+
+What must hold: a robot holding r1's certificate cannot get a delta applied as r2; a tool
+cannot put; a client without a certificate of the mission's CA cannot connect; a session that
+is not the server cannot answer ``map/acks``; and, without any access control at all, a client
+refuses disagreeing replies instead of taking the first.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from cryptography import x509
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from map_server.server import MapServer
+from swarm.protocol import bus
+from swarm.protocol.coord_client import ask_for_target
+from swarm.protocol.map_client import ConflictingMapReplies, MapClient
+from swarm.protocol.wire import AssignReply, DeltaMessage, Pose
+from swarm.security.access_rules import access_control, agent_name
+from swarm.security.certificates import common_name
+from swarm.security.team_setup import init_team
+from tests.test_server_merge import EPOCH, small_mission, wait_until
+
+ROBOTS = ["r1", "r2", "r3"]
+
+
+@pytest.fixture(scope="module")
+def team(tmp_path_factory):
+    return init_team("srvtest", ROBOTS, tmp_path_factory.mktemp("team"))
+
+
+@contextmanager
+def secure_server(team, store: Path) -> Iterator[tuple[MapServer, str]]:
+    """A map server in this process: the mission's router on a loopback TLS endpoint."""
+    endpoint = f"tls/127.0.0.1:{bus.free_port()}"
+    server = MapServer(small_mission(), store)
+    session = bus.open_session(listen=[endpoint], config_file=team.configs["server"])
+    server.start(session)
+    try:
+        yield server, endpoint
+    finally:
+        server.stop()
+        session.close()
+
+
+@contextmanager
+def session_as(team, identity: str, endpoint: str) -> Iterator[zenoh.Session]:
+    session = bus.open_session(connect=[endpoint], config_file=team.configs[identity], wait_s=5.0)
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def one_delta(robot: str, seq: int = 1) -> bytes:
+    grid = small_mission().workspace.grid()
+    return DeltaMessage(
+        robot,
+        EPOCH,
+        seq,
+        1.0,
+        grid,
+        np.array([5, 6], np.int64),
+        np.ones(2, np.float32),
+        np.ones(2, np.float32),
+    ).encode()
+
+
+# -- what init writes -------------------------------------------------------------------------------
+
+
+def test_every_identity_has_a_certificate_of_the_mission_ca_and_a_config(team):
+    ca = x509.load_pem_x509_certificate(team.ca.read_bytes())
+    assert set(team.configs) == {"server", "coordinator", "world", "tool"} | {
+        f"{kind}-{r}" for r in ROBOTS for kind in ("agent", "source")
+    }
+    for name, conf_path in team.configs.items():
+        folder = conf_path.parent
+        cert = x509.load_pem_x509_certificate((folder / "cert.pem").read_bytes())
+        assert common_name(folder / "cert.pem") == name
+        ca.public_key().verify(
+            cert.signature, cert.tbs_certificate_bytes, ec.ECDSA(cert.signature_hash_algorithm)
+        )
+        assert (folder / "key.pem").stat().st_mode & 0o077 == 0, f"{name}'s key is readable by others"
+        conf, listen, connect = bus.session_config(config_file=conf_path)
+        tls = json.loads(conf.get_json("transport/link/tls"))
+        assert tls["enable_mtls"] is True and Path(tls["connect_certificate"]).is_file()
+        acl = json.loads(conf.get_json("access_control"))
+        if name == "server":
+            assert listen == ["tls/0.0.0.0:7447"] and acl["enabled"] and acl["default_permission"] == "deny"
+        else:
+            assert connect == ["tls/127.0.0.1:7447"] and not listen and not acl["enabled"]
+
+
+def test_only_its_agent_may_put_a_robots_delta_in_the_rules():
+    acl = access_control("m", ROBOTS)
+    rules = {r["id"]: r for r in acl["rules"]}
+    by_subject = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    for rid in ROBOTS:
+        allowed = {
+            cn
+            for policy in acl["policies"]
+            for rule in policy["rules"]
+            if "put" in rules[rule]["messages"]
+            and rules[rule]["flows"] == ["ingress"]
+            and f"swarm/m/delta/{rid}" in rules[rule]["key_exprs"]
+            for subject in policy["subjects"]
+            for cn in by_subject[subject]
+        }
+        assert allowed == {agent_name(rid)}
+
+
+def test_command_line_endpoints_win_over_the_files(team, monkeypatch):
+    _, listen, connect = bus.session_config(connect=["tls/10.0.0.9:9000"], config_file=team.configs["tool"])
+    assert connect == ["tls/10.0.0.9:9000"] and listen == []
+    monkeypatch.setenv("ZENOH_CONFIG", str(team.configs["server"]))
+    conf, listen, _ = bus.session_config(listen=["tls/127.0.0.1:9001"])
+    assert listen == ["tls/127.0.0.1:9001"]
+    assert json.loads(conf.get_json("access_control"))["enabled"] is True  # from $ZENOH_CONFIG
+    monkeypatch.setenv("ZENOH_CONFIG", str(team.out / "missing.json5"))
+    with pytest.raises(ValueError, match="missing.json5"):
+        bus.session_config()
+
+
+# -- real sessions over TLS ------------------------------------------------------------------------
+
+
+def test_r1_cannot_get_a_delta_applied_as_r2_and_a_tool_cannot_put(team, tmp_path):
+    with secure_server(team, tmp_path / "store") as (server, endpoint):
+        with session_as(team, "agent-r1", endpoint) as r1, session_as(team, "tool", endpoint) as tool:
+            tool.put(bus.key("srvtest", "delta", "r3"), one_delta("r3"))
+            r1.put(bus.key("srvtest", "delta", "r2"), one_delta("r2"))
+            r1.put(bus.key("srvtest", "delta", "r1"), one_delta("r1"))  # after the others, same link
+            client = MapClient(r1, "srvtest", timeout=5.0)
+            wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10.0, "r1's delta")
+            time.sleep(0.3)
+            acks = client.acks()
+            assert set(acks) == {"r1"}, acks
+            assert client.stats()["deltas_applied"] == 1
+
+
+def test_a_client_without_a_mission_certificate_cannot_connect(team, tmp_path):
+    other = init_team("srvtest", ["r1"], tmp_path / "other-team")  # same names, another CA
+    with secure_server(team, tmp_path / "store") as (_server, endpoint):
+        no_cert = tmp_path / "no-cert.json5"
+        no_cert.write_text(
+            json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": str(team.ca)}}}})
+        )
+        for conf in (no_cert, other.configs["agent-r1"]):
+            with pytest.raises(ConnectionError, match="TLS"):
+                bus.open_session(connect=[endpoint], config_file=conf, wait_s=1.0)
+        with pytest.raises(ConnectionError):  # plain TCP to the TLS port
+            bus.open_session(connect=[endpoint.replace("tls/", "tcp/")], wait_s=1.0)
+
+
+def test_a_session_that_is_not_the_server_cannot_answer_map_acks(team, tmp_path):
+    with secure_server(team, tmp_path / "store") as (_server, endpoint):
+        with (
+            session_as(team, "agent-r1", endpoint) as r1,
+            session_as(team, "coordinator", endpoint) as forger,
+        ):
+            forged = json.dumps({"r1": {str(EPOCH): 10**9}}).encode()
+            queryable = forger.declare_queryable(
+                bus.key("srvtest", "map", "acks"), lambda q: q.reply(q.key_expr, forged)
+            )
+            r1.put(bus.key("srvtest", "delta", "r1"), one_delta("r1"))
+            client = MapClient(r1, "srvtest", timeout=5.0)
+            wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10.0, "the true ack")
+            for _ in range(5):
+                assert client.acks() == {"r1": {EPOCH: 1}}
+            queryable.undeclare()
+
+
+# -- the client's own check, with no access control at all ---------------------------------------------
+
+
+def test_clients_refuse_disagreeing_replies_on_an_open_bus(tmp_path):
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    server = MapServer(small_mission(), tmp_path / "store")
+    router = bus.open_session(listen=[endpoint])
+    server.start(router)
+    forger = bus.open_session(connect=[endpoint])
+    client_session = bus.open_session(connect=[endpoint])
+    try:
+        client = MapClient(client_session, "srvtest", timeout=3.0)
+        assert client.acks() == {}
+        forged = json.dumps({"r1": {str(EPOCH): 10**9}}).encode()
+        fake = forger.declare_queryable(
+            bus.key("srvtest", "map", "acks"), lambda q: q.reply(q.key_expr, forged)
+        )
+        fake_coord = [
+            forger.declare_queryable(
+                bus.key("srvtest", "coord", "assign"),
+                lambda q, t=t: q.reply(q.key_expr, AssignReply((t, 0.0, 0.0), (1.0, 0.0, 0.0), t).encode()),
+            )
+            for t in (1.0, 2.0)
+        ]
+        time.sleep(0.3)
+        for _ in range(3):
+            with pytest.raises(ConflictingMapReplies, match="2 different answers"):
+                client.acks()
+        pose = Pose((0.0, 0.0, 0.0))
+        assert ask_for_target(client_session, "srvtest", "r1", pose, timeout=1.0) is None
+        fake.undeclare()
+        for q in fake_coord:
+            q.undeclare()
+        time.sleep(0.3)
+        assert client.acks() == {}
+    finally:
+        client_session.close()
+        forger.close()
+        server.stop()
+        router.close()
