@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint to listen on as well; repeatable",
     )
+    bus.add_zenoh_config_argument(parser)
     parser.add_argument(
         "--mission", metavar="NAME", help="mission name in the keys (default: the config's `mission`)"
     )
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         if args.mission is not None:
             bus.key(args.mission)  # a valid key part
         log.info(bus.describe_connection(args.listen, args.connect))
-        session = bus.open_session(args.listen, args.connect)
+        session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
     except (ConfigError, ValueError, ConnectionError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return 2

@@ -36,22 +36,25 @@ def serve(
     mission_name: str | None = None,
     options: ServerOptions | None = None,
     connect: list[str] | None = None,
+    zenoh_config: Path | None = None,
 ) -> None:
     """Run the server until SIGTERM/SIGINT: recover the store, listen, merge; compact on exit.
-    SIGHUP quarantines the robots listed in ``<store>/quarantine`` (one id a line)."""
+    SIGHUP quarantines the robots listed in ``<store>/quarantine`` (one id a line).
+    ``zenoh_config``: a Zenoh JSON5 config file (TLS, access control); ``listen``/``connect``
+    win over its endpoints (``swarm.protocol.bus.open_session``)."""
     stop, reread = threading.Event(), threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: reread.set())
     try:
         server = MapServer(mission, store_dir, mission_name, options)
         try:
-            session = bus.open_session(listen=listen, connect=connect or [])
+            session = bus.open_session(listen=listen, connect=connect or [], config_file=zenoh_config)
         except BaseException:
             server.store.close()
             raise
         try:
             server.start(session)
-            log.info("listening on %s", ", ".join(listen))
+            log.info("listening on %s", ", ".join(listen) or f"the endpoints of {zenoh_config}")
             while not stop.wait(0.5):
                 if reread.is_set():
                     reread.clear()

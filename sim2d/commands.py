@@ -22,6 +22,7 @@ import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
 from swarm.formats.depth_picture import depth_picture
+from swarm.protocol import bus
 
 #: Seconds ``swarm sim world`` waits for the agents by default (they start slowly on a busy machine).
 STARTUP_TIMEOUT_S = 120.0
@@ -121,6 +122,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint to connect to, e.g. the map server's (default tcp/127.0.0.1:7447); repeatable",
     )
+    bus.add_zenoh_config_argument(parser)
     parser.add_argument(
         "--encoding",
         choices=["raw8", "png"],
@@ -150,7 +152,6 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
 def run_sim(args: argparse.Namespace) -> int:
     """Run the lockstep simulator until the mission's stop condition; returns an exit code."""
     from sim2d.simulator import Simulator
-    from swarm.protocol import bus
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:
@@ -165,7 +166,11 @@ def run_sim(args: argparse.Namespace) -> int:
     logging.getLogger(__name__).info(
         "mission %r: %s", mission.mission, bus.describe_connection(args.listen, args.connect)
     )
-    session = bus.open_session(args.listen, args.connect)
+    try:
+        session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
+    except (ValueError, ConnectionError) as e:  # a bad --zenoh-config file; no router in time
+        print(f"swarm: error: {e}", file=sys.stderr)
+        return 2
     sim = Simulator(mission, session, encoding=args.encoding)
     sim.progress_every_s = args.progress_every
     import signal

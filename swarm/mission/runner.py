@@ -10,6 +10,11 @@ from ``robot/*/status``. It stops at H_th (eq. 36), when every agent is done, or
 time limit; agents flush their outboxes, the server's final map is fetched over
 ``map/snapshot``, and the run folder is written: metrics.json, map.npz, server_map.npz,
 plots, the config used and every process's log.
+
+With ``secure`` (``swarm sim --secure``) the run folder gets a fresh team of certificates
+(``security/``, as ``swarm security init`` writes it); the map server is then the mission's
+router on a loopback TLS endpoint with the access-control rules, every role connects to it
+with its own certificate, and the runner watches as the read-only ``tool`` identity.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
+from swarm.security.access_rules import TOOL, agent_name
 
 NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
 
@@ -52,6 +58,41 @@ class MissionOptions:
     coordination: str = "coordinator"  # or "none": each robot chooses alone on the shared map
     kill_coordinator_at_s: float | None = None  # fault injection: SIGKILL it at this sim time
     view: str | None = None  # "window": swarm view beside the mission; a path: its .rrd recording
+    secure: bool = False  # mutual TLS and access control, one certificate per role
+
+
+@dataclass(frozen=True)
+class BusPlan:
+    """Where each role meets the others: the runner's session, and each child's Zenoh arguments."""
+
+    runner_listen: list[str]
+    runner_connect: list[str]
+    runner_config: Path | None
+    server_args: list[str]
+    configs: dict[str, Path]  # identity -> Zenoh config file (empty when not secure)
+
+    def child_args(self, identity: str) -> list[str]:
+        """``--connect`` and ``--zenoh-config`` of a role that is not the server."""
+        endpoint = (self.runner_connect or self.runner_listen)[0]
+        config = self.configs.get(identity)
+        return ["--connect", endpoint, *(["--zenoh-config", str(config)] if config else [])]
+
+
+def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
+    """Open loopback: the runner is the router. Secure: the server is, over TLS with the rules."""
+    if not secure:
+        endpoint = bus.tcp_endpoint(bus.free_port())
+        server_listen = bus.tcp_endpoint(bus.free_port())
+        return BusPlan([endpoint], [], None, ["--listen", server_listen, "--connect", endpoint], {})
+    from swarm.security.team_setup import init_team
+
+    folder = out / "security"
+    if folder.exists():
+        shutil.rmtree(folder)  # a run folder is rewritten: a fresh CA per run
+    team = init_team(mission.mission, list(mission.robot_ids), folder)
+    endpoint = f"tls/127.0.0.1:{bus.free_port()}"
+    server_args = ["--listen", endpoint, "--zenoh-config", str(team.configs["server"])]
+    return BusPlan([], [endpoint], team.configs[TOOL], server_args, team.configs)
 
 
 @dataclass
@@ -176,10 +217,20 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     # the agents load them from the cache instead of each compiling them at start.
     warm_up()
 
-    endpoint = bus.tcp_endpoint(bus.free_port())
     monitor = TeamMonitor(mission)
-    session = bus.open_session(listen=[endpoint])  # the runner is the mission's router
     name = mission.mission
+    plan = plan_bus(mission, out, options.secure)
+    store = out / "server-store"
+    if store.exists():
+        shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
+    server_cmd = ["server", "--config", str(config_path), "--store", str(store), *plan.server_args]
+    # open loopback: the runner is the mission's router; secure: the server is, so it starts first
+    server = None if plan.runner_listen else _child(server_cmd, out / "server.log")
+    try:
+        session = bus.open_session(plan.runner_listen, plan.runner_connect, config_file=plan.runner_config)
+    except BaseException:
+        _stop([server] if server is not None else [])
+        raise
     subs = [
         bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta),
         bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
@@ -194,34 +245,27 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     started = time.monotonic()
     reason = "starting"
     try:
-        store = out / "server-store"
-        if store.exists():
-            shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
-        server_listen = bus.tcp_endpoint(bus.free_port())
-        server = _child(
-            ["server", "--config", str(config_path), "--store", str(store),
-             "--listen", server_listen, "--connect", endpoint],
-            out / "server.log",
-        )  # fmt: skip
+        if server is None:
+            server = _child(server_cmd, out / "server.log")
         services.append(server)
         coordinator = None
         if options.coordination != "none":
-            coordinator_args = ["coordinator", "--config", str(config_path), "--connect", endpoint]
+            coordinator_args = ["coordinator", "--config", str(config_path), *plan.child_args("coordinator")]
             coordinator = _child(coordinator_args, out / "coordinator.log")
             services.append(coordinator)
         _wait_for_server(client, server)
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
         if options.view is not None:
-            view_args = ["view", "--connect", endpoint, "--mission", name]
+            view_args = ["view", *plan.child_args(TOOL), "--mission", name]
             if options.view != "window":
                 view_args += ["--save", str(Path(options.view).resolve())]
             services.append(_child(view_args, out / "view.log"))
-        world = _child(["sim", "world", str(config_path), "--connect", endpoint], out / "world.log")
+        world = _child(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
         agents = [
             _child(
-                ["agent", "--id", rid, "--connect", endpoint, "--config", str(config_path),
+                ["agent", "--id", rid, *plan.child_args(agent_name(rid)), "--config", str(config_path),
                  "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination],
                 out / f"agent-{rid}.log",
             )

@@ -14,6 +14,7 @@ Endpoints given on the command line replace the file's.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import queue
@@ -181,6 +182,18 @@ def open_session(
             conf = session_config(
                 listen, connect, config_file=config_file, multicast_scouting=multicast_scouting
             )[0]
+
+
+def add_zenoh_config_argument(parser: argparse.ArgumentParser) -> None:
+    """``--zenoh-config FILE``, the same for every command that opens a Zenoh session."""
+    parser.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        type=Path,
+        help=f"Zenoh config (JSON5): TLS certificates, access control (swarm security init writes one "
+        f"per identity; docs/security.md). Default: ${CONFIG_ENV} if set. --listen/--connect win "
+        "over the file's endpoints",
+    )
 
 
 def reliable_publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:

@@ -1,0 +1,60 @@
+"""``swarm security init``: write a mission's certificates and per-identity Zenoh configs."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from swarm.security.access_rules import team_identities
+from swarm.security.certificates import DEFAULT_DAYS
+from swarm.security.team_setup import DEFAULT_HOSTS, DEFAULT_PORT, init_team
+
+
+def add_init_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``swarm security init``."""
+    parser.description = (
+        "Write a certificate authority for the mission, one certificate per identity (map server, "
+        "coordinator, simulated world, read-only tools, and per robot its agent and its frame source) "
+        "and one Zenoh config per identity: mutual TLS, and on the map server (the mission's router) "
+        "access-control rules keyed on the certificates' common names. Give each machine ca.pem and "
+        "its identities' folders; keep ca-key.pem offline. See docs/security.md."
+    )
+    parser.add_argument("--mission", required=True, metavar="NAME", help="mission name (the key prefix)")
+    parser.add_argument("--robots", required=True, nargs="+", metavar="ID", help="robot ids, e.g. r1 r2 r3")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder")
+    parser.add_argument(
+        "--server-host",
+        action="append",
+        metavar="HOST",
+        help="address or DNS name the others reach the map server at, written into the server's "
+        "certificate; the first goes into the others' configs; repeatable "
+        f"(default {' and '.join(DEFAULT_HOSTS)})",
+    )
+    parser.add_argument(
+        "--port", type=int, default=DEFAULT_PORT, help=f"the server's TLS port (default {DEFAULT_PORT})"
+    )
+    parser.add_argument(
+        "--days", type=int, default=DEFAULT_DAYS, help=f"certificate lifetime (default {DEFAULT_DAYS})"
+    )
+    parser.add_argument("--force", action="store_true", help="overwrite a team already in --out")
+
+
+def run_init(args: argparse.Namespace) -> int:
+    """``swarm security init``: 0 on success, 2 on bad arguments."""
+    try:
+        if args.days < 1:
+            raise ValueError(f"--days {args.days}: must be at least 1")
+        team = init_team(
+            args.mission, args.robots, args.out, args.server_host, args.port, args.days, args.force
+        )
+    except (ValueError, OSError) as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote the team of mission {args.mission!r} to {team.out}:")
+    print(f"  {'ca.pem':<24} the mission's certificate authority (every machine)")
+    print(f"  {'ca-key.pem':<24} its private key: keep it offline")
+    for identity in team_identities(args.robots):
+        print(f"  {identity.name + '/':<24} {identity.role}")
+    print(f"start the map server with --zenoh-config {team.configs['server']}, every other role with its own")
+    return 0
