@@ -11,7 +11,7 @@ import math
 import sys
 
 from swarm import __version__
-from swarm.cli import bench, ingest, maps, replay, roles, sim, stereo, study, view
+from swarm.cli import bench, ingest, maps, replay, roles, security, sim, stereo, study, view
 from swarm.cli.common import endpoint_problem, fail, zenoh_message
 from swarm.formats.errors import InputError
 
@@ -35,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.register(sub)
     sim.register(sub)
     view.register(sub)
+    security.register(sub)
     return parser
 
 

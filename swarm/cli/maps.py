@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from swarm.cli.common import fail
+from swarm.protocol import bus
 
 
 # -- swarm map info -----------------------------------------------------------------------
@@ -101,6 +102,7 @@ def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint of the map server (default tcp/127.0.0.1:7447); repeatable",
     )
+    bus.add_zenoh_config_argument(p)
     p.add_argument(
         "--mission",
         help="mission name, the key prefix (default: --config's mission, else the only mission whose "
@@ -118,7 +120,7 @@ def _open_client(args: argparse.Namespace):
     wanted, origin = args.mission, "--mission"
     if wanted is None and args.config is not None:
         wanted, origin = load_mission(args.config).mission, f"{args.config}: mission"
-    client = MapClient.connect(args.connect, wanted or "default", args.timeout)
+    client = MapClient.connect(args.connect, wanted or "default", args.timeout, args.zenoh_config)
     try:
         client.mission = resolve_mission(client.session, wanted, args.timeout, client.endpoint, origin)
     except BaseException:
@@ -154,7 +156,7 @@ def _run_map_stats(args: argparse.Namespace) -> int:
     try:
         with _open_client(args) as client:
             print(json.dumps(client.stats(), indent=1))
-    except (ConnectionError, MapQueryError) as exc:
+    except (ConnectionError, MapQueryError, ValueError) as exc:
         return fail(str(exc))
     return 0
 
@@ -174,7 +176,7 @@ def _run_map_get(args: argparse.Namespace) -> int:
     try:
         with _open_client(args) as client:
             region = client.point(values) if args.point else client.region(values[:3], values[3:])
-    except (ConnectionError, MapQueryError) as exc:
+    except (ConnectionError, MapQueryError, ValueError) as exc:
         return fail(str(exc))
     if len(region) == 0:
         lo, hi = region.grid.lo, region.grid.hi

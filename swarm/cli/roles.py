@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from swarm.cli.common import fail
+from swarm.protocol import bus
 
 
 # -- swarm agent --------------------------------------------------------------------------
@@ -33,6 +34,7 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint to listen on as well; repeatable",
     )
+    bus.add_zenoh_config_argument(p)
     p.add_argument(
         "--strategy",
         choices=["entropy", "frontier", "random"],
@@ -64,7 +66,6 @@ def _run_agent(args: argparse.Namespace) -> int:
 
     from robot_agent.agent import Agent
     from swarm.config import ConfigError, load_mission
-    from swarm.protocol import bus
     from swarm.protocol.map_client import MissionMismatch
 
     logging.basicConfig(
@@ -79,7 +80,7 @@ def _run_agent(args: argparse.Namespace) -> int:
             known = ", ".join(mission.robot_ids)
             raise ValueError(f"{args.config}: robots: no robot {args.robot_id!r} (robots: {known})")
         log.info("%s: %s", args.robot_id, bus.describe_connection(args.listen, args.connect))
-        session = bus.open_session(args.listen, args.connect)
+        session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
         log.info("%s: connected; mission %r (from %s)", args.robot_id, mission.mission, args.config)
         coordinated = args.coordination == "auto"
         agent = Agent(mission, args.robot_id, session, args.strategy, args.seed, coordination=coordinated)
@@ -139,9 +140,11 @@ def register_server(sub: argparse._SubParsersAction) -> None:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="Zenoh endpoint to listen on (default tcp/127.0.0.1:7447); repeatable",
+        help="Zenoh endpoint to listen on (default: the --zenoh-config file's, else tcp/127.0.0.1:7447); "
+        "repeatable",
     )
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="also connect here")
+    bus.add_zenoh_config_argument(p)
     p.add_argument("--mission", help="mission name, the key prefix (default: the config's mission)")
     p.add_argument("--compact-mb", type=float, default=256, help="compact when the log reaches this (MB)")
     p.add_argument("--compact-records", type=int, default=20000, help="... or this many deltas")
@@ -187,7 +190,6 @@ def _run_server(args: argparse.Namespace) -> int:
     from map_server.server import ServerOptions
     from map_server.store import StoreError
     from swarm.config import ConfigError, load_mission
-    from swarm.protocol import bus
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
@@ -215,7 +217,9 @@ def _run_server(args: argparse.Namespace) -> int:
     )
     try:
         mission = load_mission(args.config)
-        serve(mission, args.listen or [bus.DEFAULT_ENDPOINT], args.store, args.mission, options, args.connect)
-    except (ConfigError, StoreError, ValueError, OSError) as exc:
+        listen = args.listen or ([] if bus.config_path(args.zenoh_config) else [bus.DEFAULT_ENDPOINT])
+        config = args.zenoh_config
+        serve(mission, listen, args.store, args.mission, options, args.connect, zenoh_config=config)
+    except (ConfigError, StoreError, ValueError, OSError) as exc:  # ConnectionError is an OSError
         return fail(str(exc))
     return 0

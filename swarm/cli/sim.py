@@ -71,6 +71,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="H_th = entropy of the voxels no sensor can ever observe + F x the observable prior "
         "(F = 0.16 is the paper's end point; the default of --map missions); replaces the mission's H_th",
     )
+    run.add_argument(
+        "--secure",
+        action="store_true",
+        help="mutual TLS and access control: a fresh CA and one certificate per role in <out>/security; "
+        "the map server is the TLS router and enforces who may put and answer what (docs/security.md)",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(

@@ -82,10 +82,12 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         coordination=coordination,
         kill_coordinator_at_s=args.kill_coordinator_at,
         view=getattr(args, "view", None),
+        secure=args.secure,
     )
     print(
         f"mission {mission.mission}: robots {', '.join(mission.robot_ids)}, strategy {args.strategy}, "
-        f"coordination {coordination}, seed {args.seed}, H_th {mission.threshold_bits():,.0f} bits -> {out}",
+        f"coordination {coordination}, seed {args.seed}, H_th {mission.threshold_bits():,.0f} bits"
+        f"{', mutual TLS and access control' if args.secure else ''} -> {out}",
         flush=True,
     )
     monitor, facts = run_mission(mission, options)

@@ -1,0 +1,32 @@
+"""`swarm sim --secure`: a two-robot mission where every role holds its own certificate, the map
+server is the TLS router enforcing the access rules, and the coordinator answers over it."""
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.test_mission_e2e import MISSION, PLAN
+
+TWO_ROBOTS = MISSION.replace("robots:\n", "robots:\n  - id: r2\n    start: {x: 1.8, y: 0.6, yaw: 1.57}\n", 1)
+
+
+def test_secure_two_robot_mission_reaches_its_threshold(tmp_path: Path):
+    (tmp_path / "plan.yaml").write_text(PLAN)
+    (tmp_path / "tiny.yaml").write_text(TWO_ROBOTS)
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "tiny.yaml"), "--out", str(out)]
+    proc = subprocess.run([*cmd, "--secure", "--quiet"], capture_output=True, text=True, timeout=300)
+    logs = "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(out.glob("*.log")))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["reached_threshold"] is True, f"{proc.stdout}\n{logs}"
+    assert metrics["server_map_max_rel_diff"] <= 1e-5  # the server saw every delta the monitor did
+    server_log = (out / "server.log").read_text()
+    assert re.search(r"listening on tls/127\.0\.0\.1:\d+", server_log)
+    assert re.search(r" 0 rejected", server_log)
+    requests = re.search(r"requests (\d+)", (out / "coordinator.log").read_text())
+    assert requests and int(requests.group(1)) > 0, logs  # coord/assign went through the rules
+    for identity in ("server", "coordinator", "world", "tool", "agent-r1", "agent-r2"):
+        assert (out / "security" / identity / "zenoh.json5").is_file()
