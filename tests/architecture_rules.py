@@ -27,6 +27,7 @@ ALLOWED: dict[str, set[str]] = {
     "swarm.formats": {"swarm.map"},
     "swarm.protocol": {"swarm.map", "swarm.formats"},
     "swarm.config": {"swarm.map", "swarm.formats", "swarm.protocol"},
+    "swarm.security": {"swarm.protocol"},  # certificates and access rules; used by the tooling
     **{role: {"swarm", *CORE} for role in ROLES},
     "swarm.view": {"swarm", *CORE},  # the live view: a bus client like a role, never a role itself
 }
