@@ -181,6 +181,28 @@ def test_a_session_that_is_not_the_server_cannot_answer_map_acks(team, tmp_path)
             queryable.undeclare()
 
 
+def test_a_session_that_is_not_the_coordinator_cannot_answer_coord_assign(team, tmp_path):
+    with secure_server(team, tmp_path / "store") as (_server, endpoint):
+        with (
+            session_as(team, "agent-r1", endpoint) as r1,
+            session_as(team, "tool", endpoint) as forger,
+            session_as(team, "coordinator", endpoint) as coordinator,
+        ):
+            key = bus.key("srvtest", "coord", "assign")
+            true = AssignReply((1.0, 2.0, 0.0), (0.0, 1.0, 0.0), 3.0)
+            forged = AssignReply((9.0, 9.0, 0.0), (1.0, 0.0, 0.0), 1e9).encode()
+            declared = [
+                coordinator.declare_queryable(key, lambda q: q.reply(q.key_expr, true.encode())),
+                forger.declare_queryable(key, lambda q: q.reply(q.key_expr, forged)),
+            ]
+            time.sleep(0.3)
+            for _ in range(3):  # the forger's declaration never passed the router: no conflict either
+                answer = ask_for_target(r1, "srvtest", "r1", Pose((0.0, 0.0, 0.0)), timeout=2.0)
+                assert answer is not None and answer.target == true.target
+            for q in declared:
+                q.undeclare()
+
+
 # -- the client's own check, with no access control at all ---------------------------------------------
 
 
