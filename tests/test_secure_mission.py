@@ -1,5 +1,6 @@
-"""`swarm sim --secure`: a two-robot mission where every role holds its own certificate, the map
-server is the TLS router enforcing the access rules, and the coordinator answers over it."""
+"""`swarm sim --secure`: a mission where every role holds its own certificate and the map server is
+the TLS router enforcing the access rules. One robot keeps it short (the coordinator's side of the
+rules is shown in tests/test_security.py on real sessions)."""
 
 import json
 import re
@@ -9,12 +10,10 @@ from pathlib import Path
 
 from tests.test_mission_e2e import MISSION, PLAN
 
-TWO_ROBOTS = MISSION.replace("robots:\n", "robots:\n  - id: r2\n    start: {x: 1.8, y: 0.6, yaw: 1.57}\n", 1)
 
-
-def test_secure_two_robot_mission_reaches_its_threshold(tmp_path: Path):
+def test_secure_mission_reaches_its_threshold(tmp_path: Path):
     (tmp_path / "plan.yaml").write_text(PLAN)
-    (tmp_path / "tiny.yaml").write_text(TWO_ROBOTS)
+    (tmp_path / "tiny.yaml").write_text(MISSION)
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "tiny.yaml"), "--out", str(out)]
     proc = subprocess.run([*cmd, "--secure", "--quiet"], capture_output=True, text=True, timeout=300)
@@ -26,7 +25,7 @@ def test_secure_two_robot_mission_reaches_its_threshold(tmp_path: Path):
     server_log = (out / "server.log").read_text()
     assert re.search(r"listening on tls/127\.0\.0\.1:\d+", server_log)
     assert re.search(r" 0 rejected", server_log)
-    requests = re.search(r"requests (\d+)", (out / "coordinator.log").read_text())
-    assert requests and int(requests.group(1)) > 0, logs  # coord/assign went through the rules
-    for identity in ("server", "coordinator", "world", "tool", "agent-r1", "agent-r2"):
+    agent_log = (out / "agent-r1.log").read_text()
+    assert re.search(r"r1: [1-9]\d* deltas", agent_log), logs
+    for identity in ("server", "coordinator", "world", "tool", "agent-r1", "source-r1"):
         assert (out / "security" / identity / "zenoh.json5").is_file()
