@@ -24,6 +24,19 @@ def _common(p: argparse.ArgumentParser) -> None:
         help="publish at the recorded rate (default: lockstep with the agent)",
     )
     p.add_argument("--connect", help="join a running Zenoh router and map server at this endpoint")
+    p.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="with --connect: Zenoh config of the replay itself, the robot's frame source (e.g. "
+        "source-r1/zenoh.json5 of swarm security init; docs/security.md). Default: $ZENOH_CONFIG",
+    )
+    p.add_argument(
+        "--agent-zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="with --connect: Zenoh config of the agent the replay starts (e.g. agent-r1/zenoh.json5)",
+    )
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -128,7 +141,10 @@ def _replay(args: argparse.Namespace, opener) -> int:
         f"{calib.image_size[1]}, fx {calib.fx:.1f} px, baseline {calib.baseline:.4f} m",
         flush=True,
     )
-    options = ReplayOptions(args.out, robot, args.start, args.frames, args.realtime, args.connect)
+    options = ReplayOptions(
+        args.out, robot, args.start, args.frames, args.realtime, args.connect,
+        zenoh_config=args.zenoh_config, agent_zenoh_config=args.agent_zenoh_config,
+    )  # fmt: skip
     metrics = run_replay(recording, mission, options)
     print(json.dumps(metrics, indent=2))
     print(f"wrote {args.out}")

@@ -87,6 +87,8 @@ class ReplayOptions:
     realtime: bool = False
     connect: str | None = None
     quiet: bool = False
+    zenoh_config: Path | None = None  # the replay's own session (the frame source), with connect
+    agent_zenoh_config: Path | None = None  # the agent's, with connect (docs/security.md)
 
 
 def _frames(recording: Recording, options: ReplayOptions) -> Iterator[Frame]:
@@ -103,7 +105,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     config_path.write_text(mission.to_yaml())
     endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
     if options.connect:
-        session = bus.open_session(connect=[endpoint])
+        session = bus.open_session(connect=[endpoint], config_file=options.zenoh_config)
     else:
         session = bus.open_session(listen=[endpoint])  # the runner is the router
     monitor = TeamMonitor(mission)
@@ -129,7 +131,8 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             _wait_for_server(client, server)
         agent = _child(
             ["agent", "--id", options.robot, "--connect", endpoint, "--config", str(config_path),
-             "--coordination", "none"],
+             "--coordination", "none",
+             *(["--zenoh-config", str(options.agent_zenoh_config)] if options.agent_zenoh_config else [])],
             out / f"agent-{options.robot}.log",
         )  # fmt: skip
         publisher = FramePublisher(session, name, options.robot)
