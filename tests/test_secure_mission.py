@@ -8,7 +8,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from swarm.formats.map_file import load_map
+from swarm.formats.octomap_file import write_bt
+from swarm.formats.octomap_map import coverage_to_leaves, states_to_prior
+from swarm.map.grid import Grid
 from tests.test_mission_e2e import MISSION, PLAN
+from tests.test_prior_map import MISSION as PRIOR_MISSION
 
 
 def test_secure_mission_reaches_its_threshold(tmp_path: Path):
@@ -29,3 +36,23 @@ def test_secure_mission_reaches_its_threshold(tmp_path: Path):
     assert re.search(r"r1: [1-9]\d* deltas", agent_log), logs
     for identity in ("server", "coordinator", "world", "tool", "agent-r1", "source-r1"):
         assert (out / "security" / identity / "zenoh.json5").is_file()
+
+
+def test_secure_mission_loads_a_previous_map_as_the_operator(tmp_path: Path):
+    """The runner's `operator` certificate may put delta/prior; the server takes the previous map."""
+    grid = Grid((0.0, 0.0, 0.0), 0.1, (24, 24, 8))
+    states = np.zeros(grid.shape, np.uint8)
+    states[14:, :, :] = 1
+    leaves = coverage_to_leaves(states_to_prior(grid, states, known_sigma=0.1))
+    write_bt(tmp_path / "previous.bt", leaves.resolution, leaves.key, leaves.occupied)
+    (tmp_path / "m.yaml").write_text(PRIOR_MISSION)
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "m.yaml"), "--out", str(out)]
+    proc = subprocess.run([*cmd, "--secure", "--quiet"], capture_output=True, text=True, timeout=180)
+    logs = "\n".join(f"--- {p.name}\n{p.read_text()[-2000:]}" for p in sorted(out.glob("*.log")))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    assert "started from the previous map" in proc.stdout
+    final = load_map(out / "server_map.npz")
+    far = np.zeros(grid.shape, bool)
+    far[14:, :, :] = True
+    assert np.all(final.sigma().reshape(grid.shape)[far] <= 0.1 + 1e-4)

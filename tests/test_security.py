@@ -81,7 +81,7 @@ def one_delta(robot: str, seq: int = 1) -> bytes:
 
 def test_every_identity_has_a_certificate_of_the_mission_ca_and_a_config(team):
     ca = x509.load_pem_x509_certificate(team.ca.read_bytes())
-    assert set(team.configs) == {"server", "coordinator", "world", "tool"} | {
+    assert set(team.configs) == {"server", "coordinator", "world", "tool", "operator"} | {
         f"{kind}-{r}" for r in ROBOTS for kind in ("agent", "source")
     }
     for name, conf_path in team.configs.items():

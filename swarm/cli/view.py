@@ -8,6 +8,7 @@ import threading
 from pathlib import Path
 
 from swarm.cli.common import fail
+from swarm.protocol import bus
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint of the mission's router (default tcp/127.0.0.1:7447); repeatable",
     )
+    bus.add_zenoh_config_argument(p)
     p.add_argument("--mission", default="default", help="mission name, the key prefix (default: default)")
     p.add_argument("--save", type=Path, metavar="RUN.rrd", help="write a rerun recording instead of a window")
     p.add_argument("--spawn", action="store_true", help="with --save, also spawn a viewer window")
@@ -52,8 +54,10 @@ def _run_view(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: stop.set())
     spawn = args.save is None or args.spawn
     try:
-        view = run_view(args.connect, args.mission, args.save, spawn, args.period, args.duration, stop)
-    except ConnectionError as exc:
+        view = run_view(
+            args.connect, args.mission, args.save, spawn, args.period, args.duration, stop, args.zenoh_config
+        )
+    except (ConnectionError, ValueError) as exc:
         return fail(str(exc))
     where = f" to {args.save}" if args.save else ""
     print(f"view: {view.deltas} merged deltas, {view.frames} map frames{where}", flush=True)

@@ -14,7 +14,7 @@ plots, the config used and every process's log.
 With ``secure`` (``swarm sim --secure``) the run folder gets a fresh team of certificates
 (``security/``, as ``swarm security init`` writes it); the map server is then the mission's
 router on a loopback TLS endpoint with the access-control rules, every role connects to it
-with its own certificate, and the runner watches as the read-only ``tool`` identity.
+with its own certificate; the runner watches (and loads a previous map) as ``operator``.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
-from swarm.security.access_rules import TOOL, agent_name
+from swarm.security.access_rules import OPERATOR, TOOL, agent_name
 
 NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
 
@@ -92,7 +92,7 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     team = init_team(mission.mission, list(mission.robot_ids), folder)
     endpoint = f"tls/127.0.0.1:{bus.free_port()}"
     server_args = ["--listen", endpoint, "--zenoh-config", str(team.configs["server"])]
-    return BusPlan([], [endpoint], team.configs[TOOL], server_args, team.configs)
+    return BusPlan([], [endpoint], team.configs[OPERATOR], server_args, team.configs)
 
 
 @dataclass

@@ -14,6 +14,7 @@ is denied (``default_permission: deny``). Keys are under ``swarm/<mission>/``:
 | ``server`` (map server) | ``merged`` | ``map/**`` |
 | ``coordinator`` | - | ``coord/**`` |
 | ``tool`` (viewer, ``swarm map``, monitors) | - | - |
+| ``operator`` (``swarm sim``'s runner) | ``delta/prior`` (a previous map) | - |
 
 Every identity may subscribe to the mission's keys and query ``map/**``; only agents may
 query ``coord/assign``. Every identity receives what it subscribed to (egress is open within
@@ -28,7 +29,10 @@ SERVER = "server"
 COORDINATOR = "coordinator"
 WORLD = "world"
 TOOL = "tool"
-SERVICES = (SERVER, COORDINATOR, WORLD, TOOL)
+OPERATOR = "operator"
+SERVICES = (SERVER, COORDINATOR, WORLD, TOOL, OPERATOR)
+# the key a mission's previous map arrives on (swarm/mission/prior_map.py, PRIOR_SOURCE "prior")
+PRIOR_DELTA = "delta/prior"
 
 RECEIVED = ["put", "declare_subscriber", "declare_queryable", "query", "reply"]
 
@@ -59,6 +63,7 @@ def team_identities(robots: list[str]) -> list[Identity]:
         Identity(COORDINATOR, "coordinator"),
         Identity(WORLD, "simulated world (frame source of every simulated robot)"),
         Identity(TOOL, "read-only tools: viewer, swarm map, monitors"),
+        Identity(OPERATOR, "mission operator (swarm sim's runner): may load a previous map"),
     ]
     for rid in robots:
         team.append(Identity(agent_name(rid), f"robot {rid}'s agent"))
@@ -82,18 +87,21 @@ def access_control(mission: str, robots: list[str]) -> dict:
         _rule("coordinator-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/coord/**"]),
         _rule("world-puts", ["put"], "ingress", [f"{p}/robot/*/frame", f"{p}/sim/truth"]),
         _rule("agents-ask", ["query"], "ingress", [f"{p}/coord/assign"]),
+        _rule("operator-puts", ["put"], "ingress", [f"{p}/{PRIOR_DELTA}"]),
     ]
     subjects = [
         {"id": "team", "cert_common_names": [i.name for i in team_identities(robots)]},
         {"id": SERVER, "cert_common_names": [SERVER]},
         {"id": COORDINATOR, "cert_common_names": [COORDINATOR]},
         {"id": WORLD, "cert_common_names": [WORLD]},
+        {"id": OPERATOR, "cert_common_names": [OPERATOR]},
     ]
     policies = [
         {"id": "team", "rules": ["team-receives", "team-reads", "team-queries-map"], "subjects": ["team"]},
         {"id": SERVER, "rules": ["server-answers", "server-puts"], "subjects": [SERVER]},
         {"id": COORDINATOR, "rules": ["coordinator-answers"], "subjects": [COORDINATOR]},
         {"id": WORLD, "rules": ["world-puts"], "subjects": [WORLD]},
+        {"id": OPERATOR, "rules": ["operator-puts"], "subjects": [OPERATOR]},
     ]
     if robots:
         subjects.append({"id": "agents", "cert_common_names": [agent_name(r) for r in robots]})

@@ -192,9 +192,10 @@ def run_view(
     period: float = 1.0,
     duration: float | None = None,
     stop: threading.Event | None = None,
+    zenoh_config: str | Path | None = None,
 ) -> TeamView:
     """Open a session, follow ``mission`` until ``duration`` seconds pass or ``stop`` is set."""
-    session = bus.open_session(connect=connect or None)
+    session = bus.open_session(connect=connect or None, config_file=zenoh_config)
     try:
         rec = open_recording(mission, save, spawn)
         view = TeamView(session, mission, rec, period)
