@@ -203,6 +203,16 @@ def test_a_session_that_is_not_the_coordinator_cannot_answer_coord_assign(team, 
                 q.undeclare()
 
 
+def test_swarm_map_stats_as_a_tool_finds_the_mission_over_the_rules(team, tmp_path, capsys):
+    from swarm.cli.main import main
+
+    with secure_server(team, tmp_path / "store") as (_server, endpoint):
+        tool = ["--zenoh-config", str(team.configs["tool"]), "--connect", endpoint, "--timeout", "10"]
+        for mission in (["--mission", "srvtest"], []):  # named, or found via swarm/*/map/stats
+            assert main(["map", "stats", *tool, *mission]) == 0
+            assert json.loads(capsys.readouterr().out)["mission"] == "srvtest"
+
+
 # -- the client's own check, with no access control at all ---------------------------------------------
 
 

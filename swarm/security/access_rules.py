@@ -16,7 +16,8 @@ is denied (``default_permission: deny``). Keys are under ``swarm/<mission>/``:
 | ``tool`` (viewer, ``swarm map``, monitors) | - | - |
 | ``operator`` (``swarm sim``'s runner) | ``delta/prior`` (a previous map) | - |
 
-Every identity may subscribe to the mission's keys and query ``map/**``; only agents may
+Every identity may subscribe to the mission's keys and query ``map/**`` (and ``swarm/*/map/stats``,
+which tools ask to find the mission whose server answers); only agents may
 query ``coord/assign``. Every identity receives what it subscribed to (egress is open within
 the mission's keys).
 """
@@ -33,6 +34,8 @@ OPERATOR = "operator"
 SERVICES = (SERVER, COORDINATOR, WORLD, TOOL, OPERATOR)
 # the key a mission's previous map arrives on (swarm/mission/prior_map.py, PRIOR_SOURCE "prior")
 PRIOR_DELTA = "delta/prior"
+# what tools ask to find the mission whose server answers (swarm.protocol.map_client.missions_answering)
+STATS_OF_ANY_MISSION = "swarm/*/map/stats"
 
 RECEIVED = ["put", "declare_subscriber", "declare_queryable", "query", "reply"]
 
@@ -79,9 +82,10 @@ def access_control(mission: str, robots: list[str]) -> dict:
     """Zenoh's ``access_control`` block for the router of ``mission`` with ``robots``."""
     p = f"swarm/{mission}"
     rules = [
-        _rule("team-receives", RECEIVED, "egress", [f"{p}/**"]),
+        # the server answers a query on swarm/*/map/stats on that very key: it must go out too
+        _rule("team-receives", RECEIVED, "egress", [f"{p}/**", STATS_OF_ANY_MISSION]),
         _rule("team-reads", ["declare_subscriber"], "ingress", [f"{p}/**"]),
-        _rule("team-queries-map", ["query"], "ingress", [f"{p}/map/**"]),
+        _rule("team-queries-map", ["query"], "ingress", [f"{p}/map/**", STATS_OF_ANY_MISSION]),
         _rule("server-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/map/**"]),
         _rule("server-puts", ["put"], "ingress", [f"{p}/merged"]),
         _rule("coordinator-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/coord/**"]),
