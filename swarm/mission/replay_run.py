@@ -124,7 +124,17 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             if store.exists():
                 shutil.rmtree(store)
             server = _child(
-                ["server", "--config", str(config_path), "--store", str(store), "--connect", endpoint],
+                [
+                    "server",
+                    "--config",
+                    str(config_path),
+                    "--store",
+                    str(store),
+                    "--connect",
+                    endpoint,
+                    "--listen",
+                    bus.tcp_endpoint(bus.free_port()),
+                ],  # not the default 7447: it may be taken
                 out / "server.log",
             )
             procs.append(server)
