@@ -123,20 +123,10 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             store = out / "server-store"
             if store.exists():
                 shutil.rmtree(store)
-            server = _child(
-                [
-                    "server",
-                    "--config",
-                    str(config_path),
-                    "--store",
-                    str(store),
-                    "--connect",
-                    endpoint,
-                    "--listen",
-                    bus.tcp_endpoint(bus.free_port()),
-                ],  # not the default 7447: it may be taken
-                out / "server.log",
-            )
+            listen = bus.tcp_endpoint(bus.free_port())  # not the default 7447: it may be taken
+            server_args = ["server", "--config", str(config_path), "--store", str(store)]
+            server_args += ["--connect", endpoint, "--listen", listen]
+            server = _child(server_args, out / "server.log")
             procs.append(server)
             _wait_for_server(client, server)
         agent = _child(
