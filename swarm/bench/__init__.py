@@ -22,3 +22,17 @@ def best_cpu_seconds(fn: Callable[[], object], repeat: int) -> float:
         fn()
         best = min(best, time.thread_time() - t0)
     return best
+
+
+def stop_server(server, sessions, timeout: float = 60.0) -> None:
+    """Close the benchmark's Zenoh ``sessions``, then SIGTERM the ``server`` process and wait
+    ``timeout`` seconds for it (SIGKILL after that)."""
+    import subprocess
+
+    for session in sessions:
+        session.close()
+    server.terminate()
+    try:
+        server.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        server.kill()

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.bench import stop_server
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -309,13 +310,7 @@ def zenoh_figures(
             "saturated_ms": _percentiles(saturated),
         }
     finally:
-        for s in sessions:
-            s.close()
-        server.terminate()
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            server.kill()
+        stop_server(server, sessions, timeout=30)
 
 
 def run(
@@ -488,13 +483,7 @@ def flood_figures(
             "peak_rss_mb": peak_kb / 1024,
         }
     finally:
-        for s in sessions:
-            s.close()
-        server.terminate()
-        try:
-            server.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            server.kill()
+        stop_server(server, sessions, timeout=60)
 
 
 def run_flood(agents: int = 16, seconds: float = 30.0, lo: int = 200, hi: int = 2000, seed: int = 0) -> dict:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.bench import stop_server
 from swarm.bench.server import MISSION, VOXEL, WORKSPACE, _messages, _mission_yaml, make_deltas
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -170,11 +171,5 @@ def run(
                 )
         finally:
             stop.set()
-            for s in sessions:
-                s.close()
-            server.terminate()
-            try:
-                server.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                server.kill()
+            stop_server(server, sessions, timeout=60)
     return rows

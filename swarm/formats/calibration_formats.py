@@ -24,14 +24,13 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 
 from swarm.formats.stereo_calibration import (
     CalibrationError,
     RectificationMaps,
     StereoCalibration,
-    _CalibLoader,
     calibration_from_dict,
+    read_calibration_yaml,
     rectify_stereo,
 )
 
@@ -40,18 +39,7 @@ PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangenti
 
 
 def _read_yaml(path: Path) -> Any:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
-    if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
-        text = text.split("\n", 1)[1] if "\n" in text else ""
-    try:
-        return yaml.load(text, Loader=_CalibLoader)
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+    return read_calibration_yaml(path)
 
 
 def _numbers(value: Any, count: int | tuple[int, ...], source: str, field: str) -> np.ndarray:

@@ -260,6 +260,15 @@ _CalibLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", _opencv_matrix)
 def load_calibration(path: str | Path) -> StereoCalibration:
     """Read a calibration YAML file (either form); raises CalibrationError naming file and field."""
     path = Path(path)
+    data = read_calibration_yaml(path)
+    return calibration_from_dict(data, source=str(path))
+
+
+def read_calibration_yaml(path: Path) -> Any:
+    """The parsed YAML of a calibration file (OpenCV ``%YAML:1.0`` files with matrices too).
+
+    Raises CalibrationError naming the file when it is missing, unreadable or not YAML.
+    """
     try:
         text = path.read_text()
     except FileNotFoundError:
@@ -269,10 +278,9 @@ def load_calibration(path: str | Path) -> StereoCalibration:
     if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
         text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        data = yaml.load(text, Loader=_CalibLoader)
+        return yaml.load(text, Loader=_CalibLoader)
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
-    return calibration_from_dict(data, source=str(path))
 
 
 def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCalibration:

@@ -8,20 +8,8 @@ from typing import Any
 import numpy as np
 
 from swarm.map.grid import Grid
-from swarm.protocol.codec import (
-    WireError,
-    decimal,
-    indices,
-    integer,
-    le,
-    number,
-    pack,
-    raw,
-    require,
-    text,
-    unpack,
-    vec3,
-)
+from swarm.protocol import codec
+from swarm.protocol.codec import WireError
 
 # -- delta/<rid> and merged ---------------------------------------------------------------
 
@@ -36,12 +24,12 @@ MAX_AXIS = 1 << 20
 def _grid(value: Any, kind: str) -> Grid:
     if not isinstance(value, dict):
         raise WireError(f"{kind}: grid must be a map with origin, voxel, shape")
-    origin = vec3(require(value, "origin", kind), "grid.origin", kind)
-    voxel = number(require(value, "voxel", kind), "grid.voxel", kind)
-    shape = require(value, "shape", kind)
+    origin = codec.vec3(codec.require(value, "origin", kind), "grid.origin", kind)
+    voxel = codec.number(codec.require(value, "voxel", kind), "grid.voxel", kind)
+    shape = codec.require(value, "shape", kind)
     if not isinstance(shape, list | tuple) or len(shape) != 3:
         raise WireError(f"{kind}: grid.shape must be 3 integers, got {shape!r}")
-    shape = tuple(integer(n, f"grid.shape[{i}]", kind, 1) for i, n in enumerate(shape))
+    shape = tuple(codec.integer(n, f"grid.shape[{i}]", kind, 1) for i, n in enumerate(shape))
     if any(n > MAX_AXIS for n in shape):
         raise WireError(f"{kind}: grid.shape {list(shape)} has an axis over {MAX_AXIS} voxels")
     if voxel <= 0:
@@ -88,7 +76,7 @@ class DeltaMessage:
         n = len(self.idx)
         if len(self.dlam) != n or len(self.deta) != n:
             raise WireError("delta: idx, dlam and deta must have the same length")
-        return pack(
+        return codec.pack(
             self.KIND,
             {
                 "robot": self.robot,
@@ -96,27 +84,27 @@ class DeltaMessage:
                 "seq": int(self.seq),
                 "t": float(self.t),
                 "grid": self.grid.to_dict(),
-                "idx": le(self.idx, "<u4"),
-                "dlam": le(self.dlam, "<f4"),
-                "deta": le(self.deta, "<f4"),
+                "idx": codec.le(self.idx, "<u4"),
+                "dlam": codec.le(self.dlam, "<f4"),
+                "deta": codec.le(self.deta, "<f4"),
             },
         )
 
     @classmethod
     def decode(cls, payload: Any) -> DeltaMessage:
         kind = cls.KIND
-        msg = unpack(payload, kind)
-        grid = _grid(require(msg, "grid", kind), kind)
-        idx = indices(require(msg, "idx", kind), kind, grid.size)
+        msg = codec.unpack(payload, kind)
+        grid = _grid(codec.require(msg, "grid", kind), kind)
+        idx = codec.indices(codec.require(msg, "idx", kind), kind, grid.size)
         n = len(idx)
-        dlam = raw(require(msg, "dlam", kind), "<f4", n, "dlam", kind)
-        deta = raw(require(msg, "deta", kind), "<f4", n, "deta", kind)
+        dlam = codec.raw(codec.require(msg, "dlam", kind), "<f4", n, "dlam", kind)
+        deta = codec.raw(codec.require(msg, "deta", kind), "<f4", n, "deta", kind)
         _information(dlam, deta, kind, ("dlam", "deta"))
         return cls(
-            robot=text(require(msg, "robot", kind), "robot", kind),
-            epoch=integer(require(msg, "epoch", kind), "epoch", kind),
-            seq=integer(require(msg, "seq", kind), "seq", kind, 1),
-            t=number(require(msg, "t", kind), "t", kind),
+            robot=codec.text(codec.require(msg, "robot", kind), "robot", kind),
+            epoch=codec.integer(codec.require(msg, "epoch", kind), "epoch", kind),
+            seq=codec.integer(codec.require(msg, "seq", kind), "seq", kind, 1),
+            t=codec.number(codec.require(msg, "t", kind), "t", kind),
             grid=grid,
             idx=idx,
             dlam=dlam,
@@ -146,12 +134,12 @@ class Snapshot:
     KIND = "snapshot"
 
     def encode(self) -> bytes:
-        return pack(
+        return codec.pack(
             self.KIND,
             {
                 "grid": self.grid.to_dict(),
-                "lam": le(np.ravel(self.lam), "<f4"),
-                "eta": le(np.ravel(self.eta), "<f4"),
+                "lam": codec.le(np.ravel(self.lam), "<f4"),
+                "eta": codec.le(np.ravel(self.eta), "<f4"),
                 "acks": {
                     str(r): {str(int(e)): int(s) for e, s in by_epoch.items()}
                     for r, by_epoch in self.acks.items()
@@ -166,18 +154,19 @@ class Snapshot:
     @classmethod
     def decode(cls, payload: Any) -> Snapshot:
         kind = cls.KIND
-        msg = unpack(payload, kind)
-        grid = _grid(require(msg, "grid", kind), kind)
-        lam = raw(require(msg, "lam", kind), "<f4", grid.size, "lam", kind)
-        eta = raw(require(msg, "eta", kind), "<f4", grid.size, "eta", kind)
+        msg = codec.unpack(payload, kind)
+        grid = _grid(codec.require(msg, "grid", kind), kind)
+        lam = codec.raw(codec.require(msg, "lam", kind), "<f4", grid.size, "lam", kind)
+        eta = codec.raw(codec.require(msg, "eta", kind), "<f4", grid.size, "eta", kind)
         if not np.all(np.isfinite(lam)) or not np.all(np.isfinite(eta)) or np.any(lam <= 0):
             raise WireError(f"{kind}: lam must be finite and > 0, eta finite")
-        acks = require(msg, "acks", kind)
+        acks = codec.require(msg, "acks", kind)
         if not isinstance(acks, dict) or not all(isinstance(v, dict) for v in acks.values()):
             raise WireError(f"{kind}: acks must be a map robot -> {{epoch: seq}}")
         acks = {
-            text(r, "acks robot", kind): {
-                decimal(e, "acks epoch", kind): integer(s, "acks seq", kind) for e, s in by_epoch.items()
+            codec.text(r, "acks robot", kind): {
+                codec.decimal(e, "acks epoch", kind): codec.integer(s, "acks seq", kind)
+                for e, s in by_epoch.items()
             }
             for r, by_epoch in acks.items()
         }
@@ -189,8 +178,8 @@ class Snapshot:
         ):
             raise WireError(f"{kind}: above must be a map robot -> {{epoch: [seq, ...]}}")
         above = {
-            text(r, "above robot", kind): {
-                decimal(e, "above epoch", kind): [integer(s, "above seq", kind) for s in seqs]
+            codec.text(r, "above robot", kind): {
+                codec.decimal(e, "above epoch", kind): [codec.integer(s, "above seq", kind) for s in seqs]
                 for e, seqs in by_epoch.items()
             }
             for r, by_epoch in above.items()
@@ -229,16 +218,18 @@ class Region:
         n = len(self.idx)
         if any(len(getattr(self, name)) != n for name in self._VALUES):
             raise WireError("region: idx and every value array must have the same length")
-        fields = {"grid": self.grid.to_dict(), "idx": le(self.idx, "<u4")}
-        fields |= {name: le(getattr(self, name), "<f4") for name in self._VALUES}
-        return pack(self.KIND, fields)
+        fields = {"grid": self.grid.to_dict(), "idx": codec.le(self.idx, "<u4")}
+        fields |= {name: codec.le(getattr(self, name), "<f4") for name in self._VALUES}
+        return codec.pack(self.KIND, fields)
 
     @classmethod
     def decode(cls, payload: Any) -> Region:
         kind = cls.KIND
-        msg = unpack(payload, kind)
-        grid = _grid(require(msg, "grid", kind), kind)
-        idx = indices(require(msg, "idx", kind), kind, grid.size)
+        msg = codec.unpack(payload, kind)
+        grid = _grid(codec.require(msg, "grid", kind), kind)
+        idx = codec.indices(codec.require(msg, "idx", kind), kind, grid.size)
         n = len(idx)
-        values = {name: raw(require(msg, name, kind), "<f4", n, name, kind) for name in cls._VALUES}
+        values = {
+            name: codec.raw(codec.require(msg, name, kind), "<f4", n, name, kind) for name in cls._VALUES
+        }
         return cls(grid, idx, **values)
