@@ -13,16 +13,8 @@ from swarm.map.grid import Grid
 octomap = pytest.importorskip("octomap", reason="octomap-python (pip install '.[bench]') reads the files")
 
 _ROOT = Path(__file__).resolve().parents[1]
-#: the shared real data sits beside the checkout (../shared) or beside its worktree folder
-SHARED_BT = (
-    next(
-        (p for p in (_ROOT.parent / "shared", _ROOT.parent.parent / "shared") if (p / "data").is_dir()),
-        _ROOT.parent / "shared",
-    )
-    / "data"
-    / "octomap"
-    / "geb079.bt"
-)
+#: the real OctoMap file bundled with the project (the OctoMap project's sample data, BSD)
+SHARED_BT = _ROOT / "data" / "octomap" / "geb079.bt"
 
 
 def known_states(shape: tuple[int, int, int], seed: int = 3) -> np.ndarray:
