@@ -186,15 +186,15 @@ def _run_bench_agent(args: argparse.Namespace) -> int:
 
 
 def _run_bench_server(args: argparse.Namespace) -> int:
-    from swarm.bench import server
+    from swarm.bench import server, server_flood
 
     if args.agents < 1 or args.deltas < 1 or not 1 <= args.min_voxels <= args.max_voxels or args.period <= 0:
         return fail("--agents, --deltas, --period must be positive, and --min-voxels <= --max-voxels")
     if args.flood is not None:
         if not args.flood > 0:
             return fail("--flood takes a positive number of seconds")
-        figures = server.run_flood(args.agents, args.flood, args.min_voxels, args.max_voxels)
-        print(server.format_flood(figures))
+        figures = server_flood.run_flood(args.agents, args.flood, args.min_voxels, args.max_voxels)
+        print(server_flood.format_flood(figures))
         return 0
     figures = server.run(args.agents, args.deltas, args.min_voxels, args.max_voxels, args.period)
     print(server.format_table(figures))
