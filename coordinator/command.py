@@ -21,21 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Stops on SIGINT/SIGTERM."
     )
     parser.add_argument("--config", required=True, type=Path, help="mission YAML file")
-    parser.add_argument(
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447); repeatable",
-    )
-    parser.add_argument(
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh endpoint to listen on as well; repeatable",
-    )
-    bus.add_zenoh_config_argument(parser)
+    bus.add_client_arguments(parser)
     parser.add_argument(
         "--mission", metavar="NAME", help="mission name in the keys (default: the config's `mission`)"
     )

@@ -20,21 +20,7 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--id", required=True, dest="robot_id", help="robot id, as in the mission config")
     p.add_argument("--config", required=True, type=Path, help="mission YAML file")
-    p.add_argument(
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447); repeatable",
-    )
-    p.add_argument(
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh endpoint to listen on as well; repeatable",
-    )
-    bus.add_zenoh_config_argument(p)
+    bus.add_client_arguments(p)
     p.add_argument(
         "--strategy",
         choices=["entropy", "frontier", "random"],

@@ -181,6 +181,26 @@ def open_session(
             )[0]
 
 
+def add_client_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--connect``, ``--listen`` and ``--zenoh-config`` of a role that joins a router (agent,
+    coordinator): connect to the router's endpoints, optionally listen as well."""
+    parser.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447); repeatable",
+    )
+    parser.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on as well; repeatable",
+    )
+    add_zenoh_config_argument(parser)
+
+
 def add_zenoh_config_argument(parser: argparse.ArgumentParser) -> None:
     """``--zenoh-config FILE``, the same for every command that opens a Zenoh session."""
     parser.add_argument(
