@@ -163,6 +163,18 @@ def _all_acked(session, agents: int, epoch: int, count: int) -> bool:
     return all(int(acks.get(f"a{a + 1}", {}).get(str(epoch), 0)) >= count for a in range(agents))
 
 
+def open_agents(sessions: list, endpoint: str, agents: int) -> list:
+    """Open ``agents`` sessions to ``endpoint`` (appended to ``sessions``, after the probe at
+    index 0) and one reliable ``delta/a<i>`` publisher each, ready once the server subscribes."""
+    for _ in range(agents):
+        sessions.append(bus.open_session(connect=[endpoint]))
+    pubs = [
+        bus.reliable_publisher(s, bus.key(MISSION, "delta", f"a{i + 1}")) for i, s in enumerate(sessions[1:])
+    ]
+    bus.wait_for_subscribers(pubs, timeout=10)
+    return pubs
+
+
 def _put_all(publisher, payloads: list[bytes]) -> None:
     for payload in payloads:
         publisher.put(payload)
@@ -260,13 +272,7 @@ def zenoh_figures(
                     f"the server did not start; see {log_path}:\n{log_path.read_text()[-2000:]}"
                 )
             time.sleep(0.1)
-        for _ in range(agents):
-            sessions.append(bus.open_session(connect=[endpoint]))
-        pubs = [
-            bus.reliable_publisher(s, bus.key(MISSION, "delta", f"a{i + 1}"))
-            for i, s in enumerate(sessions[1:])
-        ]
-        bus.wait_for_subscribers(pubs, timeout=10)
+        pubs = open_agents(sessions, endpoint, agents)
         pick = [[deltas[(a * 7 + n) % len(deltas)] for n in range(per_agent)] for a in range(agents)]
 
         # throughput: everything at once

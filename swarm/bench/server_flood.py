@@ -15,7 +15,16 @@ from pathlib import Path
 import numpy as np
 
 from swarm.bench import stop_server
-from swarm.bench.server import MISSION, VOXEL, WORKSPACE, _acked, _acks, _mission_yaml, make_deltas
+from swarm.bench.server import (
+    MISSION,
+    VOXEL,
+    WORKSPACE,
+    _acked,
+    _acks,
+    _mission_yaml,
+    make_deltas,
+    open_agents,
+)
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
@@ -63,13 +72,7 @@ def flood_figures(
                 raise RuntimeError(f"the server did not start; see {log_path}")
             time.sleep(0.1)
         start_kb = _memory_kb(server.pid)[0]
-        for _ in range(agents):
-            sessions.append(bus.open_session(connect=[endpoint]))
-        pubs = [
-            bus.reliable_publisher(s, bus.key(MISSION, "delta", f"a{i + 1}"))
-            for i, s in enumerate(sessions[1:])
-        ]
-        bus.wait_for_subscribers(pubs, timeout=10)
+        pubs = open_agents(sessions, endpoint, agents)
         epoch = 7
         sent = [0] * agents  # highest seq each agent has published
         puts = [0] * agents  # payloads published, resends included
