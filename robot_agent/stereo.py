@@ -21,6 +21,7 @@ import math
 from typing import Any, Literal, Protocol
 
 import cv2
+import numba
 import numpy as np
 
 from swarm.map.rotation import rotation_zyx
@@ -195,13 +196,17 @@ class StereoMatcher:
             )[:, pl : pl + w]
         else:
             raw = self._sgbm.compute(gl, gr)
-        disp = raw.astype(np.float32) * np.float32(1.0 / 16.0)
+        disp = raw.astype(np.float32)
+        disp *= np.float32(1.0 / 16.0)
         invalid = raw < self.min_disparity * 16
         # A match that lands in the padding is outside the right image: not a measurement.
-        u_right = np.arange(w, dtype=np.float32)[None, :] - disp
-        invalid |= (u_right < 0) | (u_right > w - 1)
+        # u_right = u - d must lie in [0, w - 1].
+        columns = np.arange(w, dtype=np.float32)
+        invalid |= disp > columns
+        if self.min_disparity < 0:
+            invalid |= disp < columns - np.float32(w - 1)
         if self.min_texture > 0:
-            invalid |= texture(gl, self.block_size) < self.min_texture
+            invalid |= texture_variance(gl, self.block_size) < np.float32(self.min_texture**2)
         disp[invalid] = np.nan
         return disp
 
@@ -213,12 +218,23 @@ class StereoMatcher:
         return depth_from_disparity(self.disparity(left, right), calib)
 
 
+def texture_variance(gray: np.ndarray, window: int) -> np.ndarray:
+    """Grey-level variance (grey levels squared, float32) over a ``window`` x ``window`` box.
+
+    The texture filter compares it with ``min_texture**2``, so no square root is taken;
+    OpenCV's box and squared-box filters read the uint8 image directly.
+    """
+    size = (window, window)
+    mean = cv2.boxFilter(gray, cv2.CV_32F, size, borderType=cv2.BORDER_REFLECT)
+    mean_sq = cv2.sqrBoxFilter(gray, cv2.CV_32F, size, borderType=cv2.BORDER_REFLECT)
+    mean *= mean
+    mean_sq -= mean
+    return mean_sq
+
+
 def texture(gray: np.ndarray, window: int) -> np.ndarray:
     """Grey-level standard deviation over a ``window`` x ``window`` box around each pixel."""
-    f = gray.astype(np.float32)
-    mean = cv2.boxFilter(f, -1, (window, window), borderType=cv2.BORDER_REFLECT)
-    mean_sq = cv2.boxFilter(f * f, -1, (window, window), borderType=cv2.BORDER_REFLECT)
-    return np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+    return np.sqrt(np.maximum(texture_variance(gray, window), 0.0))
 
 
 def depth_from_disparity(disp: np.ndarray, calib: RectifiedRig) -> np.ndarray:
@@ -258,17 +274,37 @@ def points_from_depth(
     depth = np.asarray(depth, dtype=np.float32)
     if depth.ndim != 2:
         raise ValueError(f"depth must be a 2-D image, got shape {depth.shape}")
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(depth) & (depth > 0)
-    v, u = np.nonzero(valid)
-    z = depth[v, u].astype(np.float64)
-    # Camera (body) frame: x forward = depth, y left = -(u - cx) z / fx, z up = -(v - cy) z / fy.
-    body = np.empty((z.size, 3))
-    body[:, 0] = z
-    body[:, 1] = -(u - cx) * z / fx
-    body[:, 2] = -(v - cy) * z / fy
-    if max_range is not None:
-        keep = np.einsum("ij,ij->i", body, body) <= float(max_range) ** 2
-        body = body[keep]
-    rot = rotation_ypr(*(float(a) for a in pose_ypr))
-    return body @ rot.T + np.asarray(pose_xyz, dtype=np.float64)
+    rot = rotation_ypr(*(float(angle) for angle in pose_ypr))
+    origin = np.asarray(pose_xyz, dtype=np.float64)
+    limit = np.inf if max_range is None else float(max_range) ** 2
+    return _camera_points(depth, float(fx), float(fy), float(cx), float(cy), rot, origin, limit)
+
+
+@numba.njit(cache=True, nogil=True)
+def _camera_points(
+    depth: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    rot: np.ndarray,
+    origin: np.ndarray,
+    max_range_sq: float,
+) -> np.ndarray:
+    h, w = depth.shape
+    out = np.empty((h * w, 3))
+    n = 0
+    for v in range(h):
+        b = -(v - cy) / fy
+        for u in range(w):
+            z = np.float64(depth[v, u])
+            if not (z > 0.0 and z < np.inf):
+                continue
+            # Camera frame: z * (1, a, b); the squared ray length is z^2 (1 + a^2 + b^2).
+            a = -(u - cx) / fx
+            if z * z * (1.0 + a * a + b * b) > max_range_sq:
+                continue
+            for k in range(3):
+                out[n, k] = z * (rot[k, 0] + rot[k, 1] * a + rot[k, 2] * b) + origin[k]
+            n += 1
+    return out[:n].copy()

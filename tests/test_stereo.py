@@ -379,3 +379,20 @@ def test_texture_filter_drops_blank_areas() -> None:
     assert np.nanmedian(textured) == pytest.approx(shift, abs=0.1) and np.isfinite(textured).mean() > 0.9
     with pytest.raises(ValueError, match="min_texture"):
         StereoMatcher(min_texture=-1)
+
+
+def test_points_from_depth_equals_a_per_pixel_computation() -> None:
+    """The compiled loop against numpy and scipy's rotation, on NaN, inf, negative and far depths."""
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.2, 9.0, (H, W)).astype(np.float32)
+    depth[rng.random((H, W)) < 0.2] = np.nan
+    depth[0, :5] = (np.inf, -np.inf, -1.0, 0.0, 1e30)
+    xyz, ypr = np.array([1.0, -2.0, 0.5]), (0.7, -0.2, 0.1)
+    v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
+    z = depth[v, u].astype(np.float64)
+    body = np.stack([z, -(u - CX) * z / FX, -(v - CY) * z / (FX * 1.1)], axis=1)
+    near = np.linalg.norm(body, axis=1) <= 5.0
+    expected = Rotation.from_euler("ZYX", ypr).apply(body[near]) + xyz
+    got = points_from_depth(depth, FX, FX * 1.1, CX, CY, xyz, ypr, max_range=5.0)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    assert len(points_from_depth(depth, FX, FX * 1.1, CX, CY, xyz, ypr)) == len(z)
