@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from robot_agent import stereo
 from robot_agent.stereo import StereoMatcher, points_from_depth
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
@@ -84,6 +85,7 @@ class Explorer:
         self.threshold = mission.threshold_bits()
         camera = self.rig.camera()
         self.matcher = StereoMatcher.for_rig(camera) if self.rig.mode == "stereo" else None
+        stereo.warm_up()
         body = mission.robot
         self.follower = PathFollower(
             FollowerLimits(max_speed=body.max_speed, max_turn_rate=body.max_turn_rate)

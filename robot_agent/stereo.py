@@ -308,3 +308,8 @@ def _camera_points(
                 out[n, k] = z * (rot[k, 0] + rot[k, 1] * a + rot[k, 2] * b) + origin[k]
             n += 1
     return out[:n].copy()
+
+
+def warm_up() -> None:
+    """Load (or compile, on a fresh install) the compiled point kernel before the first frame."""
+    points_from_depth(np.ones((1, 1), np.float32), 1.0, 1.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))

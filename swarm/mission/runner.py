@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from robot_agent import stereo
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
@@ -213,9 +214,10 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     config_path = out / "config.yaml"
     config_path.write_text(mission.to_yaml())
     threshold = mission.threshold_bits()
-    # Compile the fusion kernels once here (a no-op load when Numba's cache is warm), so that
+    # Compile the fusion and point kernels once here (a no-op load when Numba's cache is warm), so that
     # the agents load them from the cache instead of each compiling them at start.
     warm_up()
+    stereo.warm_up()
 
     monitor = TeamMonitor(mission)
     name = mission.mission
