@@ -1,10 +1,12 @@
 """``python -m swarm.bench.stereo_pairs``: stereo quality on real pairs with ground truth, and time per pair.
 
-Quality: for each ``--pair DIR`` (Middlebury layout: ``im0.png``, ``im1.png``, ``calib.txt`` and
-the ground-truth disparity ``disp0.pfm``, or ``disp0.tif``/``disp0.png`` with 0 = unknown), the
-valid fraction (pixels with finite ground truth that get a depth) and the share of valid
-pixels within 5 % of the true depth, Z = f b / (d + doffs). The matcher is sized from the
-file's ``ndisp``, as ``swarm stereo depth`` does.
+Quality: for each pair folder (Middlebury layout: ``im0.png``, ``im1.png``, ``calib.txt`` and the
+ground-truth disparity ``disp0.pfm`` with inf for unknown, or ``disp0.tif``/``disp0.png`` with
+0 for unknown; optionally ``mask0nocc.png``, 255 where the pixel is seen by both cameras), the
+valid fraction (pixels with ground truth that get a depth) and the share of valid pixels within
+5 % of the true depth Z = f b / (d + doffs), for the default matcher and for variants that change
+one setting each, side by side. The matcher is sized from the file's ``ndisp``, as
+``swarm stereo depth`` does.
 
 Time: best of ``--repeat`` runs of disparity + depth for a real EuRoC pair, rectified, at
 752x480 and resized to 640x480, for each SGBM mode and the default (3way), at scale 1 and 0.5.
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -21,20 +24,49 @@ import numpy as np
 
 from robot_agent.stereo import StereoMatcher
 from swarm.formats.calibration_formats import load_middlebury, load_stereo_calibration
+from swarm.formats.stereo_calibration import StereoCalibration
+
+#: The issue's quality target: valid fraction and share of valid pixels within 5 % of the true depth.
+TARGET_VALID = 0.80
+TARGET_WITHIN = 0.93
+RELATIVE_DEPTH_TOLERANCE = 0.05
+
+#: Matcher settings compared with the defaults, each changing one ``StereoMatcher`` argument.
+VARIANTS: dict[str, dict] = {
+    "default": {},
+    "texture 0": {"min_texture": 0.0},
+    "texture 4": {"min_texture": 4.0},
+    "uniqueness 5": {"uniqueness_ratio": 5},
+    "uniqueness 15": {"uniqueness_ratio": 15},
+    "speckle 50": {"speckle_window_size": 50},
+    "speckle 200": {"speckle_window_size": 200},
+    "mode sgbm": {"mode": "sgbm"},
+    "mode hh": {"mode": "hh"},
+    "block 3": {"block_size": 3},
+    "block 7": {"block_size": 7},
+    "scale 0.5": {"scale": 0.5},
+}
+
+
+def read_pfm(path: Path) -> np.ndarray:
+    """A grey PFM image (Middlebury 2014 ``disp0.pfm``) as float32, top row first."""
+    with path.open("rb") as fh:
+        kind = fh.readline().strip()
+        if kind != b"Pf":
+            raise ValueError(f"{path}: only grey PFM (Pf) is read, got {kind!r}")
+        w, h = (int(v) for v in fh.readline().split())
+        scale = float(fh.readline())
+        data = np.fromfile(fh, "<f4" if scale < 0 else ">f4", w * h)
+    if data.size != w * h:
+        raise ValueError(f"{path}: truncated, {data.size} of {w * h} values")
+    return np.flipud(data.reshape(h, w)).astype(np.float32)
 
 
 def read_disparity(folder: Path) -> np.ndarray:
-    """Ground-truth disparity (float32, NaN unknown) of a Middlebury-style folder."""
+    """Ground-truth disparity (float32 pixels, NaN unknown) of a Middlebury-style folder."""
     pfm = folder / "disp0.pfm"
     if pfm.is_file():
-        with pfm.open("rb") as fh:
-            kind = fh.readline().strip()
-            w, h = (int(v) for v in fh.readline().split())
-            scale = float(fh.readline())
-            data = np.fromfile(fh, "<f4" if scale < 0 else ">f4", w * h).reshape(h, w)
-        if kind != b"Pf":
-            raise ValueError(f"{pfm}: only grey PFM (Pf) is read")
-        disp = np.flipud(data).astype(np.float32)
+        disp = read_pfm(pfm)
         disp[~np.isfinite(disp)] = np.nan
         return disp
     for name in ("disp0.tif", "disp0.png"):
@@ -45,20 +77,139 @@ def read_disparity(folder: Path) -> np.ndarray:
     raise FileNotFoundError(f"{folder}: no disp0.pfm, disp0.tif or disp0.png")
 
 
-def quality(folder: Path, **options) -> tuple[float, float]:
-    """(valid fraction, share within 5 %) of the default matcher on one pair."""
+@dataclass(frozen=True)
+class Pair:
+    """A rectified pair with ground truth: gray images, calibration, disparity (NaN unknown)."""
+
+    name: str
+    calib: StereoCalibration
+    left: np.ndarray
+    right: np.ndarray
+    truth: np.ndarray
+    visible: np.ndarray | None  # True where seen by both cameras (mask0nocc.png == 255), if given
+
+
+def load_pair(folder: Path) -> Pair:
+    """Read a pair folder; FileNotFoundError or ValueError name the file at fault."""
     calib = load_middlebury(folder / "calib.txt")
-    left = cv2.imread(str(folder / "im0.png"), cv2.IMREAD_GRAYSCALE)
-    right = cv2.imread(str(folder / "im1.png"), cv2.IMREAD_GRAYSCALE)
+    images = []
+    for name in ("im0.png", "im1.png"):
+        image = cv2.imread(str(folder / name), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise FileNotFoundError(f"{folder / name}: missing or not an image")
+        images.append(image)
     truth = read_disparity(folder)
-    min_depth = calib.fx * calib.baseline / (calib.ndisp + calib.disparity_offset) if calib.ndisp else 0.3
-    depth = StereoMatcher.for_rig(calib, min_depth, **options).depth(left, right, calib)
-    known = np.isfinite(truth)
-    z_true = calib.fx * calib.baseline / (truth[known] + calib.disparity_offset)
+    if truth.shape != images[0].shape or images[1].shape != images[0].shape:
+        raise ValueError(f"{folder}: im0, im1 and the ground truth differ in size")
+    visible = None
+    if (folder / "mask0nocc.png").is_file():
+        visible = cv2.imread(str(folder / "mask0nocc.png"), cv2.IMREAD_GRAYSCALE) == 255
+    return Pair(folder.name, calib, images[0], images[1], truth, visible)
+
+
+@dataclass(frozen=True)
+class Score:
+    valid: float  # fraction of ground-truth pixels with a depth
+    within: float  # share of those within 5 % of the true depth
+    valid_visible: float  # valid fraction over ground-truth pixels seen by both cameras (NaN: no mask)
+    ms: float  # disparity + depth, best of the repeats
+
+    @property
+    def passes(self) -> bool:
+        return self.valid >= TARGET_VALID and self.within >= TARGET_WITHIN
+
+
+def score(pair: Pair, repeat: int = 1, **options) -> Score:
+    """Quality of ``StereoMatcher.for_rig(calib, min_depth, **options)`` on one pair.
+
+    The range reaches the file's ``ndisp`` (else 0.3 m). Ground truth counts where it is finite
+    and in front of the camera (d + doffs > 0); a depth is right when
+    ``|Z - Z_true| / Z_true < 0.05`` with ``Z = f b / (d + doffs)``.
+    """
+    calib = pair.calib
+    doffs = calib.disparity_offset
+    fb = calib.fx * calib.baseline
+    min_depth = fb / (calib.ndisp + doffs) if calib.ndisp else 0.3
+    matcher = StereoMatcher.for_rig(calib, min_depth, **options)
+    best, depth = np.inf, None
+    for _ in range(max(repeat, 1)):
+        start = time.perf_counter()
+        depth = matcher.depth(pair.left, pair.right, calib)
+        best = min(best, time.perf_counter() - start)
+    with np.errstate(invalid="ignore"):
+        known = np.isfinite(pair.truth) & (pair.truth + doffs > 0)
+    z_true = fb / (pair.truth[known] + doffs)
     z = depth[known]
     valid = np.isfinite(z)
-    within = np.abs(z[valid] / z_true[valid] - 1) < 0.05
-    return float(valid.mean()), float(within.mean()) if valid.any() else 0.0
+    within = np.abs(z[valid] - z_true[valid]) / z_true[valid] < RELATIVE_DEPTH_TOLERANCE
+    valid_visible = np.nan
+    if pair.visible is not None and pair.visible[known].any():
+        valid_visible = float(valid[pair.visible[known]].mean())
+    return Score(float(valid.mean()), float(within.mean()) if valid.any() else 0.0, valid_visible, best * 1e3)
+
+
+def pair_folders(pairs: list[Path], pair_roots: list[Path]) -> list[Path]:
+    """The ``--pair`` folders, then every subfolder holding a ``calib.txt`` of each ``--pairs`` root."""
+    folders = list(pairs)
+    for root in pair_roots:
+        if not root.is_dir():
+            raise FileNotFoundError(f"{root}: not a folder")
+        found = sorted(p.parent for p in root.glob("*/calib.txt"))
+        if not found:
+            raise FileNotFoundError(f"{root}: no <pair>/calib.txt below it")
+        folders += found
+    return folders
+
+
+def quality_tables(pairs: list[Pair], variants: list[str], repeat: int) -> dict[str, list[Score]]:
+    """Print one block per variant (a line per pair and the mean), then a summary; return the scores."""
+    scores: dict[str, list[Score]] = {}
+    width = max(len(p.name) for p in pairs)
+    for label in variants:
+        print(f"\n{label} ({_describe(VARIANTS[label])})")
+        print(f"  {'pair':{width}s}  {'valid':>6s} {'within5%':>8s} {'valid(vis)':>10s} {'ms':>7s}")
+        rows = []
+        for pair in pairs:
+            s = score(pair, repeat, **VARIANTS[label])
+            rows.append(s)
+            mark = "" if s.passes else "  < target"
+            line = f"{s.valid:6.3f} {s.within:8.3f} {s.valid_visible:10.3f} {s.ms:7.1f}"
+            print(f"  {pair.name:{width}s}  {line}{mark}")
+        mean = _mean(rows)
+        print(f"  {'mean':{width}s}  {mean[0]:6.3f} {mean[1]:8.3f} {mean[2]:10.3f} {mean[3]:7.1f}")
+        scores[label] = rows
+    print(
+        f"\nsummary over {len(pairs)} pairs (target: valid >= {TARGET_VALID:.2f} and within 5 % >= "
+        f"{TARGET_WITHIN:.2f} on every pair)"
+    )
+    print(
+        f"  {'variant':14s} {'mean valid':>10s} {'mean within':>11s} {'min valid':>9s} {'min within':>10s} "
+        f"{'pass':>5s} {'ms':>7s}"
+    )
+    for label, rows in scores.items():
+        mean = _mean(rows)
+        n_pass = sum(s.passes for s in rows)
+        print(
+            f"  {label:14s} {mean[0]:10.3f} {mean[1]:11.3f} {min(s.valid for s in rows):9.3f} "
+            f"{min(s.within for s in rows):10.3f} {n_pass:>2d}/{len(rows):<2d} {mean[3]:7.1f}"
+        )
+    return scores
+
+
+def _mean(rows: list[Score]) -> tuple[float, float, float, float]:
+    vis = [s.valid_visible for s in rows if np.isfinite(s.valid_visible)]
+    return (
+        float(np.mean([s.valid for s in rows])),
+        float(np.mean([s.within for s in rows])),
+        float(np.mean(vis)) if vis else float("nan"),
+        float(np.mean([s.ms for s in rows])),
+    )
+
+
+def _describe(options: dict) -> str:
+    if not options:
+        return "3way, block 5, uniqueness 10, speckle 100/2, texture 1.0, scale 1"
+    return ", ".join(f"{k}={v}" for k, v in options.items())
 
 
 def best_ms(fn, repeat: int) -> float:
@@ -92,23 +243,45 @@ def timing(euroc: Path, repeat: int) -> list[tuple[str, str, float, float]]:
     return rows
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m swarm.bench.stereo_pairs", description=__doc__.split("\n\n")[0]
+        prog="python -m swarm.bench.stereo_pairs",
+        description=__doc__.split("\n\n")[0],
+        epilog="Variants: " + "; ".join(f"'{k}' ({_describe(v)})" for k, v in VARIANTS.items()),
     )
-    parser.add_argument("--pair", type=Path, action="append", default=[], help="Middlebury-style pair folder")
     parser.add_argument(
-        "--euroc", type=Path, help="EuRoC/ASL folder for the timing (e.g. the shared excerpt)"
+        "--pair", type=Path, action="append", default=[], help="a Middlebury-style pair folder"
     )
-    parser.add_argument("--repeat", type=int, default=5)
-    args = parser.parse_args()
+    parser.add_argument(
+        "--pairs", type=Path, action="append", default=[], help="a folder of pair folders (<pair>/calib.txt)"
+    )
+    parser.add_argument(
+        "--variants",
+        default=",".join(VARIANTS),
+        help="comma-separated matcher variants to compare (default: all; 'default' alone for the defaults)",
+    )
+    parser.add_argument(
+        "--quality-repeat", type=int, default=1, help="runs per pair and variant; the best time is printed"
+    )
+    parser.add_argument("--euroc", type=Path, help="EuRoC/ASL folder for the timing (the shared excerpt)")
+    parser.add_argument("--repeat", type=int, default=5, help="runs per timing row (best is printed)")
+    args = parser.parse_args(argv)
+    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        parser.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
+    try:
+        pairs = [load_pair(folder) for folder in pair_folders(args.pair, args.pairs)]
+    except (OSError, ValueError) as exc:
+        parser.error(str(exc))
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads")
-    for folder in args.pair:
-        for label, opts in (("default (3way, scale 1)", {}), ("scale 0.5", {"scale": 0.5})):
-            valid, within = quality(folder, **opts)
-            print(f"{folder.name}: {label}: valid {valid:.3f}, within 5 % {within:.3f}")
+    if pairs:
+        print(f"{len(pairs)} pairs: {', '.join(p.name for p in pairs)}")
+        print("valid = share of ground-truth pixels with a depth; within5% = share of those within 5 % of")
+        print("f b / (d + doffs); valid(vis) = valid share of the pixels seen by both cameras (mask0nocc)")
+        quality_tables(pairs, variants, args.quality_repeat)
     if args.euroc is not None:
-        print(f"{'size':9s} {'matcher':32s} {'ms/pair':>8s} {'valid':>6s}")
+        print(f"\n{'size':9s} {'matcher':32s} {'ms/pair':>8s} {'valid':>6s}")
         for size, label, ms, valid in timing(args.euroc, args.repeat):
             print(f"{size:9s} {label:32s} {ms:8.1f} {valid:6.3f}")
 
