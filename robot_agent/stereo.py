@@ -101,8 +101,10 @@ class StereoMatcher:
     ``min_texture`` (grey levels) is a texture filter, as in SRI's Small Vision System (the
     paper's stereo engine): pixels whose left-image standard deviation over the block is
     below it get no disparity, so SGBM's smoothness does not spread disparities into blank
-    areas; 0 turns it off. ``scale`` < 1 matches a downsized pair (about 1/scale^3 faster)
-    and brings the disparity back to full size (docs/stereo.md gives the accuracy cost).
+    areas; 0 turns it off. 0.5 blanks flat (clipped or synthetic) areas only: on seven real
+    Middlebury pairs 1.0 also blanked smooth wood and paper that SGBM matches right.
+    ``scale`` < 1 matches a downsized pair (about 1/scale^3 faster) and brings the disparity
+    back to full size (docs/stereo.md gives the accuracy cost).
     """
 
     def __init__(
@@ -117,7 +119,7 @@ class StereoMatcher:
         pre_filter_cap: int = 63,
         mode: Literal["sgbm", "hh", "3way", "hh4"] = "3way",
         pad_border: bool = True,
-        min_texture: float = 1.0,
+        min_texture: float = 0.5,
         scale: float = 1.0,
     ) -> None:
         if num_disparities < 16 or num_disparities % 16:

@@ -35,7 +35,7 @@ RELATIVE_DEPTH_TOLERANCE = 0.05
 VARIANTS: dict[str, dict] = {
     "default": {},
     "texture 0": {"min_texture": 0.0},
-    "texture 0.5": {"min_texture": 0.5},
+    "texture 1": {"min_texture": 1.0},
     "texture 4": {"min_texture": 4.0},
     "uniqueness 5": {"uniqueness_ratio": 5},
     "uniqueness 15": {"uniqueness_ratio": 15},
