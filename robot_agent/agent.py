@@ -51,6 +51,7 @@ STATUS_EVERY = 4  # frames
 COORDINATOR_TIMEOUT_S = 1.0  # wait this long for coord/assign before choosing alone
 COORDINATOR_RETRY_S = 10.0  # after a silence, choose alone this long before asking again
 PROGRESS_EVERY_S = 10.0  # seconds between progress lines (and "still waiting" lines)
+SHUTDOWN_ACK_WAIT_S = 5.0  # at shutdown, wait this long at most for the server to ack every delta
 
 
 class Agent:
@@ -313,21 +314,41 @@ class Agent:
         return None
 
     # -- shutdown ------------------------------------------------------------------------
+    def _await_acks(self, timeout: float) -> None:
+        """Ask ``map/acks`` until every sent delta is acked, no server answers, or ``timeout`` s pass."""
+        deadline = time.monotonic() + timeout
+        while self.acked < self.outbox.seq and (left := deadline - time.monotonic()) > 0:
+            acks = self.query_acks(timeout=min(1.0, left))
+            if acks is None:
+                return  # no map server answers: nothing to wait for
+            self.outbox.acknowledge(acks)
+            self.acked = max(self.acked, acks)
+            if self.acked < self.outbox.seq:
+                time.sleep(0.05)
+
     def stop(self) -> None:
         self._stop.set()
 
-    def shutdown(self) -> None:
-        """Flush every pending voxel, then stop polling."""
+    def shutdown(self, ack_wait_s: float = SHUTDOWN_ACK_WAIT_S) -> None:
+        """Flush every pending voxel, wait until the map server holds every delta sent (at most
+        ``ack_wait_s`` s; not at all when no server answers), then stop polling.
+
+        The wait makes "the agent has exited" mean "its deltas are in the team map" whenever a map
+        server is there: a runner that then reads the server's map gets all of them.
+        """
         before = (self.outbox.stats.deltas_sent, self.outbox.stats.voxels_sent)
         self._share(flush=True)
         sent = self.outbox.stats.deltas_sent - before[0]
         voxels = self.outbox.stats.voxels_sent - before[1]
+        self._stop.set()
+        if self._acker.is_alive():
+            self._acker.join(timeout=ACK_POLL_S + 1.5)
+        self._await_acks(ack_wait_s)
         log.info(
             "%s: shutdown flush: %s; %d deltas not yet acked by the map server",
             self.robot_id,
             f"sent {sent} last delta(s), {voxels} voxels" if sent else "nothing pending",
             len(self.outbox.unacked),
         )
-        self._stop.set()
         self._frame_sub.undeclare()
         self._merged_sub.undeclare()

@@ -3,8 +3,8 @@ few EuRoC frames through a real agent and map server over loopback Zenoh."""
 
 from __future__ import annotations
 
+import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +12,7 @@ import pytest
 from replay.matching import match_stamps
 from replay.poses import camera_from_body, quaternion_matrix, wire_pose
 from swarm.map.rotation import rotation_zyx
-
-EUROC = Path(__file__).resolve().parent / "data" / "euroc_mini"  # four real pairs (its README)
+from tests.euroc_replay import EUROC_MINI as EUROC  # four real pairs (its README)
 
 
 def test_matching_drops_a_missing_right_frame_and_counts_it():
@@ -92,21 +91,22 @@ def test_real_euroc_pairs_put_the_floor_093_m_below_the_camera():
         assert tilt < 3.0, pair.t
 
 
-def test_euroc_frames_through_a_real_agent_fill_the_floor(tmp_path):
+def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
+    """``swarm replay asl`` of three pairs (tests/conftest.py): real server and agent processes."""
     from replay.asl import AslRecording
     from swarm.formats.map_file import load_map
-    from swarm.mission.replay_run import ReplayOptions, default_mission, occupied_points, run_replay
+    from swarm.mission.replay_run import occupied_points
 
-    rec = AslRecording(EUROC)
-    mission = default_mission(rec)
-    metrics = run_replay(rec, mission, ReplayOptions(tmp_path, count=3, quiet=True))
-    assert metrics["frames"] == 3 and metrics["unanswered"] == 0
+    out = euroc_asl_run
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 3 and metrics["unanswered"] == 0 and metrics["agent_exit_code"] == 0
     assert metrics["entropy_end_bits"] < metrics["entropy_start_bits"] - 10_000
     for name in ("map.npz", "top_view.png", "view_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
-        assert (tmp_path / name).is_file(), name
-    cmap = load_map(tmp_path / "map.npz")
+        assert (out / name).is_file(), name
+    cmap = load_map(out / "map.npz")
     points, _ = occupied_points(cmap)
-    camera = rec.positions()[0]
+    assert len(points) == metrics["occupied_voxels"]
+    camera = AslRecording(EUROC).positions()[0]
     # Most surfaces lie on the floor, 0.93 m below the camera, in front of it (+x in the Vicon room).
     floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.15
     assert floor.mean() > 0.4
