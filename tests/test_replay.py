@@ -111,3 +111,26 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.15
     assert floor.mean() > 0.4
     assert np.median(points[floor, 0]) > camera[0]
+
+
+def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_path, euroc_asl_run):
+    """``--realtime``: frames leave at the recorded times (one per second here), never before; the agent
+    takes them all (reliable delivery, its queue), so the map is the lockstep run's, bit for bit."""
+    import csv
+
+    from swarm.formats.map_file import load_map
+    from tests.euroc_replay import REPLAY_FRAMES, swarm_replay
+
+    out = tmp_path / "realtime"
+    swarm_replay(["asl", str(EUROC), "--frames", str(REPLAY_FRAMES), "--realtime"], out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == REPLAY_FRAMES and metrics["unanswered"] == 0
+    with (out / "frames.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    t = np.array([float(r["t"]) for r in rows])
+    sent = np.array([float(r["sent_s"]) for r in rows])
+    assert np.all(np.diff(t) > 0.9)  # the shipped pairs are one second apart
+    assert np.all(sent >= t - t[0] - 0.005)  # no frame leaves before its recorded time
+    assert all(float(r["round_trip_ms"]) > 0 and 0 < float(r["stereo_valid"]) <= 1 for r in rows)
+    got, want = load_map(out / "map.npz"), load_map(euroc_asl_run / "map.npz")
+    assert np.array_equal(got.lam, want.lam) and np.array_equal(got.eta, want.eta)

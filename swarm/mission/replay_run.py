@@ -141,19 +141,33 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
                 f"the agent did not subscribe to its frames within 60 s (see {out}/agent-*.log)"
             )
 
+        def stereo_valid(frame: Frame) -> float:
+            return float(np.isfinite(matcher.disparity(frame.left, frame.right)).mean())
+
         def after_each(frame: Frame, rtt: float | None) -> None:
-            time.sleep(0.05)  # let the agent's delta of this frame arrive
-            valid = float(np.isfinite(matcher.disparity(frame.left, frame.right)).mean())
+            # In realtime nothing may hold the next frame back: the stereo valid fraction is
+            # computed after the run, the round trips come from the answers' arrival times.
+            valid = None if options.realtime else stereo_valid(frame)
+            if not options.realtime:
+                time.sleep(0.05)  # let the agent's delta of this frame arrive
             rows.append(
                 {"seq": frame.seq, "t": frame.t, "round_trip_ms": None if rtt is None else rtt * 1e3,
                  "stereo_valid": valid, "entropy_bits": monitor.team_entropy}
             )  # fmt: skip
             if not options.quiet:
                 ms = "no answer" if rtt is None else f"{rtt * 1e3:6.0f} ms"
-                print(f"frame {frame.seq + 1:4d}/{len(recording)}  {ms}  stereo valid {valid:4.0%}  "
+                ms = "sent" if options.realtime else ms
+                shown = "" if valid is None else f"  stereo valid {valid:4.0%}"
+                print(f"frame {frame.seq + 1:4d}/{len(recording)}  {ms}{shown}  "
                       f"H={monitor.team_entropy:,.0f} bits", flush=True)  # fmt: skip
 
         log = publisher.run(_frames(recording, options), options.realtime, after_each=after_each)
+        for row, (_seq, _t, rtt), sent in zip(rows, log.rows, log.sent_s, strict=True):
+            row["round_trip_ms"] = None if rtt is None else rtt * 1e3
+            row["sent_s"] = sent
+        if options.realtime:
+            for row, frame in zip(rows, _frames(recording, options), strict=False):
+                row["stereo_valid"] = stereo_valid(frame)
         _stop([agent])  # the agent flushes its outbox on SIGTERM
         procs_agent = agent.returncode
         if options.connect is None:
@@ -182,7 +196,7 @@ def occupied_points(cmap: CoverageMap, threshold: float = OCCUPIED) -> tuple[np.
 def _write_outputs(out, cmap, rows, unanswered, recording, monitor, camera, agent_code) -> dict:
     save_map(out / "map.npz", cmap)
     with (out / "frames.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, ["seq", "t", "round_trip_ms", "stereo_valid", "entropy_bits"])
+        writer = csv.DictWriter(fh, ["seq", "t", "sent_s", "round_trip_ms", "stereo_valid", "entropy_bits"])
         writer.writeheader()
         writer.writerows(rows)
     points, cover = occupied_points(cmap)
