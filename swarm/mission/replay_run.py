@@ -32,12 +32,14 @@ from swarm.formats.point_cloud_file import write_ply_points
 from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
+from swarm.map.fusion import warm_up
 from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import Frame
 
 OCCUPIED = 0.5  # E[C] above which a known voxel is drawn as a surface
+AGENT_START_S = 120.0  # wait this long for the agent to subscribe to its frames
 
 
 class Recording(Protocol):
@@ -103,6 +105,10 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     out.mkdir(parents=True, exist_ok=True)
     config_path = out / "config.yaml"
     config_path.write_text(mission.to_yaml())
+    # Compile the fusion kernels here (a no-op load when Numba's cache is warm), so that the agent
+    # loads them from the cache: on a fresh clone it would compile them at start, which on a busy
+    # machine outlasted the wait for its subscription below.
+    warm_up()
     endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
     if options.connect:
         session = bus.open_session(connect=[endpoint], config_file=options.zenoh_config)
@@ -136,9 +142,10 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             out / f"agent-{options.robot}.log",
         )  # fmt: skip
         publisher = FramePublisher(session, name, options.robot)
-        if not publisher.wait_for_agent(60.0):
+        if not publisher.wait_for_agent(AGENT_START_S):
             raise RuntimeError(
-                f"the agent did not subscribe to its frames within 60 s (see {out}/agent-*.log)"
+                f"the agent did not subscribe to its frames within {AGENT_START_S:g} s "
+                f"(see {out}/agent-*.log)"
             )
 
         def stereo_valid(frame: Frame) -> float:
