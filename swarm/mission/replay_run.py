@@ -40,6 +40,7 @@ from swarm.protocol.wire import Frame
 
 OCCUPIED = 0.5  # E[C] above which a known voxel is drawn as a surface
 AGENT_START_S = 120.0  # wait this long for the agent to subscribe to its frames
+AGENT_STOP_S = 30.0  # and this long for it to exit after SIGTERM before killing it
 
 
 class Recording(Protocol):
@@ -175,7 +176,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
         if options.realtime:
             for row, frame in zip(rows, _frames(recording, options), strict=False):
                 row["stereo_valid"] = stereo_valid(frame)
-        _stop([agent])  # the agent flushes its outbox on SIGTERM
+        _stop([agent], AGENT_STOP_S)  # the agent flushes its outbox on SIGTERM, waits for the acks
         procs_agent = agent.returncode
         if options.connect is None:
             server_map = _final_server_map(client, monitor)
