@@ -26,6 +26,7 @@ from replay.frames import RecordedPair, make_frame, rectified_camera
 from replay.matching import Matched
 from replay.publisher import FramePublisher
 from robot_agent.stereo import StereoMatcher
+from robot_agent.stereo import warm_up as stereo_warm_up
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
 from swarm.formats.point_cloud_file import write_ply_points
@@ -106,10 +107,11 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     out.mkdir(parents=True, exist_ok=True)
     config_path = out / "config.yaml"
     config_path.write_text(mission.to_yaml())
-    # Compile the fusion kernels here (a no-op load when Numba's cache is warm), so that the agent
-    # loads them from the cache: on a fresh clone it would compile them at start, which on a busy
-    # machine outlasted the wait for its subscription below.
+    # Compile the fusion and point kernels here (a no-op load when Numba's cache is warm), so that
+    # the agent loads them from the cache: on a fresh clone it would compile them at start, which
+    # on a busy machine outlasted the wait for its subscription below.
     warm_up()
+    stereo_warm_up()
     endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
     if options.connect:
         session = bus.open_session(connect=[endpoint], config_file=options.zenoh_config)
