@@ -260,7 +260,7 @@ class Renderer:
         ``noise_std``: grey levels; ``rng``: a numpy Generator (default: a fresh one).
         """
         grey = self.grey(pose)
-        return _grey_levels(grey, self._noise(noise_std, rng))
+        return _grey_levels(grey, self._noise(noise_std, rng), noise_std)
 
     def stereo_pair(self, pose: Pose, noise_std: float = 0.0, rng=None) -> tuple[np.ndarray, np.ndarray]:
         """Rectified (left, right) uint8 images; ``pose`` is the left camera's.
@@ -272,19 +272,31 @@ class Renderer:
         if self.threads == 1:
             return self.image(pose, noise_std, rng), self.image(right, noise_std, rng)
         if self._worker is None:
-            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim2d-render")
+            self._worker = ThreadPoolExecutor(max_workers=2, thread_name_prefix="sim2d-render")
         right_grey = self._worker.submit(self.grey, right)
+        noise = self._worker.submit(self._pair_noise, noise_std, rng)
         left_grey = self.grey(pose)
-        left_noise, right_noise = self._noise(noise_std, rng), self._noise(noise_std, rng)
-        return _grey_levels(left_grey, left_noise), _grey_levels(right_grey.result(), right_noise)
+        left_noise, right_noise = noise.result()
+        return (
+            _grey_levels(left_grey, left_noise, noise_std),
+            _grey_levels(right_grey.result(), right_noise, noise_std),
+        )
+
+    def _pair_noise(self, noise_std: float, rng) -> tuple[np.ndarray, np.ndarray]:
+        """The noise draws of a stereo pair's left view, then of its right view (as two ``image`` calls)."""
+        return self._noise(noise_std, rng), self._noise(noise_std, rng)
 
     def _noise(self, noise_std: float, rng) -> np.ndarray:
-        """Gaussian image noise (grey levels, H x W); zeros when ``noise_std`` is 0."""
-        shape = (self.camera.height, self.camera.width)
+        """Standard normal draws (H x W) for image noise; an empty array when ``noise_std`` is 0.
+
+        ``rng.normal(0, s)`` is ``0 + s z`` with z from ``rng.standard_normal``, draw for draw
+        (numpy's Generator), and the faster fill loop of ``standard_normal`` gives the same z:
+        ``grey_levels`` forms 0 + s z, so images equal those of ``grey + rng.normal(0, s)``.
+        """
         if noise_std > 0:
             rng = rng if rng is not None else np.random.default_rng()
-            return rng.normal(0.0, noise_std, shape)
-        return np.zeros(shape)
+            return rng.standard_normal((self.camera.height, self.camera.width))
+        return np.empty(0)
 
     def depth_image(
         self,
@@ -297,17 +309,17 @@ class Renderer:
         depth = self.cast(pose, surface=False).depth
         if noise_per_m > 0:
             rng = rng if rng is not None else np.random.default_rng()
-            depth = depth + rng.normal(0.0, 1.0, depth.shape) * noise_per_m * depth
+            depth = depth + rng.standard_normal(depth.shape) * noise_per_m * depth  # = rng.normal(0, 1)
         if max_range is not None:
             depth = np.where(depth <= max_range, depth, np.nan)
         depth = np.where(depth > 0, depth, np.nan)
         return depth.astype(np.float32)
 
 
-def _grey_levels(grey: np.ndarray, noise: np.ndarray) -> np.ndarray:
-    """uint8 image of clip(rint(grey + noise), 0, 255)."""
+def _grey_levels(grey: np.ndarray, normal: np.ndarray, noise_std: float) -> np.ndarray:
+    """uint8 image of clip(rint(grey + (0 + noise_std normal)), 0, 255) (``normal`` empty: no noise)."""
     image = np.empty(grey.shape, dtype=np.uint8)
-    grey_levels(grey, noise, image)
+    grey_levels(grey, normal, float(noise_std), image)
     return image
 
 

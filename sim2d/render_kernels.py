@@ -147,24 +147,28 @@ def shade_pixels(
     n_rays = distance.shape[1]
     n_pixels = distance.size
     flat_grey = grey.ravel()
+    flat_distance, flat_face, flat_slope = distance.ravel(), face.ravel(), slope.ravel()
+    flat_obstacle, flat_edge = obstacle.ravel(), edge.ravel()
     index = np.empty(BATCH, dtype=np.int64)
     su, sv, footprint = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
     lit, lod, tex = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
+    ray = 0  # pixel % n_rays, kept without a division
     for start in range(0, n_pixels, BATCH):
         count = 0
         for pixel in range(start, min(start + BATCH, n_pixels)):
-            row, ray = pixel // n_rays, pixel % n_rays
-            f = face[row, ray]
+            this_ray = ray
+            ray = ray + 1 if ray + 1 < n_rays else 0
+            f = flat_face[pixel]
             if f == FACE_NONE:
                 flat_grey[pixel] = sky
                 continue
-            r, m = distance[row, ray], slope[row, ray]
-            u0, u1 = unit[ray, 0], unit[ray, 1]
+            r, m = flat_distance[pixel], flat_slope[pixel]
+            u0, u1 = unit[this_ray, 0], unit[this_ray, 1]
             px, py, pz = ox + r * u0, oy + r * u1, cam_z + r * m
             norm = math.sqrt(1 + m * m)
-            o = obstacle[row, ray]
+            o = flat_obstacle[pixel]
             if f == FACE_SIDE:
-                e = edge[row, ray]
+                e = flat_edge[pixel]
                 nx, ny = edge_n[o, e, 0], edge_n[o, e, 1]
                 cos_inc = abs(nx * u0 + ny * u1) / norm
                 su[count] = px * -ny + py * nx + offsets[o, e, 0]
@@ -187,8 +191,18 @@ def shade_pixels(
 
 
 @numba.njit(cache=True, nogil=True)
-def grey_levels(grey, noise, out):
-    """``out`` (uint8) = clip(rint(grey + noise), 0, 255), rounding half to even; same shapes."""
-    flat_grey, flat_noise, flat_out = grey.ravel(), noise.ravel(), out.ravel()
+def grey_levels(grey, normal, noise_std, out):
+    """``out`` (uint8) = clip(rint(grey + (0 + noise_std normal)), 0, 255), rounding half to even.
+
+    ``grey``, ``normal`` (standard normal draws) and ``out`` of one shape; an empty ``normal``
+    adds no noise. 0 + s z is what numpy's ``Generator.normal(0, s)`` returns for the draw z.
+    """
+    flat_grey, flat_out = grey.ravel(), out.ravel()
+    if normal.size == 0:
+        for k in range(len(flat_out)):
+            flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k]), 0.0), 255.0))
+        return
+    flat_normal = normal.ravel()
     for k in range(len(flat_out)):
-        flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k] + flat_noise[k]), 0.0), 255.0))
+        noise = 0.0 + noise_std * flat_normal[k]
+        flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k] + noise), 0.0), 255.0))

@@ -112,8 +112,9 @@ def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint, count, lod,
     """
     top_level = len(sizes) - 1
     for k in range(count):
-        level = math.log2(max(footprint[k], 1e-9) / texel)
-        lod[k] = min(max(level, 0.0), float(top_level))
+        ratio = max(footprint[k], 1e-9) / texel
+        # log2 is monotonic and exact at 1 (log2(1) = 0), so a ratio <= 1 clips to level 0 without it.
+        lod[k] = 0.0 if ratio <= 1.0 else min(math.log2(ratio), float(top_level))
     for k in range(count):
         fine = np.int64(math.floor(lod[k]))
         x, y = u[k] / texel, v[k] / texel
