@@ -18,7 +18,7 @@ import math
 import numba
 import numpy as np
 
-BLOCK = 4  # texels per side of a storage block (``_offset`` assumes 4)
+BLOCK = 4  # texels per side of a storage block (``_row_offset`` and ``_column_offset`` assume 4)
 
 
 class TexturePyramid:
@@ -73,11 +73,19 @@ def _blocked(level: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _offset(n, i, j):
-    """Index of texel (column i, row j) of an n x n level within that level's block layout."""
+def _row_offset(n, j):
+    """Where row ``j`` of an n x n level starts in that level's block layout (add ``_column_offset``)."""
     if n < BLOCK:
-        return j * n + i
-    return ((j >> 2) * (n >> 2) + (i >> 2)) * 16 + ((j & 3) << 2) + (i & 3)
+        return j * n
+    return ((j >> 2) * n + (j & 3)) << 2  # block row (j >> 2) holds n / 4 blocks of 16 texels
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _column_offset(n, i):
+    """Offset of column ``i`` within a row of an n x n level's block layout."""
+    if n < BLOCK:
+        return i
+    return ((i >> 2) << 4) + (i & 3)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -91,11 +99,13 @@ def _bilinear(texels, starts, sizes, level, x, y):
     wrap = n - 1
     i0 = np.int64(x0) & wrap
     j0 = np.int64(y0) & wrap
-    i1 = (i0 + 1) & wrap
-    j1 = (j0 + 1) & wrap
     base = starts[level]
-    top = texels[base + _offset(n, i0, j0)] * (1 - fx) + texels[base + _offset(n, i1, j0)] * fx
-    bottom = texels[base + _offset(n, i0, j1)] * (1 - fx) + texels[base + _offset(n, i1, j1)] * fx
+    row0 = base + _row_offset(n, j0)
+    row1 = base + _row_offset(n, (j0 + 1) & wrap)
+    col0 = _column_offset(n, i0)
+    col1 = _column_offset(n, (i0 + 1) & wrap)
+    top = texels[row0 + col0] * (1 - fx) + texels[row0 + col1] * fx
+    bottom = texels[row1 + col0] * (1 - fx) + texels[row1 + col1] * fx
     return top * (1 - fy) + bottom * fy
 
 
