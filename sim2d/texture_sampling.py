@@ -60,7 +60,7 @@ class TexturePyramid:
         u, v, footprint = (np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
         out = np.empty(u.shape)
         trilinear(self.texels, self.starts, self.sizes, self.shrink, self.texel, u.ravel(), v.ravel(),
-                  footprint.ravel(), u.size, np.empty(u.size), out.reshape(-1))  # fmt: skip
+                  footprint.ravel(), u.size, np.empty((3, u.size)), out.reshape(-1))  # fmt: skip
         return out
 
 
@@ -72,7 +72,7 @@ def _blocked(level: np.ndarray) -> np.ndarray:
     return level.reshape(n // BLOCK, BLOCK, n // BLOCK, BLOCK).transpose(0, 2, 1, 3).ravel()
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _row_offset(n, j):
     """Where row ``j`` of an n x n level starts in that level's block layout (add ``_column_offset``)."""
     if n < BLOCK:
@@ -80,7 +80,7 @@ def _row_offset(n, j):
     return ((j >> 2) * n + (j & 3)) << 2  # block row (j >> 2) holds n / 4 blocks of 16 texels
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _column_offset(n, i):
     """Offset of column ``i`` within a row of an n x n level's block layout."""
     if n < BLOCK:
@@ -88,7 +88,7 @@ def _column_offset(n, i):
     return ((i >> 2) << 4) + (i & 3)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _bilinear(texels, starts, sizes, level, x, y):
     """Bilinear lookup of mip ``level`` at (x, y) in that level's texels (the tile repeats)."""
     n = sizes[level]
@@ -109,34 +109,39 @@ def _bilinear(texels, starts, sizes, level, x, y):
     return top * (1 - fy) + bottom * fy
 
 
-@numba.njit(cache=True, nogil=True)
-def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint, count, lod, out):
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint, count, scratch, out):
     """Trilinear lookups of the first ``count`` pixels: (u, v) and ``footprint`` in m.
 
-    The arrays of a ``TexturePyramid``, then (N,) ``u``, ``v``, ``footprint``, a scratch
-    ``lod`` and ``out`` (values 0-1). Level k's texel is texel 2^k, so u / (texel 2^k) is
+    The arrays of a ``TexturePyramid``, then (N,) ``u``, ``v``, ``footprint``, a (3, N)
+    ``scratch`` and ``out`` (values 0-1). Level k's texel is texel 2^k, so u / (texel 2^k) is
     (u / texel) 2^-k exactly (scaling by a power of two does not round; ``shrink[k]`` = 2^-k):
-    one division per coordinate. Where the level of detail is clipped (lod - fine = 0) the
-    second level has no weight and is not read: a + (b - a) 0 = a. Two passes (levels of
-    detail, then lookups) so that the processor overlaps the lookups of many pixels.
+    one division per coordinate. log2 is monotonic and exact at 1, so a footprint of at most
+    one texel has level of detail 0 without calling it. Where the level of detail is clipped
+    (lod - fine = 0) the second level has no weight and is not read: a + (b - a) 0 = a. In
+    passes (divisions, levels of detail, lookups) so that the divisions of several pixels go
+    in one vector instruction and the processor overlaps the lookups of many pixels.
     """
     top_level = len(sizes) - 1
+    lod, x, y = scratch[0], scratch[1], scratch[2]
     for k in range(count):
-        ratio = max(footprint[k], 1e-9) / texel
-        # log2 is monotonic and exact at 1 (log2(1) = 0), so a ratio <= 1 clips to level 0 without it.
+        x[k] = u[k] / texel
+        y[k] = v[k] / texel
+        lod[k] = max(footprint[k], 1e-9) / texel
+    for k in range(count):
+        ratio = lod[k]
         lod[k] = 0.0 if ratio <= 1.0 else min(math.log2(ratio), float(top_level))
     for k in range(count):
         fine = np.int64(math.floor(lod[k]))
-        x, y = u[k] / texel, v[k] / texel
         step = shrink[fine]
-        a = _bilinear(texels, starts, sizes, fine, x * step - 0.5, y * step - 0.5)
+        a = _bilinear(texels, starts, sizes, fine, x[k] * step - 0.5, y[k] * step - 0.5)
         weight = lod[k] - fine
         if weight == 0:
             out[k] = a
             continue
         coarse = min(fine + 1, top_level)
         step = shrink[coarse]
-        b = _bilinear(texels, starts, sizes, coarse, x * step - 0.5, y * step - 0.5)
+        b = _bilinear(texels, starts, sizes, coarse, x[k] * step - 0.5, y[k] * step - 0.5)
         out[k] = a + (b - a) * weight
 
 
