@@ -79,8 +79,9 @@ class _Rays:
     """Floor-plane rays of one view and their nearest hits.
 
     ``unit`` (R, 2) ray directions on the floor, ``norm_h`` (R,) |d_xy| of the pixel rays
-    (optical z = 1), ``slope`` (rows, R); a level camera has one ray per column (rows = H),
-    a pitched one a ray per pixel (rows = 1). Hits as in ``Hits``, shaped (rows, R).
+    (optical z = 1), ``slope`` (R, rows); a level camera has one ray per column (rows = H),
+    a pitched one a ray per pixel (rows = 1). Hits as in ``Hits``, shaped (R, rows): ray-major,
+    so that the kernels walk each ray's pixels in memory order (the image is the transpose).
     """
 
     origin: np.ndarray
@@ -150,19 +151,21 @@ class Renderer:
     def cast(self, pose: Pose, surface: bool = True) -> Hits:
         """Cast every pixel ray of a camera at ``pose`` (``surface``: also points, footprints)."""
         rays = self._trace(pose)
-        distance, face, obstacle, edge = rays.distance, rays.face, rays.obstacle, rays.edge
-        hit = np.isfinite(distance)
-        r = np.where(hit, distance, 0.0)
+        # Image order: (rows, R), row-major.
+        distance, face, obstacle, edge = (
+            np.ascontiguousarray(a.T) for a in (rays.distance, rays.face, rays.obstacle, rays.edge)
+        )
+        r, depth = self._depth(rays, distance)
         shape = (self.camera.height, self.camera.width)
         hits = Hits(
             distance=distance.reshape(shape),
-            depth=np.where(hit, r / rays.norm_h, np.nan).reshape(shape),
+            depth=depth.reshape(shape),
             face=face.reshape(shape),
             obstacle=obstacle.reshape(shape),
             edge=edge.reshape(shape),
         )
         if surface:
-            unit, slope, origin = rays.unit, rays.slope, rays.origin
+            unit, slope, origin = rays.unit, np.ascontiguousarray(rays.slope.T), rays.origin
             points = np.stack(
                 [origin[0] + r * unit[:, 0], origin[1] + r * unit[:, 1], origin[2] + r * slope], axis=-1
             )
@@ -173,6 +176,13 @@ class Renderer:
             hits.points = points.reshape(*shape, 3)
             hits.footprint = footprint.reshape(shape)
         return hits
+
+    @staticmethod
+    def _depth(rays: _Rays, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Floor-plane distance (0 = no return) and optical z (NaN = no return) of ``distance`` (rows, R)."""
+        hit = np.isfinite(distance)
+        r = np.where(hit, distance, 0.0)
+        return r, np.where(hit, r / rays.norm_h, np.nan)
 
     def _trace(self, pose: Pose) -> _Rays:
         """The floor-plane rays of a camera at ``pose`` and the nearest hit of each pixel."""
@@ -189,7 +199,7 @@ class Renderer:
             ray_xy, dirs_z = dirs[0, :, :2], dirs[..., 2]
         norm_h = np.maximum(np.linalg.norm(ray_xy, axis=-1), 1e-12)  # (R,)
         unit = ray_xy / norm_h[:, None]
-        slope = dirs_z / norm_h  # (rows, R)
+        slope = dirs_z.T / norm_h[:, None]  # (R, rows): slope[ray, row] = dirs_z[row, ray] / norm_h[ray]
         origin = np.asarray(pose.xyz, dtype=np.float64)
 
         # Sort the floor-plane rays by azimuth; each block of neighbours only meets the quads
@@ -198,7 +208,7 @@ class Renderer:
         angle = _wrap(np.arctan2(unit[:, 1], unit[:, 0]) - mid)
         perm = np.argsort(angle, kind="stable")
         q_lo, q_hi, in_range = self._quad_wedges(origin, mid)
-        block = max(16, 8192 // slope.shape[0]) if level else 1024
+        block = max(16, 8192 // slope.shape[1]) if level else 1024
         distance = np.empty(slope.shape)
         face = np.empty(slope.shape, dtype=np.int8)
         obstacle = np.empty(slope.shape, dtype=np.int32)
@@ -245,7 +255,7 @@ class Renderer:
     def grey(self, pose: Pose) -> np.ndarray:
         """Grey levels (float64 H x W, 0-255) seen from ``pose``: texture x albedo x light."""
         rays = self._trace(pose)
-        grey = np.empty(rays.slope.shape)
+        grey = np.empty(rays.slope.shape[::-1])  # (rows, R): image order
         tex = self.texture
         shade_pixels(
             rays.distance, rays.face, rays.obstacle, rays.edge, rays.unit, rays.slope, rays.origin[:2],
@@ -306,7 +316,9 @@ class Renderer:
         rng=None,
     ) -> np.ndarray:
         """Optical-z depth (float32 m, NaN = no return); noise std = ``noise_per_m`` x depth."""
-        depth = self.cast(pose, surface=False).depth
+        rays = self._trace(pose)
+        depth = self._depth(rays, np.ascontiguousarray(rays.distance.T))[1]
+        depth = depth.reshape(self.camera.height, self.camera.width)
         if noise_per_m > 0:
             rng = rng if rng is not None else np.random.default_rng()
             depth = depth + rng.standard_normal(depth.shape) * noise_per_m * depth  # = rng.normal(0, 1)

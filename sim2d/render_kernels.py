@@ -39,17 +39,18 @@ def cast_rays(
     origin, cam_z, unit, slope, perm, angle, block, q_lo, q_hi, in_range,
     edge_a, edge_n, heights, max_distance, distance, face, obstacle, edge,
 ):  # fmt: skip
-    """Nearest hit of every pixel; writes ``distance``, ``face``, ``obstacle``, ``edge`` (rows, R).
+    """Nearest hit of every pixel; writes ``distance``, ``face``, ``obstacle``, ``edge`` (R, rows).
 
     ``origin`` (2,) and ``cam_z``: camera (m); ``unit`` (R, 2): floor-plane ray directions;
-    ``slope`` (rows, R): d_z / |d_xy| of each pixel; ``perm``: the rays in azimuth order and
+    ``slope`` (R, rows): d_z / |d_xy| of each pixel (ray-major, so that a ray's pixels are
+    adjacent in memory); ``perm``: the rays in azimuth order and
     ``angle`` their sorted azimuths (rad, relative to the view's middle); ``block``: rays per
     culling block; ``q_lo``, ``q_hi``, ``in_range`` (Q,): each quad's azimuth interval and
     whether it is within ``max_distance``; ``edge_a``, ``edge_n`` (Q, 4, 2): a point and the
     outward normal of each quad side; ``heights`` (Q,) m.
     """
     n_rays = len(perm)
-    n_rows = slope.shape[0]
+    n_rows = slope.shape[1]
     n_quads = len(heights)
     ox, oy = origin[0], origin[1]
     # n . (origin - a) of every quad side (> 0: the camera is outside that side), once per view.
@@ -105,7 +106,7 @@ def cast_rays(
                 c_in[at], c_out[at], c_h[at], c_quad[at], c_enter[at] = r_in, r_out, heights[q], q, enter
                 n_cross += 1
             for row in range(n_rows):
-                m = slope[row, ray]
+                m = slope[ray, row]
                 floor_r = -cam_z / m if m < 0 else np.inf
                 best_r, best_c, best_side = np.inf, -1, False
                 for c in range(n_cross):
@@ -131,7 +132,7 @@ def cast_rays(
                     r, f, o, s = np.inf, FACE_NONE, -1, -1
                 if r > max_distance:
                     r, f, o, s = np.inf, FACE_NONE, -1, -1
-                distance[row, ray], face[row, ray], obstacle[row, ray], edge[row, ray] = r, f, o, s
+                distance[ray, row], face[ray, row], obstacle[ray, row], edge[ray, row] = r, f, o, s
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -139,7 +140,7 @@ def shade_pixels(
     distance, face, obstacle, edge, unit, slope, origin, cam_z, fx, edge_n, albedo, offsets,
     side_light, flat_light, sky, texels, starts, sizes, shrink, texel, grey,
 ):  # fmt: skip
-    """Grey level (0-255) of every pixel (rows, R) from its hit; writes ``grey``.
+    """Grey level (0-255) of every pixel from its hit (R, rows); writes the image ``grey`` (rows, R).
 
     Hits and rays as ``cast_rays`` gives them; ``fx``: focal length (px); per quad
     ``albedo`` (Q,), texture ``offsets`` (Q, 5, 2) m (4 sides, top) and ``side_light``
@@ -148,7 +149,7 @@ def shade_pixels(
     batch, then its footprints, then its texture lookups, then its grey levels.
     """
     ox, oy = origin[0], origin[1]
-    n_rays = distance.shape[1]
+    n_rays, n_rows = distance.shape
     n_pixels = distance.size
     flat_grey = grey.ravel()
     flat_distance, flat_face, flat_slope = distance.ravel(), face.ravel(), slope.ravel()
@@ -157,15 +158,18 @@ def shade_pixels(
     su, sv, footprint = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
     hit_r, hit_m, along_normal = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
     lit, tex, scratch = np.empty(BATCH), np.empty(BATCH), np.empty((3, BATCH))
-    ray = 0  # pixel % n_rays, kept without a division
+    ray, row = 0, 0  # divmod(pixel, n_rows), kept without a division
     for start in range(0, n_pixels, BATCH):
         count = 0
         for pixel in range(start, min(start + BATCH, n_pixels)):
+            at = row * n_rays + ray  # the pixel in the image (rows, R)
             this_ray = ray
-            ray = ray + 1 if ray + 1 < n_rays else 0
+            row += 1
+            if row == n_rows:
+                ray, row = ray + 1, 0
             f = flat_face[pixel]
             if f == FACE_NONE:
-                flat_grey[pixel] = sky
+                flat_grey[at] = sky
                 continue
             r, m = flat_distance[pixel], flat_slope[pixel]
             u0, u1 = unit[this_ray, 0], unit[this_ray, 1]
@@ -187,7 +191,7 @@ def shade_pixels(
                     su[count], sv[count], alb = px + offsets[o, 4, 0], py + offsets[o, 4, 1], albedo[o]
             hit_r[count], hit_m[count] = r, m
             lit[count] = 255.0 * alb * light
-            index[count] = pixel
+            index[count] = at
             count += 1
         # Footprints in a branch-free loop: the square roots and divisions of several pixels go in
         # one vector instruction.
