@@ -26,6 +26,7 @@ culling of quads by azimuth, in numpy.
 from __future__ import annotations
 
 import math
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -109,9 +110,11 @@ class Renderer:
     """Renders views of one floor plan with one camera model.
 
     ``seed`` picks the texture; ``max_distance`` (m) bounds what is cast (farther is no return).
-    ``threads``: 2 renders the right view of a stereo pair in a second thread while this one
-    renders the left and draws the noise (the compiled kernels and numpy's generator release
-    the GIL); 1 renders everything in the calling thread. Images are the same either way.
+    ``threads``: 2 renders the right view of a stereo pair and draws its noise in a second
+    thread while this one does the left view (the compiled kernels and numpy's generator
+    release the GIL; the left view's noise is drawn first, so ``rng`` gives the same draws);
+    1 renders everything in the calling thread. Images are the same either way. A renderer
+    is not meant to be shared by threads that render at the same time.
     """
 
     def __init__(
@@ -282,19 +285,23 @@ class Renderer:
         if self.threads == 1:
             return self.image(pose, noise_std, rng), self.image(right, noise_std, rng)
         if self._worker is None:
-            self._worker = ThreadPoolExecutor(max_workers=2, thread_name_prefix="sim2d-render")
-        right_grey = self._worker.submit(self.grey, right)
-        noise = self._worker.submit(self._pair_noise, noise_std, rng)
-        left_grey = self.grey(pose)
-        left_noise, right_noise = noise.result()
-        return (
-            _grey_levels(left_grey, left_noise, noise_std),
-            _grey_levels(right_grey.result(), right_noise, noise_std),
-        )
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim2d-render")
+        # Each thread renders one view and draws its noise: the left noise first, here, while the
+        # worker renders the right view; the worker draws the right noise once the left is drawn.
+        left_noise_drawn = threading.Event()
+        right_image = self._worker.submit(self._image_after, right, noise_std, rng, left_noise_drawn)
+        try:
+            left_noise = self._noise(noise_std, rng)
+        finally:
+            left_noise_drawn.set()
+        left_image = _grey_levels(self.grey(pose), left_noise, noise_std)
+        return left_image, right_image.result()
 
-    def _pair_noise(self, noise_std: float, rng) -> tuple[np.ndarray, np.ndarray]:
-        """The noise draws of a stereo pair's left view, then of its right view (as two ``image`` calls)."""
-        return self._noise(noise_std, rng), self._noise(noise_std, rng)
+    def _image_after(self, pose: Pose, noise_std: float, rng, drawn: threading.Event) -> np.ndarray:
+        """``image(pose, noise_std, rng)``, its noise drawn only once ``drawn`` is set."""
+        grey = self.grey(pose)
+        drawn.wait()
+        return _grey_levels(grey, self._noise(noise_std, rng), noise_std)
 
     def _noise(self, noise_std: float, rng) -> np.ndarray:
         """Standard normal draws (H x W) for image noise; an empty array when ``noise_std`` is 0.
