@@ -287,3 +287,17 @@ def test_image_noise_equals_the_oracles_normal_draws():
         image, expected_image = new.image(pose, noise_std, rng_new), old.image(pose, noise_std, rng_old)
         np.testing.assert_array_equal(image, expected_image)
         assert rng_new.random() == rng_old.random()  # the same number of draws
+
+
+def test_images_and_hits_are_row_major_arrays():
+    """The kernels work ray-major; what the renderer returns is the usual C-contiguous image layout."""
+    renderer = Renderer(load_floor_plan(CONFIGS / "plans" / "office.yaml"), CAMERA)
+    for pitch in (0.0, 0.3):
+        pose = camera_pose(2.0, 3.0, 0.7, 0.4, pitch)
+        hits = renderer.cast(pose)
+        fields = ("distance", "depth", "face", "obstacle", "edge", "footprint")
+        arrays = [getattr(hits, field) for field in fields]
+        arrays += [hits.points, renderer.grey(pose), renderer.depth_image(pose, 0.01, 4.0)]
+        arrays += list(renderer.stereo_pair(pose, 1.0, np.random.default_rng(0)))
+        for array in arrays:
+            assert array.shape[:2] == (CAMERA.height, CAMERA.width) and array.flags.c_contiguous
