@@ -8,6 +8,10 @@ reads the level of detail lod = log2(footprint / texel), clipped to the pyramid,
 bilinear lookups of the two levels around it (trilinear filtering), so distant surfaces do
 not alias. Lookups are compiled with Numba; each is one pixel's worth of scalar arithmetic,
 done in the same order as numpy would, so results do not depend on how pixels are batched.
+
+When editing this module: ``render_kernels.shade_pixels`` compiles ``trilinear`` into itself,
+and Numba's cache of it is keyed on ``render_kernels.py`` alone, so also touch that file (or
+delete ``sim2d/__pycache__/*.nbi`` and ``*.nbc``), else the old lookup keeps running.
 """
 
 from __future__ import annotations
