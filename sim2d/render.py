@@ -26,6 +26,7 @@ culling of quads by azimuth, in numpy.
 from __future__ import annotations
 
 import math
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -79,8 +80,9 @@ class _Rays:
     """Floor-plane rays of one view and their nearest hits.
 
     ``unit`` (R, 2) ray directions on the floor, ``norm_h`` (R,) |d_xy| of the pixel rays
-    (optical z = 1), ``slope`` (rows, R); a level camera has one ray per column (rows = H),
-    a pitched one a ray per pixel (rows = 1). Hits as in ``Hits``, shaped (rows, R).
+    (optical z = 1), ``slope`` (R, rows); a level camera has one ray per column (rows = H),
+    a pitched one a ray per pixel (rows = 1). Hits as in ``Hits``, shaped (R, rows): ray-major,
+    so that the kernels walk each ray's pixels in memory order (the image is the transpose).
     """
 
     origin: np.ndarray
@@ -108,9 +110,11 @@ class Renderer:
     """Renders views of one floor plan with one camera model.
 
     ``seed`` picks the texture; ``max_distance`` (m) bounds what is cast (farther is no return).
-    ``threads``: 2 renders the right view of a stereo pair in a second thread while this one
-    renders the left and draws the noise (the compiled kernels and numpy's generator release
-    the GIL); 1 renders everything in the calling thread. Images are the same either way.
+    ``threads``: 2 renders the right view of a stereo pair and draws its noise in a second
+    thread while this one does the left view (the compiled kernels and numpy's generator
+    release the GIL; the left view's noise is drawn first, so ``rng`` gives the same draws);
+    1 renders everything in the calling thread. Images are the same either way. A renderer
+    is not meant to be shared by threads that render at the same time.
     """
 
     def __init__(
@@ -150,19 +154,21 @@ class Renderer:
     def cast(self, pose: Pose, surface: bool = True) -> Hits:
         """Cast every pixel ray of a camera at ``pose`` (``surface``: also points, footprints)."""
         rays = self._trace(pose)
-        distance, face, obstacle, edge = rays.distance, rays.face, rays.obstacle, rays.edge
-        hit = np.isfinite(distance)
-        r = np.where(hit, distance, 0.0)
+        # Image order: (rows, R), row-major.
+        distance, face, obstacle, edge = (
+            np.ascontiguousarray(a.T) for a in (rays.distance, rays.face, rays.obstacle, rays.edge)
+        )
+        r, depth = self._depth(rays, distance)
         shape = (self.camera.height, self.camera.width)
         hits = Hits(
             distance=distance.reshape(shape),
-            depth=np.where(hit, r / rays.norm_h, np.nan).reshape(shape),
+            depth=depth.reshape(shape),
             face=face.reshape(shape),
             obstacle=obstacle.reshape(shape),
             edge=edge.reshape(shape),
         )
         if surface:
-            unit, slope, origin = rays.unit, rays.slope, rays.origin
+            unit, slope, origin = rays.unit, np.ascontiguousarray(rays.slope.T), rays.origin
             points = np.stack(
                 [origin[0] + r * unit[:, 0], origin[1] + r * unit[:, 1], origin[2] + r * slope], axis=-1
             )
@@ -173,6 +179,13 @@ class Renderer:
             hits.points = points.reshape(*shape, 3)
             hits.footprint = footprint.reshape(shape)
         return hits
+
+    @staticmethod
+    def _depth(rays: _Rays, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Floor-plane distance (0 = no return) and optical z (NaN = no return) of ``distance`` (rows, R)."""
+        hit = np.isfinite(distance)
+        r = np.where(hit, distance, 0.0)
+        return r, np.where(hit, r / rays.norm_h, np.nan)
 
     def _trace(self, pose: Pose) -> _Rays:
         """The floor-plane rays of a camera at ``pose`` and the nearest hit of each pixel."""
@@ -189,7 +202,7 @@ class Renderer:
             ray_xy, dirs_z = dirs[0, :, :2], dirs[..., 2]
         norm_h = np.maximum(np.linalg.norm(ray_xy, axis=-1), 1e-12)  # (R,)
         unit = ray_xy / norm_h[:, None]
-        slope = dirs_z / norm_h  # (rows, R)
+        slope = dirs_z.T / norm_h[:, None]  # (R, rows): slope[ray, row] = dirs_z[row, ray] / norm_h[ray]
         origin = np.asarray(pose.xyz, dtype=np.float64)
 
         # Sort the floor-plane rays by azimuth; each block of neighbours only meets the quads
@@ -198,7 +211,7 @@ class Renderer:
         angle = _wrap(np.arctan2(unit[:, 1], unit[:, 0]) - mid)
         perm = np.argsort(angle, kind="stable")
         q_lo, q_hi, in_range = self._quad_wedges(origin, mid)
-        block = max(16, 8192 // slope.shape[0]) if level else 1024
+        block = max(16, 8192 // slope.shape[1]) if level else 1024
         distance = np.empty(slope.shape)
         face = np.empty(slope.shape, dtype=np.int8)
         obstacle = np.empty(slope.shape, dtype=np.int32)
@@ -245,7 +258,7 @@ class Renderer:
     def grey(self, pose: Pose) -> np.ndarray:
         """Grey levels (float64 H x W, 0-255) seen from ``pose``: texture x albedo x light."""
         rays = self._trace(pose)
-        grey = np.empty(rays.slope.shape)
+        grey = np.empty(rays.slope.shape[::-1])  # (rows, R): image order
         tex = self.texture
         shade_pixels(
             rays.distance, rays.face, rays.obstacle, rays.edge, rays.unit, rays.slope, rays.origin[:2],
@@ -260,7 +273,7 @@ class Renderer:
         ``noise_std``: grey levels; ``rng``: a numpy Generator (default: a fresh one).
         """
         grey = self.grey(pose)
-        return _grey_levels(grey, self._noise(noise_std, rng))
+        return _grey_levels(grey, self._noise(noise_std, rng), noise_std)
 
     def stereo_pair(self, pose: Pose, noise_std: float = 0.0, rng=None) -> tuple[np.ndarray, np.ndarray]:
         """Rectified (left, right) uint8 images; ``pose`` is the left camera's.
@@ -273,18 +286,34 @@ class Renderer:
             return self.image(pose, noise_std, rng), self.image(right, noise_std, rng)
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim2d-render")
-        right_grey = self._worker.submit(self.grey, right)
-        left_grey = self.grey(pose)
-        left_noise, right_noise = self._noise(noise_std, rng), self._noise(noise_std, rng)
-        return _grey_levels(left_grey, left_noise), _grey_levels(right_grey.result(), right_noise)
+        # Each thread renders one view and draws its noise: the left noise first, here, while the
+        # worker renders the right view; the worker draws the right noise once the left is drawn.
+        left_noise_drawn = threading.Event()
+        right_image = self._worker.submit(self._image_after, right, noise_std, rng, left_noise_drawn)
+        try:
+            left_noise = self._noise(noise_std, rng)
+        finally:
+            left_noise_drawn.set()
+        left_image = _grey_levels(self.grey(pose), left_noise, noise_std)
+        return left_image, right_image.result()
+
+    def _image_after(self, pose: Pose, noise_std: float, rng, drawn: threading.Event) -> np.ndarray:
+        """``image(pose, noise_std, rng)``, its noise drawn only once ``drawn`` is set."""
+        grey = self.grey(pose)
+        drawn.wait()
+        return _grey_levels(grey, self._noise(noise_std, rng), noise_std)
 
     def _noise(self, noise_std: float, rng) -> np.ndarray:
-        """Gaussian image noise (grey levels, H x W); zeros when ``noise_std`` is 0."""
-        shape = (self.camera.height, self.camera.width)
+        """Standard normal draws (H x W) for image noise; an empty array when ``noise_std`` is 0.
+
+        ``rng.normal(0, s)`` is ``0 + s z`` with z from ``rng.standard_normal``, draw for draw
+        (numpy's Generator), and the faster fill loop of ``standard_normal`` gives the same z:
+        ``grey_levels`` forms 0 + s z, so images equal those of ``grey + rng.normal(0, s)``.
+        """
         if noise_std > 0:
             rng = rng if rng is not None else np.random.default_rng()
-            return rng.normal(0.0, noise_std, shape)
-        return np.zeros(shape)
+            return rng.standard_normal((self.camera.height, self.camera.width))
+        return np.empty(0)
 
     def depth_image(
         self,
@@ -294,20 +323,22 @@ class Renderer:
         rng=None,
     ) -> np.ndarray:
         """Optical-z depth (float32 m, NaN = no return); noise std = ``noise_per_m`` x depth."""
-        depth = self.cast(pose, surface=False).depth
+        rays = self._trace(pose)
+        depth = self._depth(rays, np.ascontiguousarray(rays.distance.T))[1]
+        depth = depth.reshape(self.camera.height, self.camera.width)
         if noise_per_m > 0:
             rng = rng if rng is not None else np.random.default_rng()
-            depth = depth + rng.normal(0.0, 1.0, depth.shape) * noise_per_m * depth
+            depth = depth + rng.standard_normal(depth.shape) * noise_per_m * depth  # = rng.normal(0, 1)
         if max_range is not None:
             depth = np.where(depth <= max_range, depth, np.nan)
         depth = np.where(depth > 0, depth, np.nan)
         return depth.astype(np.float32)
 
 
-def _grey_levels(grey: np.ndarray, noise: np.ndarray) -> np.ndarray:
-    """uint8 image of clip(rint(grey + noise), 0, 255)."""
+def _grey_levels(grey: np.ndarray, normal: np.ndarray, noise_std: float) -> np.ndarray:
+    """uint8 image of clip(rint(grey + (0 + noise_std normal)), 0, 255) (``normal`` empty: no noise)."""
     image = np.empty(grey.shape, dtype=np.uint8)
-    grey_levels(grey, noise, image)
+    grey_levels(grey, normal, float(noise_std), image)
     return image
 
 

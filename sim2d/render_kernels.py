@@ -12,8 +12,12 @@ over the quads in index order would; a quad hit must be strictly nearer than the
 ``shade_pixels`` turns each pixel's hit into a grey level: texture x albedo x light, the
 texture sampled trilinearly for the pixel's footprint on the surface.
 
-Every step is scalar IEEE arithmetic in the same order as the vectorised numpy renderer it
-replaced (kept in the tests as the oracle), so distances, faces and images are the same.
+Every step is IEEE arithmetic in the same order as the vectorised numpy renderer it replaced
+(kept in the tests as the oracle), so distances, faces and images are the same. The kernels
+use Numba's ``error_model="numpy"``: a division is the plain IEEE one, as in numpy, without
+Python's zero-divisor check (no divisor here can be zero). Without that check's branch the
+compiler turns branch-free loops (the footprints of a batch of pixels) into vector
+instructions, whose lanes round exactly as the scalar instructions do.
 """
 
 from __future__ import annotations
@@ -30,22 +34,23 @@ TWO_PI = 2 * np.pi
 BATCH = 64  # pixels per batch of ``shade_pixels``
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def cast_rays(
     origin, cam_z, unit, slope, perm, angle, block, q_lo, q_hi, in_range,
     edge_a, edge_n, heights, max_distance, distance, face, obstacle, edge,
 ):  # fmt: skip
-    """Nearest hit of every pixel; writes ``distance``, ``face``, ``obstacle``, ``edge`` (rows, R).
+    """Nearest hit of every pixel; writes ``distance``, ``face``, ``obstacle``, ``edge`` (R, rows).
 
     ``origin`` (2,) and ``cam_z``: camera (m); ``unit`` (R, 2): floor-plane ray directions;
-    ``slope`` (rows, R): d_z / |d_xy| of each pixel; ``perm``: the rays in azimuth order and
+    ``slope`` (R, rows): d_z / |d_xy| of each pixel (ray-major, so that a ray's pixels are
+    adjacent in memory); ``perm``: the rays in azimuth order and
     ``angle`` their sorted azimuths (rad, relative to the view's middle); ``block``: rays per
     culling block; ``q_lo``, ``q_hi``, ``in_range`` (Q,): each quad's azimuth interval and
     whether it is within ``max_distance``; ``edge_a``, ``edge_n`` (Q, 4, 2): a point and the
     outward normal of each quad side; ``heights`` (Q,) m.
     """
     n_rays = len(perm)
-    n_rows = slope.shape[0]
+    n_rows = slope.shape[1]
     n_quads = len(heights)
     ox, oy = origin[0], origin[1]
     # n . (origin - a) of every quad side (> 0: the camera is outside that side), once per view.
@@ -101,7 +106,7 @@ def cast_rays(
                 c_in[at], c_out[at], c_h[at], c_quad[at], c_enter[at] = r_in, r_out, heights[q], q, enter
                 n_cross += 1
             for row in range(n_rows):
-                m = slope[row, ray]
+                m = slope[ray, row]
                 floor_r = -cam_z / m if m < 0 else np.inf
                 best_r, best_c, best_side = np.inf, -1, False
                 for c in range(n_cross):
@@ -127,68 +132,91 @@ def cast_rays(
                     r, f, o, s = np.inf, FACE_NONE, -1, -1
                 if r > max_distance:
                     r, f, o, s = np.inf, FACE_NONE, -1, -1
-                distance[row, ray], face[row, ray], obstacle[row, ray], edge[row, ray] = r, f, o, s
+                distance[ray, row], face[ray, row], obstacle[ray, row], edge[ray, row] = r, f, o, s
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def shade_pixels(
     distance, face, obstacle, edge, unit, slope, origin, cam_z, fx, edge_n, albedo, offsets,
     side_light, flat_light, sky, texels, starts, sizes, shrink, texel, grey,
 ):  # fmt: skip
-    """Grey level (0-255) of every pixel (rows, R) from its hit; writes ``grey``.
+    """Grey level (0-255) of every pixel from its hit (R, rows); writes the image ``grey`` (rows, R).
 
     Hits and rays as ``cast_rays`` gives them; ``fx``: focal length (px); per quad
     ``albedo`` (Q,), texture ``offsets`` (Q, 5, 2) m (4 sides, top) and ``side_light``
     (Q, 4); ``flat_light``: light on the floor and tops; ``sky``: grey of no return; the
-    rest: a ``TexturePyramid``'s arrays. Pixels go in batches: surface coordinates and
-    footprints of the batch, then its texture lookups, then its grey levels.
+    rest: a ``TexturePyramid``'s arrays. Pixels go in batches: surface coordinates of the
+    batch, then its footprints, then its texture lookups, then its grey levels.
     """
     ox, oy = origin[0], origin[1]
-    n_rays = distance.shape[1]
+    n_rays, n_rows = distance.shape
     n_pixels = distance.size
     flat_grey = grey.ravel()
+    flat_distance, flat_face, flat_slope = distance.ravel(), face.ravel(), slope.ravel()
+    flat_obstacle, flat_edge = obstacle.ravel(), edge.ravel()
     index = np.empty(BATCH, dtype=np.int64)
     su, sv, footprint = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
-    lit, lod, tex = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
+    hit_r, hit_m, along_normal = np.empty(BATCH), np.empty(BATCH), np.empty(BATCH)
+    lit, tex, scratch = np.empty(BATCH), np.empty(BATCH), np.empty((3, BATCH))
+    ray, row = 0, 0  # divmod(pixel, n_rows), kept without a division
     for start in range(0, n_pixels, BATCH):
         count = 0
         for pixel in range(start, min(start + BATCH, n_pixels)):
-            row, ray = pixel // n_rays, pixel % n_rays
-            f = face[row, ray]
+            at = row * n_rays + ray  # the pixel in the image (rows, R)
+            this_ray = ray
+            row += 1
+            if row == n_rows:
+                ray, row = ray + 1, 0
+            f = flat_face[pixel]
             if f == FACE_NONE:
-                flat_grey[pixel] = sky
+                flat_grey[at] = sky
                 continue
-            r, m = distance[row, ray], slope[row, ray]
-            u0, u1 = unit[ray, 0], unit[ray, 1]
+            r, m = flat_distance[pixel], flat_slope[pixel]
+            u0, u1 = unit[this_ray, 0], unit[this_ray, 1]
             px, py, pz = ox + r * u0, oy + r * u1, cam_z + r * m
-            norm = math.sqrt(1 + m * m)
-            o = obstacle[row, ray]
+            o = flat_obstacle[pixel]
             if f == FACE_SIDE:
-                e = edge[row, ray]
+                e = flat_edge[pixel]
                 nx, ny = edge_n[o, e, 0], edge_n[o, e, 1]
-                cos_inc = abs(nx * u0 + ny * u1) / norm
+                along_normal[count] = abs(nx * u0 + ny * u1)
                 su[count] = px * -ny + py * nx + offsets[o, e, 0]
                 sv[count] = pz + offsets[o, e, 1]
                 alb, light = albedo[o], side_light[o, e]
             else:
-                cos_inc = abs(m) / norm
+                along_normal[count] = abs(m)
                 light = flat_light
                 if f == FACE_FLOOR:
                     su[count], sv[count], alb = px * 0.8, py * 0.8, 0.8
                 else:
                     su[count], sv[count], alb = px + offsets[o, 4, 0], py + offsets[o, 4, 1], albedo[o]
-            footprint[count] = r * norm / fx / max(cos_inc, 0.2)  # range / f, widened when grazing
+            hit_r[count], hit_m[count] = r, m
             lit[count] = 255.0 * alb * light
-            index[count] = pixel
+            index[count] = at
             count += 1
-        trilinear(texels, starts, sizes, shrink, texel, su, sv, footprint, count, lod, tex)
+        # Footprints in a branch-free loop: the square roots and divisions of several pixels go in
+        # one vector instruction.
+        for k in range(count):
+            norm = math.sqrt(1 + hit_m[k] * hit_m[k])
+            cos_inc = along_normal[k] / norm
+            footprint[k] = hit_r[k] * norm / fx / max(cos_inc, 0.2)  # range / f, widened when grazing
+        trilinear(texels, starts, sizes, shrink, texel, su, sv, footprint, count, scratch, tex)
         for k in range(count):
             flat_grey[index[k]] = lit[k] * (0.25 + 0.75 * tex[k])
 
 
-@numba.njit(cache=True, nogil=True)
-def grey_levels(grey, noise, out):
-    """``out`` (uint8) = clip(rint(grey + noise), 0, 255), rounding half to even; same shapes."""
-    flat_grey, flat_noise, flat_out = grey.ravel(), noise.ravel(), out.ravel()
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def grey_levels(grey, normal, noise_std, out):
+    """``out`` (uint8) = clip(rint(grey + (0 + noise_std normal)), 0, 255), rounding half to even.
+
+    ``grey``, ``normal`` (standard normal draws) and ``out`` of one shape; an empty ``normal``
+    adds no noise. 0 + s z is what numpy's ``Generator.normal(0, s)`` returns for the draw z.
+    """
+    flat_grey, flat_out = grey.ravel(), out.ravel()
+    if normal.size == 0:
+        for k in range(len(flat_out)):
+            flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k]), 0.0), 255.0))
+        return
+    flat_normal = normal.ravel()
     for k in range(len(flat_out)):
-        flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k] + flat_noise[k]), 0.0), 255.0))
+        noise = 0.0 + noise_std * flat_normal[k]
+        flat_out[k] = np.uint8(min(max(np.rint(flat_grey[k] + noise), 0.0), 255.0))

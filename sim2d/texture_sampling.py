@@ -8,6 +8,10 @@ reads the level of detail lod = log2(footprint / texel), clipped to the pyramid,
 bilinear lookups of the two levels around it (trilinear filtering), so distant surfaces do
 not alias. Lookups are compiled with Numba; each is one pixel's worth of scalar arithmetic,
 done in the same order as numpy would, so results do not depend on how pixels are batched.
+
+When editing this module: ``render_kernels.shade_pixels`` compiles ``trilinear`` into itself,
+and Numba's cache of it is keyed on ``render_kernels.py`` alone, so also touch that file (or
+delete ``sim2d/__pycache__/*.nbi`` and ``*.nbc``), else the old lookup keeps running.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import math
 import numba
 import numpy as np
 
-BLOCK = 4  # texels per side of a storage block (``_offset`` assumes 4)
+BLOCK = 4  # texels per side of a storage block (``_row_offset`` and ``_column_offset`` assume 4)
 
 
 class TexturePyramid:
@@ -60,7 +64,7 @@ class TexturePyramid:
         u, v, footprint = (np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
         out = np.empty(u.shape)
         trilinear(self.texels, self.starts, self.sizes, self.shrink, self.texel, u.ravel(), v.ravel(),
-                  footprint.ravel(), u.size, np.empty(u.size), out.reshape(-1))  # fmt: skip
+                  footprint.ravel(), u.size, np.empty((3, u.size)), out.reshape(-1))  # fmt: skip
         return out
 
 
@@ -72,15 +76,23 @@ def _blocked(level: np.ndarray) -> np.ndarray:
     return level.reshape(n // BLOCK, BLOCK, n // BLOCK, BLOCK).transpose(0, 2, 1, 3).ravel()
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _offset(n, i, j):
-    """Index of texel (column i, row j) of an n x n level within that level's block layout."""
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _row_offset(n, j):
+    """Where row ``j`` of an n x n level starts in that level's block layout (add ``_column_offset``)."""
     if n < BLOCK:
-        return j * n + i
-    return ((j >> 2) * (n >> 2) + (i >> 2)) * 16 + ((j & 3) << 2) + (i & 3)
+        return j * n
+    return ((j >> 2) * n + (j & 3)) << 2  # block row (j >> 2) holds n / 4 blocks of 16 texels
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _column_offset(n, i):
+    """Offset of column ``i`` within a row of an n x n level's block layout."""
+    if n < BLOCK:
+        return i
+    return ((i >> 2) << 4) + (i & 3)
+
+
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _bilinear(texels, starts, sizes, level, x, y):
     """Bilinear lookup of mip ``level`` at (x, y) in that level's texels (the tile repeats)."""
     n = sizes[level]
@@ -91,41 +103,49 @@ def _bilinear(texels, starts, sizes, level, x, y):
     wrap = n - 1
     i0 = np.int64(x0) & wrap
     j0 = np.int64(y0) & wrap
-    i1 = (i0 + 1) & wrap
-    j1 = (j0 + 1) & wrap
     base = starts[level]
-    top = texels[base + _offset(n, i0, j0)] * (1 - fx) + texels[base + _offset(n, i1, j0)] * fx
-    bottom = texels[base + _offset(n, i0, j1)] * (1 - fx) + texels[base + _offset(n, i1, j1)] * fx
+    row0 = base + _row_offset(n, j0)
+    row1 = base + _row_offset(n, (j0 + 1) & wrap)
+    col0 = _column_offset(n, i0)
+    col1 = _column_offset(n, (i0 + 1) & wrap)
+    top = texels[row0 + col0] * (1 - fx) + texels[row0 + col1] * fx
+    bottom = texels[row1 + col0] * (1 - fx) + texels[row1 + col1] * fx
     return top * (1 - fy) + bottom * fy
 
 
-@numba.njit(cache=True, nogil=True)
-def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint, count, lod, out):
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def trilinear(texels, starts, sizes, shrink, texel, u, v, footprint, count, scratch, out):
     """Trilinear lookups of the first ``count`` pixels: (u, v) and ``footprint`` in m.
 
-    The arrays of a ``TexturePyramid``, then (N,) ``u``, ``v``, ``footprint``, a scratch
-    ``lod`` and ``out`` (values 0-1). Level k's texel is texel 2^k, so u / (texel 2^k) is
+    The arrays of a ``TexturePyramid``, then (N,) ``u``, ``v``, ``footprint``, a (3, N)
+    ``scratch`` and ``out`` (values 0-1). Level k's texel is texel 2^k, so u / (texel 2^k) is
     (u / texel) 2^-k exactly (scaling by a power of two does not round; ``shrink[k]`` = 2^-k):
-    one division per coordinate. Where the level of detail is clipped (lod - fine = 0) the
-    second level has no weight and is not read: a + (b - a) 0 = a. Two passes (levels of
-    detail, then lookups) so that the processor overlaps the lookups of many pixels.
+    one division per coordinate. log2 is monotonic and exact at 1, so a footprint of at most
+    one texel has level of detail 0 without calling it. Where the level of detail is clipped
+    (lod - fine = 0) the second level has no weight and is not read: a + (b - a) 0 = a. In
+    passes (divisions, levels of detail, lookups) so that the divisions of several pixels go
+    in one vector instruction and the processor overlaps the lookups of many pixels.
     """
     top_level = len(sizes) - 1
+    lod, x, y = scratch[0], scratch[1], scratch[2]
     for k in range(count):
-        level = math.log2(max(footprint[k], 1e-9) / texel)
-        lod[k] = min(max(level, 0.0), float(top_level))
+        x[k] = u[k] / texel
+        y[k] = v[k] / texel
+        lod[k] = max(footprint[k], 1e-9) / texel
+    for k in range(count):
+        ratio = lod[k]
+        lod[k] = 0.0 if ratio <= 1.0 else min(math.log2(ratio), float(top_level))
     for k in range(count):
         fine = np.int64(math.floor(lod[k]))
-        x, y = u[k] / texel, v[k] / texel
         step = shrink[fine]
-        a = _bilinear(texels, starts, sizes, fine, x * step - 0.5, y * step - 0.5)
+        a = _bilinear(texels, starts, sizes, fine, x[k] * step - 0.5, y[k] * step - 0.5)
         weight = lod[k] - fine
         if weight == 0:
             out[k] = a
             continue
         coarse = min(fine + 1, top_level)
         step = shrink[coarse]
-        b = _bilinear(texels, starts, sizes, coarse, x * step - 0.5, y * step - 0.5)
+        b = _bilinear(texels, starts, sizes, coarse, x[k] * step - 0.5, y[k] * step - 0.5)
         out[k] = a + (b - a) * weight
 
 

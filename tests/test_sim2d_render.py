@@ -249,6 +249,9 @@ def test_texture_lookup_equals_the_numpy_oracle():
     u, v = rng.uniform(-50, 5000, 20000), rng.uniform(-50, 5000, 20000)
     footprint = np.exp(rng.uniform(np.log(1e-4), np.log(10.0), 20000))  # lod below 0 to above the top
     footprint[:10] = 0.0
+    # Level of detail 0 is taken without log2 up to one texel: around exactly one texel, both sides.
+    footprint[10:13] = np.nextafter(0.01, 0.0), 0.01, np.nextafter(0.01, 1.0)
+    footprint[13:16] = 0.01 * 2.0**10, 0.01 * 2.0**6, 0.01 * 2.0**20  # exact powers of two, past the top
     np.testing.assert_array_equal(new.sample(u, v, footprint), old.sample(u, v, footprint))
     for k in range(new.count):
         n = old.sizes[k]
@@ -269,3 +272,32 @@ def test_stereo_pair_in_one_or_two_threads_gives_the_same_images_and_draws():
     assert rng_a.random() == rng_b.random()  # the same number of draws
     with pytest.raises(ValueError, match="threads must be 1 or 2"):
         Renderer(plan, CAMERA, threads=3)
+
+
+def test_image_noise_equals_the_oracles_normal_draws():
+    """The noise is drawn as standard normals z and added as 0 + s z: the oracle's rng.normal(0, s)."""
+    plan = load_floor_plan(CONFIGS / "plans" / "office.yaml")
+    new, old = Renderer(plan, CAMERA, threads=2), reference_render.Renderer(plan, CAMERA)
+    pose = camera_pose(2.0, 3.0, 0.7, 0.4)
+    for noise_std in (0.37, 7.5, 60.0):  # 60: many pixels clip at 0 and 255
+        rng_new, rng_old = np.random.default_rng(9), np.random.default_rng(9)
+        pair, expected = new.stereo_pair(pose, noise_std, rng_new), old.stereo_pair(pose, noise_std, rng_old)
+        for a, b in zip(pair, expected, strict=True):
+            np.testing.assert_array_equal(a, b)
+        image, expected_image = new.image(pose, noise_std, rng_new), old.image(pose, noise_std, rng_old)
+        np.testing.assert_array_equal(image, expected_image)
+        assert rng_new.random() == rng_old.random()  # the same number of draws
+
+
+def test_images_and_hits_are_row_major_arrays():
+    """The kernels work ray-major; what the renderer returns is the usual C-contiguous image layout."""
+    renderer = Renderer(load_floor_plan(CONFIGS / "plans" / "office.yaml"), CAMERA)
+    for pitch in (0.0, 0.3):
+        pose = camera_pose(2.0, 3.0, 0.7, 0.4, pitch)
+        hits = renderer.cast(pose)
+        fields = ("distance", "depth", "face", "obstacle", "edge", "footprint")
+        arrays = [getattr(hits, field) for field in fields]
+        arrays += [hits.points, renderer.grey(pose), renderer.depth_image(pose, 0.01, 4.0)]
+        arrays += list(renderer.stereo_pair(pose, 1.0, np.random.default_rng(0)))
+        for array in arrays:
+            assert array.shape[:2] == (CAMERA.height, CAMERA.width) and array.flags.c_contiguous
