@@ -8,8 +8,9 @@ valid fraction (pixels with ground truth that get a depth) and the share of vali
 one setting each, side by side. The matcher is sized from the file's ``ndisp``, as
 ``swarm stereo depth`` does.
 
-Time: best of ``--repeat`` runs of disparity + depth for a real EuRoC pair, rectified, at
-752x480 and resized to 640x480, for each SGBM mode and the default (3way), at scale 1 and 0.5.
+Time: best and median of ``--repeat`` runs of disparity + depth for a real EuRoC pair, rectified, at
+752x480 and resized to 640x480, for each SGBM mode and the default (3way), at scale 1 and 0.5,
+with the disparity range from ``--min-depth`` (0.3 m, as the agent).
 """
 
 from __future__ import annotations
@@ -209,20 +210,22 @@ def _mean(rows: list[Score]) -> tuple[float, float, float, float]:
 
 def _describe(options: dict) -> str:
     if not options:
-        return "3way, block 5, uniqueness 10, speckle 100/2, texture 1.0, scale 1"
+        return "3way, block 5, uniqueness 10, speckle 100/2, texture 0.5, scale 1"
     return ", ".join(f"{k}={v}" for k, v in options.items())
 
 
-def best_ms(fn, repeat: int) -> float:
-    best = np.inf
-    for _ in range(repeat):
+def timed_ms(fn, repeat: int) -> tuple[float, float]:
+    """(best, median) milliseconds of ``repeat`` calls of ``fn``."""
+    times = []
+    for _ in range(max(repeat, 1)):
         start = time.perf_counter()
         fn()
-        best = min(best, time.perf_counter() - start)
-    return best * 1e3
+        times.append(time.perf_counter() - start)
+    return min(times) * 1e3, float(np.median(times)) * 1e3
 
 
-def timing(euroc: Path, repeat: int) -> list[tuple[str, str, float, float]]:
+def timing(euroc: Path, repeat: int, min_depth: float = 0.3) -> list[tuple[str, str, float, float, float]]:
+    """Rows (size, matcher, best ms, median ms, valid) of disparity + depth on a rectified EuRoC pair."""
     calib = load_stereo_calibration(euroc / "mav0/cam0/sensor.yaml", euroc / "mav0/cam1/sensor.yaml")
     name = sorted((euroc / "mav0/cam0/data").glob("*.png"))[20].name
     raw_l = cv2.imread(str(euroc / "mav0/cam0/data" / name), cv2.IMREAD_GRAYSCALE)
@@ -237,10 +240,11 @@ def timing(euroc: Path, repeat: int) -> list[tuple[str, str, float, float]]:
                 img_l, img_r = cv2.resize(left, (w, h)), cv2.resize(right, (w, h))
                 sx = w / left.shape[1]
                 rig = type("Rig", (), {"fx": calib.fx * sx, "cx": calib.cx * sx, "baseline": calib.baseline})
-                m = StereoMatcher.for_rig(rig, 0.3, mode=mode, scale=scale)
-                ms = best_ms(lambda m=m, a=img_l, b=img_r: m.disparity(a, b), repeat)
+                m = StereoMatcher.for_rig(rig, min_depth, mode=mode, scale=scale)
+                best, median = timed_ms(lambda m=m, a=img_l, b=img_r, c=rig: m.depth(a, b, c), repeat)
                 valid = float(np.isfinite(m.disparity(img_l, img_r)).mean())
-                rows.append((f"{w}x{h}", f"{mode} scale {scale:g} ({m.num_disparities} disp.)", ms, valid))
+                label = f"{mode} scale {scale:g} ({m.num_disparities} disp.)"
+                rows.append((f"{w}x{h}", label, best, median, valid))
     return rows
 
 
@@ -265,7 +269,15 @@ def main(argv: list[str] | None = None) -> None:
         "--quality-repeat", type=int, default=1, help="runs per pair and variant; the best time is printed"
     )
     parser.add_argument("--euroc", type=Path, help="EuRoC/ASL folder for the timing (the shared excerpt)")
-    parser.add_argument("--repeat", type=int, default=5, help="runs per timing row (best is printed)")
+    parser.add_argument(
+        "--repeat", type=int, default=5, help="runs per timing row (the best and the median are printed)"
+    )
+    parser.add_argument(
+        "--min-depth",
+        type=float,
+        default=0.3,
+        help="nearest depth (m) the timing's disparity range reaches (default 0.3, as the agent's)",
+    )
     args = parser.parse_args(argv)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS]
@@ -282,9 +294,10 @@ def main(argv: list[str] | None = None) -> None:
         print("f b / (d + doffs); valid(vis) = valid share of the pixels seen by both cameras (mask0nocc)")
         quality_tables(pairs, variants, args.quality_repeat)
     if args.euroc is not None:
-        print(f"\n{'size':9s} {'matcher':32s} {'ms/pair':>8s} {'valid':>6s}")
-        for size, label, ms, valid in timing(args.euroc, args.repeat):
-            print(f"{size:9s} {label:32s} {ms:8.1f} {valid:6.3f}")
+        print(f"\ndisparity + depth of a rectified EuRoC pair, nearest depth {args.min_depth:g} m")
+        print(f"{'size':9s} {'matcher':32s} {'best ms':>8s} {'median':>8s} {'valid':>6s}")
+        for size, label, best, median, valid in timing(args.euroc, args.repeat, args.min_depth):
+            print(f"{size:9s} {label:32s} {best:8.1f} {median:8.1f} {valid:6.3f}")
 
 
 if __name__ == "__main__":
