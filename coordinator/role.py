@@ -6,8 +6,9 @@ answers ``coord/assign``: the requesting robot gets the eq. 35 target of the tea
 maximises utility minus path cost, with the targets other robots hold discounted and kept
 one sensor footprint away, and its teammates' ground lowered (Burgard et al.
 2005 and our addition; the rule is in ``coordinator.assignment`` and docs/coordinator.md).
-When no eq. 35 target is left it wanders the robot on its own ground, as long as anything
-unknown is in view.
+When the only eq. 35 targets are held by others it wanders the robot on its own ground, as
+long as anything unknown is in view; when the team map has none at all it answers "nothing
+left", and the agent chooses alone (its own eq. 35, then its 3-D frontier views).
 
 Layers: :class:`TeamMap` (the replica: idempotent merged deltas), :class:`CoordinatorState`
 (the replica, who holds what, and the planning of one answer; no I/O, callable from tests)
@@ -205,11 +206,13 @@ def _log_answer(answer: Answer) -> None:
     if c is None and answer.wander is not None:
         w = answer.wander
         log.info(
-            "assign %s -> wander to (%.2f, %.2f) gaze %+.0f deg: no eq. 35 target left (%d held by others)",
+            "assign %s -> wander to (%.2f, %.2f) gaze %+.0f deg: no eq. 35 target left "
+            "(%d candidates, %d held by others)",
             robot,
             w.xy[0],
             w.xy[1],
             math.degrees(w.gaze_yaw),
+            answer.candidates,
             answer.held_by_others,
         )
         return

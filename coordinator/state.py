@@ -214,7 +214,10 @@ class CoordinatorState:
                     )
                 chosen = None if best is None else pool[best]
                 wander = None
-                if chosen is None:
+                # Wander only when eq. 35 targets exist but the others hold them: with none
+                # at all on the team map, "nothing left" lets the agent fall back on its own
+                # (eq. 35 on its map, then the 3-D frontier views the coordinator does not plan).
+                if chosen is None and found:
                     wander = self._wander(request.pose, cmap, reach, held, theirs)
                 goal = chosen.xy if chosen is not None else None if wander is None else wander.xy
                 if goal is not None:
