@@ -234,11 +234,6 @@ def texture_variance(gray: np.ndarray, window: int) -> np.ndarray:
     return mean_sq
 
 
-def texture(gray: np.ndarray, window: int) -> np.ndarray:
-    """Grey-level standard deviation over a ``window`` x ``window`` box around each pixel."""
-    return np.sqrt(np.maximum(texture_variance(gray, window), 0.0))
-
-
 def depth_from_disparity(disp: np.ndarray, calib: RectifiedRig) -> np.ndarray:
     """Depth Z = fx * baseline / (disp + cx_right - cx) in metres (float32); NaN where unknown.
 

@@ -1,17 +1,24 @@
 """Benchmarks that print their figures (``swarm bench ...``)."""
 
+import statistics
 import time
 from collections.abc import Callable
 
 
-def best_seconds(fn: Callable[[], object], repeat: int) -> float:
-    """The fastest of ``repeat`` timed calls of ``fn``."""
-    best = float("inf")
-    for _ in range(repeat):
+def timed_seconds(fn: Callable[[], object], repeat: int) -> tuple[float, float]:
+    """(fastest, median) wall seconds of ``repeat`` (at least one) timed calls of ``fn``."""
+    times = []
+    for _ in range(max(repeat, 1)):
         t0 = time.perf_counter()
         fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+        times.append(time.perf_counter() - t0)
+    times.sort()
+    return times[0], float(statistics.median(times))
+
+
+def best_seconds(fn: Callable[[], object], repeat: int) -> float:
+    """The fastest of ``repeat`` timed calls of ``fn``."""
+    return timed_seconds(fn, repeat)[0]
 
 
 def best_cpu_seconds(fn: Callable[[], object], repeat: int) -> float:

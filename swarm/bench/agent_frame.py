@@ -64,8 +64,8 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     per_ray = replace(cmap.sensor, discretize=False)
     per_voxel = replace(cmap.sensor, discretize=True)
 
-    def fuse(sensor) -> None:
-        cmap.apply(batch_information(cmap.grid, sensor, origin, points).delta)
+    def fuse(sensor, cloud: np.ndarray = points) -> None:
+        cmap.apply(batch_information(cmap.grid, sensor, origin, cloud).delta)
 
     def plan() -> None:
         trav = build_traversability(cmap, robot_radius=mission.robot.radius, swept=origin[None, :2])
@@ -79,8 +79,7 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     default = mission.sensor.model(pixels=width * height)  # the agent's information model at this size
 
     def frame() -> None:
-        fuse_points = stereo()
-        cmap.apply(batch_information(cmap.grid, default, origin, fuse_points).delta)
+        fuse(default, stereo())
         plan()
 
     return {

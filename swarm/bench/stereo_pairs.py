@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from robot_agent.stereo import StereoMatcher
+from swarm.bench import timed_seconds
 from swarm.formats.calibration_formats import load_middlebury, load_stereo_calibration
 from swarm.formats.stereo_calibration import StereoCalibration
 
@@ -214,16 +215,6 @@ def _describe(options: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in options.items())
 
 
-def timed_ms(fn, repeat: int) -> tuple[float, float]:
-    """(best, median) milliseconds of ``repeat`` calls of ``fn``."""
-    times = []
-    for _ in range(max(repeat, 1)):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times) * 1e3, float(np.median(times)) * 1e3
-
-
 def timing(euroc: Path, repeat: int, min_depth: float = 0.3) -> list[tuple[str, str, float, float, float]]:
     """Rows (size, matcher, best ms, median ms, valid) of disparity + depth on a rectified EuRoC pair."""
     calib = load_stereo_calibration(euroc / "mav0/cam0/sensor.yaml", euroc / "mav0/cam1/sensor.yaml")
@@ -241,10 +232,10 @@ def timing(euroc: Path, repeat: int, min_depth: float = 0.3) -> list[tuple[str, 
                 sx = w / left.shape[1]
                 rig = type("Rig", (), {"fx": calib.fx * sx, "cx": calib.cx * sx, "baseline": calib.baseline})
                 m = StereoMatcher.for_rig(rig, min_depth, mode=mode, scale=scale)
-                best, median = timed_ms(lambda m=m, a=img_l, b=img_r, c=rig: m.depth(a, b, c), repeat)
+                best, median = timed_seconds(lambda m=m, a=img_l, b=img_r, c=rig: m.depth(a, b, c), repeat)
                 valid = float(np.isfinite(m.disparity(img_l, img_r)).mean())
                 label = f"{mode} scale {scale:g} ({m.num_disparities} disp.)"
-                rows.append((f"{w}x{h}", label, best, median, valid))
+                rows.append((f"{w}x{h}", label, best * 1e3, median * 1e3, valid))
     return rows
 
 
