@@ -65,6 +65,13 @@ class _Progress:
     frames: int = 0
 
 
+def load_kernels() -> None:
+    """Load (on a fresh install: compile into Numba's cache) every compiled kernel an agent runs
+    per frame: fusion (``swarm.map.fusion``) and world points (``robot_agent.stereo``)."""
+    warm_up()
+    stereo.warm_up()
+
+
 class Explorer:
     """The local map of one robot and the decisions it drives by."""
 
@@ -79,13 +86,12 @@ class Explorer:
         self.rig = mission.rig_for(robot_id)
         self.sensor = mission.sensor.model(pixels=self.rig.width * self.rig.height)
         self.map = CoverageMap(self.grid, self.sensor)
-        warm_up()  # the compiled fusion kernels, before the first frame (see swarm.map.fusion)
+        load_kernels()  # before the first frame
         self.table = default_table()
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
         self.threshold = mission.threshold_bits()
         camera = self.rig.camera()
         self.matcher = StereoMatcher.for_rig(camera) if self.rig.mode == "stereo" else None
-        stereo.warm_up()
         body = mission.robot
         self.follower = PathFollower(
             FollowerLimits(max_speed=body.max_speed, max_turn_rate=body.max_turn_rate)

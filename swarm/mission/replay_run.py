@@ -25,15 +25,14 @@ import numpy as np
 from replay.frames import RecordedPair, make_frame, rectified_camera
 from replay.matching import Matched
 from replay.publisher import FramePublisher
+from robot_agent.explorer import load_kernels
 from robot_agent.stereo import StereoMatcher
-from robot_agent.stereo import warm_up as stereo_warm_up
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
 from swarm.formats.point_cloud_file import write_ply_points
 from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
-from swarm.map.fusion import warm_up
 from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
@@ -110,8 +109,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     # Compile the fusion and point kernels here (a no-op load when Numba's cache is warm), so that
     # the agent loads them from the cache: on a fresh clone it would compile them at start, which
     # on a busy machine outlasted the wait for its subscription below.
-    warm_up()
-    stereo_warm_up()
+    load_kernels()
     endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
     if options.connect:
         session = bus.open_session(connect=[endpoint], config_file=options.zenoh_config)

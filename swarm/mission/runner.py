@@ -31,13 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from robot_agent import stereo
+from robot_agent.explorer import load_kernels
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
-from swarm.map.fusion import warm_up
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
@@ -216,8 +215,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     threshold = mission.threshold_bits()
     # Compile the fusion and point kernels once here (a no-op load when Numba's cache is warm), so that
     # the agents load them from the cache instead of each compiling them at start.
-    warm_up()
-    stereo.warm_up()
+    load_kernels()
 
     monitor = TeamMonitor(mission)
     name = mission.mission
