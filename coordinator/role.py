@@ -19,13 +19,14 @@ statuses in arrival order, one thread answers queries one at a time). An agent a
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import queue
 import threading
 import time
-from collections import Counter
-from collections.abc import Callable
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
 
 import zenoh
 
@@ -41,6 +42,9 @@ log = logging.getLogger("coordinator")
 
 #: Seconds to wait for a map server's snapshot at start.
 SNAPSHOT_TIMEOUT_S = 3.0
+
+#: The answer times ``coord/stats`` summarises: the most recent this many.
+ANSWER_TIMES_KEPT = 10_000
 
 
 # ---------------------------------------------------------------------------------------
@@ -74,6 +78,8 @@ class Coordinator:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._declared: list = []
+        #: milliseconds each answered ``coord/assign`` took, from its arrival to the reply
+        self.answer_ms: deque[float] = deque(maxlen=ANSWER_TIMES_KEPT)
 
     @property
     def counts(self) -> Counter[str]:
@@ -98,6 +104,7 @@ class Coordinator:
         for t in self._threads:
             t.start()
         self._declared.append(s.declare_queryable(bus.key(name, "coord", "assign"), self._queries.put))
+        self._declared.append(s.declare_queryable(bus.key(name, "coord", "stats"), self._on_stats))
         p = self.state.params
         log.info(
             "coordinator for mission %s: footprint %.2f m, beta %.3f/m, robot timeout %.1f s, map %s",
@@ -156,10 +163,24 @@ class Coordinator:
                 query = self._queries.get(timeout=0.2)
             except queue.Empty:
                 continue
+            started = time.perf_counter()
             try:
                 self._answer(query)
             finally:
                 query.drop()
+            self.answer_ms.append(1e3 * (time.perf_counter() - started))
+
+    def stats(self) -> dict:
+        """The ``coord/stats`` object: answer times (ms) and every counter (docs/protocol.md)."""
+        return {"answer_ms": answer_time_summary(list(self.answer_ms)), "counts": dict(self.counts)}
+
+    def _on_stats(self, query: zenoh.Query) -> None:
+        try:
+            text = json.dumps(self.stats(), allow_nan=False)
+            query.reply(query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
+        except Exception as exc:  # never die of one query
+            log.exception("coord/stats failed")
+            query.reply_err(f"coord/stats: {exc}".encode())
 
     def _answer(self, query: zenoh.Query) -> None:
         payload = b"" if query.payload is None else query.payload.to_bytes()
@@ -198,6 +219,24 @@ class Coordinator:
         """Block until ``stop()`` or ``request_stop()`` is called."""
         while not self._stop.wait(0.5):
             pass
+
+
+def answer_time_summary(times_ms: Iterable[float]) -> dict:
+    """``{count, mean, p50, p95, max}`` of answer times in milliseconds (zeros when none)."""
+    times = sorted(float(t) for t in times_ms)
+    if not times:
+        return {"count": 0, "mean": 0.0, "p50": 0.0, "p95": 0.0, "max": 0.0}
+
+    def rank(q: float) -> float:  # nearest-rank percentile
+        return times[max(math.ceil(q * len(times)) - 1, 0)]
+
+    return {
+        "count": len(times),
+        "mean": sum(times) / len(times),
+        "p50": rank(0.50),
+        "p95": rank(0.95),
+        "max": times[-1],
+    }
 
 
 def _log_answer(answer: Answer) -> None:

@@ -20,7 +20,7 @@ from scipy import ndimage
 from coordinator.assignment import CoordinationParams
 from coordinator.command import add_arguments
 from coordinator.replica import TeamMap
-from coordinator.role import Coordinator
+from coordinator.role import Coordinator, answer_time_summary
 from coordinator.state import CoordinatorState, params_from_mission
 from map_server.team_map import TeamMap as ServerTeamMap
 from swarm.config import mission_from_dict
@@ -30,7 +30,7 @@ from swarm.navigation.exploration import wander_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
 from swarm.protocol import bus
-from swarm.protocol.coord_client import ask_for_target
+from swarm.protocol.coord_client import ask_for_target, coordinator_stats
 from swarm.protocol.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status
 
 MISSION = {
@@ -383,11 +383,32 @@ def test_coordinator_role_over_zenoh():
         )
         assert r4.target == pytest.approx(replies["r1"].target)
         assert coordinator.counts["assigned"] == 4
+
+        # coord/stats: every answered query (good and bad) timed, and the same counters
+        stats = coordinator_stats(client, name, timeout=5.0)
+        assert stats is not None
+        times = stats["answer_ms"]
+        assert times["count"] == 4 + len(bad)
+        assert 0 < times["p50"] <= times["p95"] <= times["max"] and times["mean"] <= times["max"]
+        assert stats["counts"]["assigned"] == 4
+        assert stats["counts"]["requests_rejected"] == len(bad)
     finally:
         coordinator.stop()
         coord_session.close()
         client.close()
         server.close()
+
+
+def test_answer_time_summary_takes_nearest_rank_percentiles():
+    rng = np.random.default_rng(3)
+    times = rng.lognormal(2.0, 1.0, 101).tolist()
+    summary = answer_time_summary(times)
+    assert summary["count"] == 101
+    assert summary["mean"] == pytest.approx(np.mean(times))
+    for key, q in (("p50", 50), ("p95", 95)):
+        assert summary[key] == np.percentile(times, q, method="inverted_cdf")
+    assert summary["max"] == max(times)
+    assert answer_time_summary([]) == {"count": 0, "mean": 0.0, "p50": 0.0, "p95": 0.0, "max": 0.0}
 
 
 def test_without_a_coordinator_the_agent_is_told_nothing_and_decides_alone():

@@ -38,7 +38,7 @@ from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
-from swarm.protocol import bus
+from swarm.protocol import bus, coord_client
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
@@ -240,6 +240,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     world: subprocess.Popen | None = None
     agents: list[subprocess.Popen] = []
     server_map = None
+    coordinator_stats = None
     at_stop = (monitor.team_entropy, 0)
     client = MapClient(session, name, timeout=2.0)
     started = time.monotonic()
@@ -308,6 +309,8 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         _stop([world] if world is not None else [])
         if reason != "starting":
             server_map = _final_server_map(client, monitor)
+            if options.coordination != "none":
+                coordinator_stats = coord_client.coordinator_stats(session, name)
         _stop(services)
         for sub in subs:
             sub.undeclare()
@@ -317,6 +320,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         "wall_time_s": time.monotonic() - started,
         "threshold_bits": threshold,
         "server_map": server_map,
+        "coordinator_stats": coordinator_stats,
         "at_stop": {"entropy_bits": at_stop[0], "deltas": at_stop[1], "deltas_after_flush": monitor.applied},
         "exit_codes": {
             "world": world.returncode if world is not None else None,

@@ -120,6 +120,10 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
+    coordinator_stats = facts.get("coordinator_stats")
+    metrics["coordinator_answer_ms"] = (
+        None if coordinator_stats is None else coordinator_stats.get("answer_ms")
+    )
     metrics.update(
         evaluation.overlaps_during_mission(first_delta, metrics["entropy_curve"], metrics["threshold_bits"])
     )
@@ -149,6 +153,13 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         "distance_m",
     )
     print(final_line(metrics, facts), flush=True)
+    answers = metrics["coordinator_answer_ms"]
+    if answers:
+        print(
+            f"coordinator: {answers['count']} answers, {answers['mean']:.1f} ms mean, "
+            f"{answers['p95']:.1f} ms p95, {answers['max']:.1f} ms max (coord/stats)",
+            flush=True,
+        )
     print(json.dumps({k: metrics.get(k) for k in keys}, default=str))
     print(f"stopped: {facts['reason']}; evaluation {time.monotonic() - t0:.1f} s; wrote {out}/")
     return 0

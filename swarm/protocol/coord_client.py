@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 
 import zenoh
@@ -49,3 +50,25 @@ def ask_for_target(
     except WireError as exc:
         log.warning("%s: malformed coordinator reply: %s", robot, exc)
     return None
+
+
+def coordinator_stats(session: zenoh.Session, mission: str, timeout: float = 2.0) -> dict | None:
+    """The ``coord/stats`` JSON object of ``mission``'s coordinator, or None without a usable answer.
+
+    It holds ``answer_ms`` (``count``, ``mean``, ``p50``, ``p95``, ``max`` of the time from a
+    ``coord/assign`` query's arrival to its reply, over the coordinator's most recent answers)
+    and ``counts`` (requests, assignments, merged deltas and statuses); docs/protocol.md.
+    """
+    try:
+        answer = ask(session, bus.key(mission, "coord", "stats"), timeout=timeout)
+    except (ConflictingReplies, zenoh.ZError) as exc:
+        log.warning("coord/stats query failed: %s", exc)
+        return None
+    if answer is None or answer.ok is None:
+        return None
+    try:
+        stats = json.loads(answer.ok)
+    except ValueError as exc:
+        log.warning("coord/stats: the reply is not JSON: %s", exc)
+        return None
+    return stats if isinstance(stats, dict) else None

@@ -85,7 +85,12 @@ def access_control(mission: str, robots: list[str]) -> dict:
         # the server answers a query on swarm/*/map/stats on that very key: it must go out too
         _rule("team-receives", RECEIVED, "egress", [f"{p}/**", STATS_OF_ANY_MISSION]),
         _rule("team-reads", ["declare_subscriber"], "ingress", [f"{p}/**"]),
-        _rule("team-queries-map", ["query"], "ingress", [f"{p}/map/**", STATS_OF_ANY_MISSION]),
+        _rule(
+            "team-queries-map",
+            ["query"],
+            "ingress",
+            [f"{p}/map/**", f"{p}/coord/stats", STATS_OF_ANY_MISSION],
+        ),
         _rule("server-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/map/**"]),
         _rule("server-puts", ["put"], "ingress", [f"{p}/merged"]),
         _rule("coordinator-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/coord/**"]),

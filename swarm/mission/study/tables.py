@@ -39,6 +39,10 @@ RESULT_COLUMNS = (
     "distance_max_m",
     "bytes_total",
     "bytes_mean",
+    "coordinator_answers",
+    "coordinator_answer_ms_mean",
+    "coordinator_answer_ms_p95",
+    "coordinator_answer_ms_max",
     "stop_reason",
     "run_dir",
     "log",
@@ -53,6 +57,10 @@ _DERIVED = (
     "distance_max_m",
     "bytes_total",
     "bytes_mean",
+    "coordinator_answers",
+    "coordinator_answer_ms_mean",
+    "coordinator_answer_ms_p95",
+    "coordinator_answer_ms_max",
     "run_dir",
     "log",
     "note",
@@ -94,6 +102,11 @@ def result_row(result: RunResult) -> dict[str, Any]:
     sent = [int(v) for v in (m.get("bytes_shared") or {}).values() if v is not None]
     row["bytes_total"] = sum(sent)
     row["bytes_mean"] = sum(sent) / c.robots
+    answers = m.get("coordinator_answer_ms")
+    if isinstance(answers, dict):
+        row["coordinator_answers"] = answers.get("count")
+        for stat in ("mean", "p95", "max"):
+            row[f"coordinator_answer_ms_{stat}"] = answers.get(stat)
     return row
 
 
