@@ -89,9 +89,13 @@ class CoverageMap:
         return 1.0 / np.sqrt(self.lam[idx])
 
     def known_mask(self) -> np.ndarray:
-        """Voxels with any information beyond the prior."""
+        """Voxels with any information beyond the prior: lam above ``known_threshold()``."""
+        return self.lam > self.known_threshold()
+
+    def known_threshold(self) -> np.float32:
+        """The float32 lam above which a voxel counts as known (the prior's, plus a relative 1e-5)."""
         lam0, _ = prior_information(self.sensor)
-        return self.lam > np.float32(lam0) * np.float32(1.0 + 1e-5)
+        return np.float32(lam0) * np.float32(1.0 + 1e-5)
 
 
 def _flat(values: np.ndarray, grid: Grid) -> np.ndarray:
