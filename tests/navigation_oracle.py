@@ -8,8 +8,12 @@ these, which are slower on the agent's grids because of per-call overheads, not 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
@@ -69,3 +73,34 @@ def _discs(
         cy = origin[1] + (np.arange(j0, j1) + 0.5) * res - py
         out[i0:i1, j0:j1] |= cx[:, None] ** 2 + cy[None, :] ** 2 <= r * r
     return out
+
+
+def reference_graph(free: np.ndarray) -> csr_matrix:
+    """``GridPlanner``'s graph of a bool grid, edge lists as numpy masks, assembled as COO."""
+    f = np.asarray(free, dtype=bool)
+    nx, ny = f.shape
+    node_of = np.full(f.size, -1, dtype=np.int64)
+    cell_of = np.flatnonzero(f.ravel())
+    node_of[cell_of] = np.arange(cell_of.size)
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    rows, cols, weights = [], [], []
+
+    def add(a: np.ndarray, b: np.ndarray, ok: np.ndarray, w: float) -> None:
+        rows.append(node_of[a[ok]])
+        cols.append(node_of[b[ok]])
+        weights.append(np.full(int(ok.sum()), w))
+
+    add(idx[:-1, :], idx[1:, :], f[:-1, :] & f[1:, :], 1.0)
+    add(idx[:, :-1], idx[:, 1:], f[:, :-1] & f[:, 1:], 1.0)
+    d = math.sqrt(2.0)
+    add(idx[:-1, :-1], idx[1:, 1:], f[:-1, :-1] & f[1:, 1:] & f[1:, :-1] & f[:-1, 1:], d)
+    add(idx[:-1, 1:], idx[1:, :-1], f[:-1, 1:] & f[1:, :-1] & f[:-1, :-1] & f[1:, 1:], d)
+    n = cell_of.size
+    return coo_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+    ).tocsr()
+
+
+def reference_tree(free: np.ndarray, node: int) -> tuple[np.ndarray, np.ndarray]:
+    """Dijkstra on ``reference_graph``: (distance in cells, predecessor) of every node from ``node``."""
+    return dijkstra(reference_graph(free), directed=False, indices=node, return_predecessors=True)

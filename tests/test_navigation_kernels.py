@@ -8,8 +8,14 @@ import pytest
 from swarm.map.coverage_map import CoverageMap, prior_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from swarm.navigation.traversability import build_traversability, inflate
-from tests.navigation_oracle import reference_build_traversability, reference_inflate
+from swarm.navigation.planner import GridPlanner
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
+from tests.navigation_oracle import (
+    reference_build_traversability,
+    reference_graph,
+    reference_inflate,
+    reference_tree,
+)
 
 
 def random_map(rng: np.random.Generator, shape=(41, 29, 9), voxel: float = 0.1) -> CoverageMap:
@@ -64,3 +70,55 @@ def test_inflate_equals_the_distance_transform(seed: int) -> None:
                 reference_inflate(blocked, resolution, radius),
                 err_msg=f"{shape} {density} {resolution} {radius}",
             )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_planner_graph_and_trees_equal_the_scipy_oracle(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for shape, density in (((1, 1), 1.0), ((1, 9), 0.8), ((9, 1), 0.8), ((30, 22), 0.75), ((25, 40), 0.95)):
+        free = rng.random(shape) < density
+        planner = GridPlanner(free)
+        graph, oracle = planner._graph, reference_graph(free)
+        for name in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(graph, name), getattr(oracle, name), err_msg=name)
+            assert getattr(graph, name).dtype == getattr(oracle, name).dtype
+        cells = np.argwhere(free)
+        if len(cells) == 0:
+            continue
+        for start in cells[rng.integers(0, len(cells), 3)]:
+            node = planner._node(tuple(start))
+            dist, pred = reference_tree(free, node)
+            cost = planner.cost_map(tuple(start))  # then a path from the same start: one Dijkstra
+            np.testing.assert_array_equal(cost.ravel()[planner._cell_of], dist)
+            for goal in cells[rng.integers(0, len(cells), 5)]:
+                path = planner.plan_cells(tuple(start), tuple(goal))
+                g = planner._node(tuple(goal))
+                if not np.isfinite(dist[g]):
+                    assert path is None
+                    continue
+                chain = [g]
+                while chain[-1] != node:
+                    chain.append(int(pred[chain[-1]]))
+                expected = np.argwhere(free.ravel())[chain[::-1], 0]
+                np.testing.assert_array_equal(path[:, 0] * shape[1] + path[:, 1], expected)
+
+
+def test_segment_is_free_checks_exactly_the_segment_cells() -> None:
+    rng = np.random.default_rng(7)
+    free = rng.random((12, 9)) < 0.85
+    grid = TraversabilityGrid(free, ~free, np.zeros_like(free), (-0.35, 0.2), 0.1)
+    ends = np.vstack(
+        [
+            rng.uniform(-0.5, 1.0, (300, 2)),
+            # On cell corners and lines, and just beside them, to exercise the corner rule.
+            -0.35 + 0.1 * rng.integers(-1, 13, (200, 2)) * np.array([1.0, 1.0]) + [0.0, 0.55],
+            grid.centre(rng.integers(0, 12, (100, 2))) + rng.choice([0.0, 1e-10, -0.05], (100, 2)),
+        ]
+    )
+    seen = set()
+    for k in range(0, len(ends) - 1):
+        a, b = ends[k], ends[(k * 7 + 3) % len(ends)]
+        expected = bool(np.all(grid.is_free(grid.segment_cells(a, b))))
+        assert grid.segment_is_free(a, b) == expected, (a, b)
+        seen.add(expected)
+    assert seen == {True, False}

@@ -99,3 +99,105 @@ def disc_cells(xy, origin_x, origin_y, res, nx, ny, r):
                 if cx * cx + cy * cy <= rr:
                     out[i, j] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def grid_graph(free, node_of, diagonal):
+    """The planner's graph in canonical CSR form (indptr, indices int32; weights float64).
+
+    Node n is the n-th free cell in C order (``node_of`` (nx * ny,) int64, -1 where not free);
+    each node's row lists its forward neighbours, in increasing node order: (i, j+1) at cost
+    1, (i+1, j-1) and (i+1, j+1) at cost ``diagonal`` when both cells they pass between are
+    free, and (i+1, j) at cost 1. Undirected use (scipy's ``directed=False``) adds the rest.
+    """
+    nx, ny = free.shape
+    nodes = 0
+    for i in range(nx):
+        for j in range(ny):
+            nodes += free[i, j]
+    indptr = np.zeros(nodes + 1, np.int32)
+    indices = np.empty(4 * nodes, np.int32)
+    weights = np.empty(4 * nodes)
+    n = 0
+    e = 0
+    for i in range(nx):
+        for j in range(ny):
+            if not free[i, j]:
+                continue
+            if j + 1 < ny and free[i, j + 1]:
+                indices[e] = node_of[i * ny + j + 1]
+                weights[e] = 1.0
+                e += 1
+            if i + 1 < nx:
+                down = free[i + 1, j]
+                if j >= 1 and down and free[i + 1, j - 1] and free[i, j - 1]:
+                    indices[e] = node_of[(i + 1) * ny + j - 1]
+                    weights[e] = diagonal
+                    e += 1
+                if down:
+                    indices[e] = node_of[(i + 1) * ny + j]
+                    weights[e] = 1.0
+                    e += 1
+                if j + 1 < ny and down and free[i + 1, j + 1] and free[i, j + 1]:
+                    indices[e] = node_of[(i + 1) * ny + j + 1]
+                    weights[e] = diagonal
+                    e += 1
+            n += 1
+            indptr[n] = e
+    return indptr, indices[:e], weights[:e]
+
+
+@njit(cache=True, nogil=True)
+def segment_is_free(free, ax, ay, bx, by):
+    """True if every cell the segment a -> b (cell units from the grid's origin) passes through
+    is inside ``free`` (nx, ny) and free: the cells of ``TraversabilityGrid.segment_cells``
+    (the cell of each stretch between line crossings, the four cells around a crossed
+    corner, the cells of both ends), checked without building the set.
+    """
+    nx, ny = free.shape
+    dx = bx - ax
+    dy = by - ay
+    # The parameters t in [0, 1] where the segment crosses a grid line, with 0 and 1.
+    count = 2
+    for a, b, d in ((ax, bx, dx), (ay, by, dy)):
+        if d != 0:
+            lo, hi = min(a, b), max(a, b)
+            count += max(int(math.floor(hi) - math.ceil(lo)) + 1, 0)
+    ts = np.empty(count)
+    ts[0] = 0.0
+    ts[1] = 1.0
+    n = 2
+    for a, b, d in ((ax, bx, dx), (ay, by, dy)):
+        if d != 0:
+            lo, hi = min(a, b), max(a, b)
+            line = math.ceil(lo)
+            while line <= math.floor(hi):
+                ts[n] = min(max((line - a) / d, 0.0), 1.0)
+                n += 1
+                line += 1.0
+    ts = np.unique(ts[:n])
+    cells = np.empty((len(ts) + 1 + 4 * len(ts) + 2, 2), np.int64)
+    c = 0
+    for m in range(len(ts) - 1):
+        mid = 0.5 * (ts[m] + ts[m + 1])
+        cells[c, 0] = int(math.floor(ax + mid * dx))
+        cells[c, 1] = int(math.floor(ay + mid * dy))
+        c += 1
+    eps = 1e-9
+    for m in range(len(ts)):
+        px = ax + ts[m] * dx
+        py = ay + ts[m] * dy
+        if abs(px - round(px)) < eps and abs(py - round(py)) < eps:
+            for sx in (-2 * eps, 2 * eps):
+                for sy in (-2 * eps, 2 * eps):
+                    cells[c, 0] = int(math.floor(px + sx))
+                    cells[c, 1] = int(math.floor(py + sy))
+                    c += 1
+    cells[c, 0], cells[c, 1] = int(math.floor(ax)), int(math.floor(ay))
+    cells[c + 1, 0], cells[c + 1, 1] = int(math.floor(bx)), int(math.floor(by))
+    c += 2
+    for m in range(c):
+        i, j = cells[m, 0], cells[m, 1]
+        if i < 0 or j < 0 or i >= nx or j >= ny or not free[i, j]:
+            return False
+    return True

@@ -118,8 +118,19 @@ class TraversabilityGrid:
         return np.unique(np.concatenate(cells).astype(np.int64), axis=0)
 
     def segment_is_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """True if every cell the straight world segment a -> b passes through is navigable."""
-        return bool(np.all(self.is_free(self.segment_cells(a, b))))
+        """True if every cell the straight world segment a -> b passes through is navigable
+        (every cell of ``segment_cells(a, b)``; compiled, without building the set)."""
+        ox, oy = self.origin
+        res = self.resolution
+        return bool(
+            kernels.segment_is_free(
+                self.free,
+                (float(a[0]) - ox) / res,
+                (float(a[1]) - oy) / res,
+                (float(b[0]) - ox) / res,
+                (float(b[1]) - oy) / res,
+            )
+        )
 
     def path_is_free(self, waypoints: np.ndarray) -> bool:
         """True if every segment of a world polyline (K, 2) is navigable."""
