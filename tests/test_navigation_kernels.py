@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 
 from swarm.map.coverage_map import CoverageMap, prior_information
+from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
+from swarm.navigation import grid_kernels as kernels
+from swarm.navigation.grid_kernels import CERTAIN_BOUND
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 from tests.navigation_oracle import (
@@ -122,3 +125,31 @@ def test_segment_is_free_checks_exactly_the_segment_cells() -> None:
         assert grid.segment_is_free(a, b) == expected, (a, b)
         seen.add(expected)
     assert seen == {True, False}
+
+
+@pytest.mark.parametrize("threshold", [0.2, 0.5, 0.9])
+def test_band_occupancy_bound_never_decides_against_expected_coverage(threshold: float) -> None:
+    """Voxels the bound decides (occupied or free) get the answer E[C] gives; the rest are returned."""
+    rng = np.random.default_rng(3)
+    n = 200_000
+    sigma = np.concatenate([10 ** rng.uniform(-10, -0.5, n // 2), rng.uniform(0.04, 0.06, n // 2)])
+    mu = np.where(
+        rng.random(n) < 0.5,
+        threshold + rng.choice([-1, 1], n) * CERTAIN_BOUND * sigma * rng.uniform(0.9, 1.1, n),
+        rng.uniform(-3, 4, n),
+    )
+    lam = (1.0 / sigma**2).astype(np.float32)
+    eta = (mu * lam).astype(np.float32)
+    unknown, occupied, m, s, column = kernels.band_occupancy(
+        lam, eta, (n, 1, 1), 0, 1, np.float32(0.0), threshold, SIGMA_MIN, SIGMA_MAX
+    )
+    assert not unknown.any()
+    exact = (
+        expected_coverage(eta.astype(np.float64) / lam, 1.0 / np.sqrt(lam.astype(np.float64))) >= threshold
+    )
+    decided = np.ones(n, bool)
+    decided[column] = False
+    np.testing.assert_array_equal(occupied[decided], exact[decided])
+    assert not occupied[~decided].any()
+    np.testing.assert_array_equal(expected_coverage(m, s) >= threshold, exact[column])
+    assert 0.05 * n < len(column) < 0.8 * n  # the bound decides many, not all

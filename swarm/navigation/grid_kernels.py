@@ -14,18 +14,32 @@ import math
 import numpy as np
 from numba import njit
 
+#: Below this sigma (after E[C]'s clamp) a belief with mean mu has |E[C] - clip(mu, 0, 1)|
+#: <= CERTAIN_BOUND * sigma: for mu in [0, 1], E[C] = mu + sigma (phi(a) - phi(b)) / Z with
+#: a = -mu / sigma, b = (1 - mu) / sigma, |phi(a) - phi(b)| <= phi(0) and, as b - a >= 20,
+#: Z = Phi(b) - Phi(a) >= Phi(10) - 1/2; so the bound phi(0) / (Phi(10) - 1/2) = 0.7979 < 0.8.
+#: Outside [0, 1], E[C] is monotone in mu, so the bound at the nearest end holds.
+CERTAIN_SIGMA = 0.05
+CERTAIN_BOUND = 0.8
+#: Margin for E[C]'s rounding (its absolute error is about 1e-13).
+CERTAIN_MARGIN = 1e-6
+
 
 @njit(cache=True, nogil=True)
-def band_beliefs(lam, eta, shape, k0, k1, lam_known):
-    """The known voxels of the band of layers [k0, k1) of a map: their beliefs and columns.
+def band_occupancy(lam, eta, shape, k0, k1, lam_known, threshold, sigma_min, sigma_max):
+    """The band of layers [k0, k1) of a map, per column: unknown, and occupied where sure.
 
     ``lam``, ``eta`` flat C-order float32 (nx * ny * nz); a voxel is known when its lam
-    exceeds ``lam_known`` (float32). Returns ``unknown`` (nx * ny,) bool: a band voxel of the
-    column is not known; ``mu`` (K,) = eta / lam and ``sigma`` (K,) = 1 / sqrt(lam) in float64
-    of the K known band voxels; ``column`` (K,) their flat column index i * ny + j.
+    exceeds ``lam_known`` (float32), occupied when known and E[C] >= ``threshold``. Returns
+    ``unknown`` (nx * ny,) bool: a band voxel of the column is not known; ``occupied``
+    (nx * ny,) bool: a band voxel is surely occupied (the bound of ``CERTAIN_BOUND``); and
+    the known voxels the bound leaves undecided: ``mu`` (K,) = eta / lam, ``sigma`` (K,) =
+    1 / sqrt(lam) (float64), ``column`` (K,) their flat column i * ny + j, whose E[C] the
+    caller computes. ``sigma_min``, ``sigma_max``: E[C]'s clamp of sigma.
     """
     nx, ny, nz = shape[0], shape[1], shape[2]
     unknown = np.zeros(nx * ny, np.bool_)
+    occupied = np.zeros(nx * ny, np.bool_)
     size = nx * ny * (k1 - k0)
     mu = np.empty(size)
     sigma = np.empty(size)
@@ -35,15 +49,27 @@ def band_beliefs(lam, eta, shape, k0, k1, lam_known):
         base = c * nz
         for k in range(k0, k1):
             lv = lam[base + k]
-            if lv > lam_known:
-                lv64 = np.float64(lv)
-                mu[n] = np.float64(eta[base + k]) / lv64
-                sigma[n] = 1.0 / math.sqrt(lv64)
-                column[n] = c
-                n += 1
-            else:
+            if not lv > lam_known:
                 unknown[c] = True
-    return unknown, mu[:n], sigma[:n], column[:n]
+                continue
+            if occupied[c]:
+                continue  # the column's answer is known; the voxel cannot change it
+            lv64 = np.float64(lv)
+            m = np.float64(eta[base + k]) / lv64
+            sg = 1.0 / math.sqrt(lv64)
+            s = min(max(sg, sigma_min), sigma_max)
+            if s <= CERTAIN_SIGMA:
+                slack = CERTAIN_BOUND * s + CERTAIN_MARGIN
+                if max(m, 0.0) + slack < threshold:
+                    continue  # surely E[C] < threshold
+                if min(m, 1.0) - slack >= threshold:
+                    occupied[c] = True
+                    continue
+            mu[n] = m
+            sigma[n] = sg
+            column[n] = c
+            n += 1
+    return unknown, occupied, mu[:n], sigma[:n], column[:n]
 
 
 @njit(cache=True, nogil=True)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import expected_coverage
+from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.navigation import grid_kernels as kernels
 
 
@@ -182,10 +182,19 @@ def build_traversability(
     grid = cmap.grid
     nx, ny, nz = grid.shape
     layers = band_layers(cmap, floor_clearance, robot_height)  # contiguous: z grows with k
-    unknown, mu, sigma, column = kernels.band_beliefs(
-        cmap.lam, cmap.eta, grid.shape, int(layers[0]), int(layers[-1]) + 1, cmap.known_threshold()
+    # E[C] is computed only where a bound on it leaves the answer open (most known voxels
+    # have a small sigma and a mean far from the threshold).
+    unknown, occupied, mu, sigma, column = kernels.band_occupancy(
+        cmap.lam,
+        cmap.eta,
+        grid.shape,
+        int(layers[0]),
+        int(layers[-1]) + 1,
+        cmap.known_threshold(),
+        float(free_threshold),
+        SIGMA_MIN,
+        SIGMA_MAX,
     )
-    occupied = np.zeros(nx * ny, dtype=bool)
     occupied[column[expected_coverage(mu, sigma) >= free_threshold]] = True
     occupied = occupied.reshape(nx, ny)
     unknown = unknown.reshape(nx, ny)
