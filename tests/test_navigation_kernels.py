@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -153,3 +159,29 @@ def test_band_occupancy_bound_never_decides_against_expected_coverage(threshold:
     assert not occupied[~decided].any()
     np.testing.assert_array_equal(expected_coverage(m, s) >= threshold, exact[column])
     assert 0.05 * n < len(column) < 0.8 * n  # the bound decides many, not all
+
+
+def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> None:
+    """Numba's own statistics after the agent's warm-up of planning: a fresh interpreter hits the cache."""
+    script = (
+        "import json\n"
+        "from swarm.map import coverage_map as c\n"
+        "from swarm.navigation import grid_kernels as k, planner\n"
+        "planner.warm_up()\n"
+        "fs = (k.band_occupancy, k.inflate_blocked, k.disc_cells, k.grid_graph, k.segment_is_free, "
+        "c._add_information)\n"
+        "print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]"
+        " for f in fs}))\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    runs = []
+    for _ in range(2):  # the first may compile and write the cache; the second must load it
+        out = subprocess.run(
+            [sys.executable, "-c", script], cwd=root, env=env, capture_output=True, text=True, timeout=600
+        )
+        assert out.returncode == 0, out.stderr
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    assert len(runs[1]) == 6
+    for name, (hits, misses) in runs[1].items():
+        assert hits >= 1 and misses == 0, (name, runs)

@@ -24,7 +24,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from swarm.navigation import grid_kernels as kernels
-from swarm.navigation.traversability import TraversabilityGrid
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability
 
 _FOUR = ndimage.generate_binary_structure(2, 1)
 
@@ -185,3 +185,19 @@ def shorten_path(grid: TraversabilityGrid, points: np.ndarray) -> np.ndarray:
         k = anchor + 2
     kept.append(len(points) - 1)
     return points[kept]
+
+
+def warm_up() -> None:
+    """Load (on a fresh install: compile into Numba's cache) the compiled navigation kernels
+    (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks)
+    now, not on the first decision, by planning once on a tiny map."""
+    from swarm.map.coverage_map import CoverageMap
+    from swarm.map.delta import Delta
+    from swarm.map.grid import Grid
+
+    cmap = CoverageMap(Grid((0.0, 0.0, 0.0), 0.1, (8, 8, 6)))
+    cmap.apply(Delta.empty())
+    cmap.lam[:] = 1e4  # known and free everywhere
+    cmap.eta[:] = 0.0
+    trav = build_traversability(cmap, robot_radius=0.1, swept=np.full((1, 2), 0.4))
+    GridPlanner(trav).plan(np.array([0.35, 0.35]), np.array([0.45, 0.45]))
