@@ -73,7 +73,15 @@ def test_inflate_equals_the_distance_transform(seed: int) -> None:
     for density in (0.0, 0.02, 0.2, 0.9):
         blocked = rng.random(shape) < density
         # Radii whose threshold falls on a distance exactly (ties are blocked) and between.
-        for resolution, radius in ((0.1, 0.0), (0.1, 0.15), (0.1, 0.18), (0.05, 0.1), (1.0, 1.5), (0.1, 0.6)):
+        for resolution, radius in (
+            (0.1, 0.0),
+            (0.1, 0.15),
+            (0.1, 0.18),
+            (0.05, 0.1),
+            (1.0, 1.5),
+            (0.1, 0.6),
+            (0.1, 1.03),
+        ):
             np.testing.assert_array_equal(
                 inflate(blocked, resolution, radius),
                 reference_inflate(blocked, resolution, radius),

@@ -77,11 +77,19 @@ def inflate_blocked(blocked, threshold):
     """Navigable mask (nx, ny) bool: cells whose centre is farther than ``threshold`` (cells)
     from the centre of every blocked cell and of every cell of the ring just outside the grid.
 
-    The test per blocked cell at offset (di, dj) is sqrt(di^2 + dj^2) <= threshold, as the
-    Euclidean distance transform's distance compared with the threshold.
+    A blocked cell at offset (di, dj) counts when sqrt(di^2 + dj^2) <= threshold, as the
+    Euclidean distance transform's distance compared with the threshold; row di of that
+    disc is |dj| <= width[di]. Few blocked cells stamp their disc; many are found per cell
+    and disc row with prefix counts (the work is then nx * ny times the disc's rows).
     """
     nx, ny = blocked.shape
     reach = int(math.floor(threshold))
+    width = np.full(2 * reach + 1, -1, np.int64)  # per row offset di: the largest |dj| in the disc
+    for di in range(-reach, reach + 1):
+        dj = 0
+        while math.sqrt(np.float64(di * di + dj * dj)) <= threshold:
+            width[di + reach] = dj
+            dj += 1
     free = np.ones((nx, ny), np.bool_)
     # The ring outside the grid: its nearest cell to (i, j) lies straight along an axis.
     for i in range(nx):
@@ -89,20 +97,39 @@ def inflate_blocked(blocked, threshold):
             edge = min(i + 1, nx - i, j + 1, ny - j)
             if math.sqrt(np.float64(edge * edge)) <= threshold:
                 free[i, j] = False
-    for bi in range(nx):
-        for bj in range(ny):
-            if not blocked[bi, bj]:
+    count = 0
+    for i in range(nx):
+        for j in range(ny):
+            count += blocked[i, j]
+    if count * (2 * reach + 1) <= nx * ny:
+        for bi in range(nx):
+            for bj in range(ny):
+                if not blocked[bi, bj]:
+                    continue
+                for di in range(-reach, reach + 1):
+                    i = bi + di
+                    w = width[di + reach]
+                    if i < 0 or i >= nx or w < 0:
+                        continue
+                    for j in range(max(bj - w, 0), min(bj + w, ny - 1) + 1):
+                        free[i, j] = False
+        return free
+    prefix = np.zeros((nx, ny + 1), np.int64)  # prefix[i, j]: blocked cells of row i before column j
+    for i in range(nx):
+        for j in range(ny):
+            prefix[i, j + 1] = prefix[i, j] + blocked[i, j]
+    for i in range(nx):
+        for j in range(ny):
+            if not free[i, j]:
                 continue
             for di in range(-reach, reach + 1):
-                i = bi + di
-                if i < 0 or i >= nx:
+                ii = i + di
+                w = width[di + reach]
+                if ii < 0 or ii >= nx or w < 0:
                     continue
-                for dj in range(-reach, reach + 1):
-                    j = bj + dj
-                    if j < 0 or j >= ny:
-                        continue
-                    if math.sqrt(np.float64(di * di + dj * dj)) <= threshold:
-                        free[i, j] = False
+                if prefix[ii, min(j + w, ny - 1) + 1] > prefix[ii, max(j - w, 0)]:
+                    free[i, j] = False
+                    break
     return free
 
 
