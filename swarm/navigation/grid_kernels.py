@@ -156,12 +156,14 @@ def disc_cells(xy, origin_x, origin_y, res, nx, ny, r):
 
 @njit(cache=True, nogil=True)
 def grid_graph(free, node_of, diagonal):
-    """The planner's graph in canonical CSR form (indptr, indices int32; weights float64).
+    """The planner's graph, both directions, as CSR arrays (indptr, indices int32; weights float64).
 
-    Node n is the n-th free cell in C order (``node_of`` (nx * ny,) int64, -1 where not free);
-    each node's row lists its forward neighbours, in increasing node order: (i, j+1) at cost
-    1, (i+1, j-1) and (i+1, j+1) at cost ``diagonal`` when both cells they pass between are
-    free, and (i+1, j) at cost 1. Undirected use (scipy's ``directed=False``) adds the rest.
+    Node n is the n-th free cell in C order (``node_of`` (nx * ny,) int64, -1 where not free).
+    Moves: the 4 orthogonal neighbours at cost 1, the 4 diagonal ones at cost ``diagonal``
+    when both cells they pass between are free. Each row lists first the neighbours after
+    the node (increasing), then those before it (increasing): the order in which scipy's
+    undirected Dijkstra scans a graph of forward edges and then its transpose, so a directed
+    Dijkstra on this graph relaxes the same edges in the same order.
     """
     nx, ny = free.shape
     nodes = 0
@@ -169,32 +171,50 @@ def grid_graph(free, node_of, diagonal):
         for j in range(ny):
             nodes += free[i, j]
     indptr = np.zeros(nodes + 1, np.int32)
-    indices = np.empty(4 * nodes, np.int32)
-    weights = np.empty(4 * nodes)
+    indices = np.empty(8 * nodes, np.int32)
+    weights = np.empty(8 * nodes)
     n = 0
     e = 0
     for i in range(nx):
         for j in range(ny):
             if not free[i, j]:
                 continue
-            if j + 1 < ny and free[i, j + 1]:
+            left = j >= 1 and free[i, j - 1]
+            right = j + 1 < ny and free[i, j + 1]
+            # after the node: (i, j+1), (i+1, j-1), (i+1, j), (i+1, j+1)
+            if right:
                 indices[e] = node_of[i * ny + j + 1]
                 weights[e] = 1.0
                 e += 1
-            if i + 1 < nx:
-                down = free[i + 1, j]
-                if j >= 1 and down and free[i + 1, j - 1] and free[i, j - 1]:
+            if i + 1 < nx and free[i + 1, j]:
+                if left and free[i + 1, j - 1]:
                     indices[e] = node_of[(i + 1) * ny + j - 1]
                     weights[e] = diagonal
                     e += 1
-                if down:
-                    indices[e] = node_of[(i + 1) * ny + j]
-                    weights[e] = 1.0
-                    e += 1
-                if j + 1 < ny and down and free[i + 1, j + 1] and free[i, j + 1]:
+                indices[e] = node_of[(i + 1) * ny + j]
+                weights[e] = 1.0
+                e += 1
+                if right and free[i + 1, j + 1]:
                     indices[e] = node_of[(i + 1) * ny + j + 1]
                     weights[e] = diagonal
                     e += 1
+            # before the node: (i-1, j-1), (i-1, j), (i-1, j+1), (i, j-1)
+            if i >= 1 and free[i - 1, j]:
+                if left and free[i - 1, j - 1]:
+                    indices[e] = node_of[(i - 1) * ny + j - 1]
+                    weights[e] = diagonal
+                    e += 1
+                indices[e] = node_of[(i - 1) * ny + j]
+                weights[e] = 1.0
+                e += 1
+                if right and free[i - 1, j + 1]:
+                    indices[e] = node_of[(i - 1) * ny + j + 1]
+                    weights[e] = diagonal
+                    e += 1
+            if left:
+                indices[e] = node_of[i * ny + j - 1]
+                weights[e] = 1.0
+                e += 1
             n += 1
             indptr[n] = e
     return indptr, indices[:e], weights[:e]

@@ -66,7 +66,8 @@ class GridPlanner:
         self._last_tree: tuple[int, np.ndarray, np.ndarray] | None = None
 
     def _build_graph(self) -> csr_matrix:
-        # Node rows hold their forward neighbours; diagonals only between two free cells (no corner cutting).
+        # Both directions, diagonals only between two free cells (no corner cutting); rows in
+        # the order scipy's undirected Dijkstra would scan them (see grid_kernels.grid_graph).
         indptr, indices, weights = kernels.grid_graph(
             np.ascontiguousarray(self.free), self._node_of, math.sqrt(2.0)
         )
@@ -77,7 +78,7 @@ class GridPlanner:
         """Dijkstra from ``node``: (distance in cells, predecessor) per node; the last one is kept,
         so that a cost map and a path from the same start run it once."""
         if self._last_tree is None or self._last_tree[0] != node:
-            dist, pred = dijkstra(self._graph, directed=False, indices=node, return_predecessors=True)
+            dist, pred = dijkstra(self._graph, directed=True, indices=node, return_predecessors=True)
             self._last_tree = (node, dist, pred)
         return self._last_tree[1], self._last_tree[2]
 
