@@ -166,8 +166,10 @@ def test_band_occupancy_bound_never_decides_against_expected_coverage(threshold:
         threshold + rng.choice([-1, 1], n) * CERTAIN_BOUND * sigma * rng.uniform(0.9, 1.1, n),
         rng.uniform(-3, 4, n),
     )
+    sigma[:4] = 1e-3  # where the bound would decide, ...
     lam = (1.0 / sigma**2).astype(np.float32)
     eta = (mu * lam).astype(np.float32)
+    eta[:3], lam[3] = [np.inf, -np.inf, np.nan], np.inf  # ... non-finite beliefs (E[C] NaN: not occupied)
     unknown, occupied, m, s, column = kernels.band_occupancy(
         lam, eta, (n, 1, 1), 0, 1, np.float32(0.0), threshold, SIGMA_MIN, SIGMA_MAX
     )

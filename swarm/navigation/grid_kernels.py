@@ -58,7 +58,7 @@ def band_occupancy(lam, eta, shape, k0, k1, lam_known, threshold, sigma_min, sig
             m = np.float64(eta[base + k]) / lv64
             sg = 1.0 / math.sqrt(lv64)
             s = min(max(sg, sigma_min), sigma_max)
-            if s <= CERTAIN_SIGMA:
+            if s <= CERTAIN_SIGMA and math.isfinite(m):  # (E[C] of a non-finite mean is NaN)
                 slack = CERTAIN_BOUND * s + CERTAIN_MARGIN
                 if max(m, 0.0) + slack < threshold:
                     continue  # surely E[C] < threshold
