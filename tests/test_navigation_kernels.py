@@ -153,6 +153,8 @@ def test_segment_is_free_checks_exactly_the_segment_cells() -> None:
         assert grid.segment_is_free(a, b) == expected, (a, b)
         seen.add(expected)
     assert seen == {True, False}
+    for bad in (np.nan, np.inf, -np.inf):
+        assert not grid.segment_is_free(grid.centre(np.argwhere(free)[0]), np.array([bad, 0.5]))
 
 
 @pytest.mark.parametrize("threshold", [0.2, 0.5, 0.9])

@@ -135,12 +135,14 @@ def inflate_blocked(blocked, threshold):
 
 @njit(cache=True, nogil=True)
 def disc_cells(xy, origin_x, origin_y, res, nx, ny, r):
-    """Cells (nx, ny) bool whose centre lies within ``r`` of any point of ``xy`` (M, 2), world metres."""
+    """Cells (nx, ny) bool whose centre lies within ``r`` of any finite point of ``xy`` (M, 2), metres."""
     out = np.zeros((nx, ny), np.bool_)
     reach = int(math.ceil(r / res)) + 1
     rr = r * r
     for m in range(xy.shape[0]):
         px, py = xy[m, 0], xy[m, 1]
+        if not (math.isfinite(px) and math.isfinite(py)):
+            continue  # a non-finite position clears nothing
         ci = int(math.floor((px - origin_x) / res))
         cj = int(math.floor((py - origin_y) / res))
         i0, i1 = max(ci - reach, 0), min(ci + reach + 1, nx)
@@ -228,6 +230,8 @@ def segment_is_free(free, ax, ay, bx, by):
     corner, the cells of both ends), checked without building the set.
     """
     nx, ny = free.shape
+    if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(bx) and math.isfinite(by)):
+        return False  # no cell holds a non-finite point
     dx = bx - ax
     dy = by - ay
     # The parameters t in [0, 1] where the segment crosses a grid line, with 0 and 1.
