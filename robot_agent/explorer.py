@@ -31,6 +31,7 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.map.fusion import warm_up
 from swarm.map.grid import Grid
+from swarm.navigation import planner
 from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
@@ -67,9 +68,11 @@ class _Progress:
 
 def load_kernels() -> None:
     """Load (on a fresh install: compile into Numba's cache) every compiled kernel an agent runs
-    per frame: fusion (``swarm.map.fusion``) and world points (``robot_agent.stereo``)."""
+    per frame: fusion (``swarm.map.fusion``, with the map's update), world points
+    (``robot_agent.stereo``) and planning (``swarm.navigation.planner``)."""
     warm_up()
     stereo.warm_up()
+    planner.warm_up()
 
 
 class Explorer:

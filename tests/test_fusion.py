@@ -188,6 +188,38 @@ def test_a_wall_on_the_boundary_is_not_cleared_by_points_seen_just_beyond_it():
     assert (beyond.clipped, beyond.skipped_outside) == (1, 1)
 
 
+def reference_apply(cmap: CoverageMap, delta: Delta) -> None:
+    """CoverageMap.apply in numpy (the oracle of its compiled loop): indexed adds, np.add.at with repeats."""
+    cmap.grid.check_flat(delta.idx)
+    if not delta.is_finite():
+        raise ValueError("delta holds NaN or inf information")
+    idx = delta.idx.astype(np.int64)
+    if len(idx) > 1 and not np.all(idx[1:] > idx[:-1]):
+        np.add.at(cmap.lam, idx, delta.dlam)
+        np.add.at(cmap.eta, idx, delta.deta)
+    else:
+        cmap.lam[idx] += delta.dlam
+        cmap.eta[idx] += delta.deta
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_apply_equals_numpy_indexed_adds(dtype):
+    rng = np.random.default_rng(5)
+    fast, slow = CoverageMap(GRID, SENSOR), CoverageMap(GRID, SENSOR)
+    for unique, index_type in ((True, np.uint32), (False, np.uint32), (False, np.int64), (True, np.int32)):
+        for _ in range(3):
+            idx = rng.integers(0, GRID.size, 5000)
+            idx = np.unique(idx) if unique else idx
+            dlam = (10 ** rng.uniform(-3, 6, len(idx))).astype(dtype)
+            deta = (dlam * rng.uniform(-0.2, 1.2, len(idx))).astype(dtype)
+            delta = Delta(idx.astype(index_type), dlam, deta)
+            fast.apply(delta)
+            reference_apply(slow, delta)
+    np.testing.assert_array_equal(fast.lam, slow.lam)
+    np.testing.assert_array_equal(fast.eta, slow.eta)
+    assert fast.lam.dtype == np.float32 and fast.known_mask().sum() > 10_000
+
+
 def test_bad_deltas_are_rejected_whole():
     cmap = CoverageMap(GRID, SENSOR)
     before = cmap.lam.copy()
@@ -200,5 +232,11 @@ def test_bad_deltas_are_rejected_whole():
                 np.array([1, np.nan], np.float32),
                 np.ones(2, np.float32),
             )
+        )
+    with pytest.raises(ValueError, match="out of grid"):
+        cmap.apply(Delta(np.array([3, -1], np.int64), np.ones(2, np.float32), np.ones(2, np.float32)))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        cmap.apply(
+            Delta(np.array([0, 1], np.uint32), np.ones(2, np.float32), np.array([1, np.inf], np.float32))
         )
     np.testing.assert_array_equal(cmap.lam, before)

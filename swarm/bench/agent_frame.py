@@ -16,7 +16,7 @@ import numpy as np
 
 from robot_agent.stereo import StereoMatcher, points_from_depth
 from sim2d.render import Renderer, camera_pose
-from swarm.bench import best_cpu_seconds, best_seconds
+from swarm.bench import best_cpu_seconds, best_seconds, timed_seconds
 from swarm.config import load_mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.fusion import batch_information
@@ -89,10 +89,11 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
         "frame_s": best_seconds(frame, repeat),
         "points": len(points),
         "stereo_s": best_seconds(stereo, repeat),
-        "fusion_s": best_seconds(lambda: fuse(per_ray), repeat),
-        "discretized_fusion_s": best_seconds(lambda: fuse(per_voxel), repeat),
+        # (best, median) wall seconds
+        "fusion_s": timed_seconds(lambda: fuse(per_ray), repeat),
+        "discretized_fusion_s": timed_seconds(lambda: fuse(per_voxel), repeat),
         "measurements": batch_information(cmap.grid, per_voxel, origin, points).measurements,
-        "planning_s": best_seconds(plan, repeat),
+        "planning_s": timed_seconds(plan, repeat),
         "fusion_cpu_s": best_cpu_seconds(lambda: fuse(per_ray), repeat),
         "discretized_fusion_cpu_s": best_cpu_seconds(lambda: fuse(per_voxel), repeat),
         "planning_cpu_s": best_cpu_seconds(plan, repeat),
@@ -114,10 +115,13 @@ def format_table(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        wall = [r[k] * 1e3 for k in ("fusion_s", "discretized_fusion_s", "planning_s")]
+        wall = [r[k][0] * 1e3 for k in ("fusion_s", "discretized_fusion_s", "planning_s")]
+        median = [r[k][1] * 1e3 for k in ("fusion_s", "discretized_fusion_s", "planning_s")]
         cpu = [r[k] * 1e3 for k in ("fusion_cpu_s", "discretized_fusion_cpu_s", "planning_cpu_s")]
-        cells = [f"{w:.1f} ({c:.1f})" for w, c in zip(wall, cpu, strict=True)]
-        totals = [f"{wall[i] + wall[2]:.1f} ({cpu[i] + cpu[2]:.1f})" for i in (0, 1)]
+        cells = [f"{w:.1f} / {m:.1f} ({c:.1f})" for w, m, c in zip(wall, median, cpu, strict=True)]
+        totals = [
+            f"{wall[i] + wall[2]:.1f} / {median[i] + median[2]:.1f} ({cpu[i] + cpu[2]:.1f})" for i in (0, 1)
+        ]
         lines.append(
             f"| {r['size']} | {r['points']:,} | {r['stereo_s'] * 1e3:.1f} | {cells[0]} "
             f"| {cpu[0] * 1e3 / max(r['points'], 1):.3f} | {cells[1]} | {r['measurements']:,} | {cells[2]} "
@@ -125,8 +129,9 @@ def format_table(rows: list[dict]) -> str:
             f"| {r['frame_s'] * 1e3:.1f} ({r['default_model']}) |"
         )
     lines.append(
-        "\nms: best wall time of the repeats (in parentheses: best CPU time of the thread, which a shared "
-        "machine disturbs less); us/ray from the CPU time. Whole frame: stereo, fusion with the agent's "
+        "\nms: best / median wall time of the repeats (in parentheses: best CPU time of the thread, which "
+        "a shared machine disturbs less; totals add the stages' figures); us/ray from the CPU time. "
+        "Whole frame: stereo, fusion with the agent's "
         "default information model at that size (sensor.discretize: auto) and planning, timed as one call."
     )
     return "\n".join(lines)

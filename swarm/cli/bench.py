@@ -87,7 +87,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     agent.add_argument(
         "--sizes", nargs="+", default=["160x120", "640x480", "752x480"], help="image sizes WxH"
     )
-    agent.add_argument("--repeat", type=int, default=5, help="take the best of N runs (default 5)")
+    agent.add_argument(
+        "--repeat", type=int, default=5, help="time N runs of each stage: best and median (default 5)"
+    )
     agent.set_defaults(run=_run_bench_agent)
     server = bsub.add_parser(
         "server",

@@ -8,6 +8,7 @@ prior + the sum of all deltas, in any order.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from swarm.map.delta import Delta
 from swarm.map.entropy_table import default_table
@@ -52,18 +53,17 @@ class CoverageMap:
 
     # -- updates -----------------------------------------------------------------------
     def apply(self, delta: Delta) -> None:
-        """Add a delta's information (eq. 24-25 in information form). Rejects bad deltas whole."""
-        self.grid.check_flat(delta.idx)
-        if not delta.is_finite():
+        """Add a delta's information (eq. 24-25 in information form). Rejects bad deltas whole.
+
+        Raises ValueError when an index is outside the grid or an increment is NaN or inf;
+        the map is then unchanged. Indices listed twice add twice.
+        """
+        idx = delta.idx if delta.idx.dtype in (np.uint32, np.int64) else delta.idx.astype(np.int64)
+        status = _add_information(self.lam, self.eta, idx, delta.dlam, delta.deta)
+        if status == _OUTSIDE:
+            self.grid.check_flat(delta.idx)  # raises, naming the range
+        if status == _NONFINITE:
             raise ValueError("delta holds NaN or inf information")
-        idx = delta.idx.astype(np.int64)
-        # Deltas are sorted and unique by construction; only others need the slow path.
-        if len(idx) > 1 and not np.all(idx[1:] > idx[:-1]):
-            np.add.at(self.lam, idx, delta.dlam)
-            np.add.at(self.eta, idx, delta.deta)
-        else:
-            self.lam[idx] += delta.dlam
-            self.eta[idx] += delta.deta
 
     def integrate(self, origin: np.ndarray, points: np.ndarray) -> BatchResult:
         """Fuse one batch of hit points seen from ``origin``; returns the batch and its delta."""
@@ -89,9 +89,33 @@ class CoverageMap:
         return 1.0 / np.sqrt(self.lam[idx])
 
     def known_mask(self) -> np.ndarray:
-        """Voxels with any information beyond the prior."""
+        """Voxels with any information beyond the prior: lam above ``known_threshold()``."""
+        return self.lam > self.known_threshold()
+
+    def known_threshold(self) -> np.float32:
+        """The float32 lam above which a voxel counts as known (the prior's, plus a relative 1e-5)."""
         lam0, _ = prior_information(self.sensor)
-        return self.lam > np.float32(lam0) * np.float32(1.0 + 1e-5)
+        return np.float32(lam0) * np.float32(1.0 + 1e-5)
+
+
+_OUTSIDE, _NONFINITE = 1, 2
+
+
+@njit(cache=True, nogil=True)
+def _add_information(lam, eta, idx, dlam, deta):
+    """lam[idx] += dlam and eta[idx] += deta in order (repeats add again), or nothing at all:
+    returns 0 when applied, _OUTSIDE for an index outside the map, _NONFINITE for NaN/inf."""
+    n = idx.shape[0]
+    for k in range(n):
+        if idx[k] < 0 or idx[k] >= lam.shape[0]:
+            return _OUTSIDE
+    for k in range(n):
+        if not (np.isfinite(dlam[k]) and np.isfinite(deta[k])):
+            return _NONFINITE
+    for k in range(n):
+        lam[idx[k]] += dlam[k]
+        eta[idx[k]] += deta[k]
+    return 0
 
 
 def _flat(values: np.ndarray, grid: Grid) -> np.ndarray:

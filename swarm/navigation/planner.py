@@ -20,10 +20,11 @@ import math
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from swarm.navigation.traversability import TraversabilityGrid
+from swarm.navigation import grid_kernels as kernels
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability
 
 _FOUR = ndimage.generate_binary_structure(2, 1)
 
@@ -62,29 +63,24 @@ class GridPlanner:
         self._cell_of = np.flatnonzero(flat_free)
         self._node_of[self._cell_of] = np.arange(self._cell_of.size)
         self._graph = self._build_graph()
+        self._last_tree: tuple[int, np.ndarray, np.ndarray] | None = None
 
-    def _build_graph(self):
-        f = self.free
-        nx, ny = f.shape
-        idx = np.arange(nx * ny).reshape(nx, ny)
-        rows, cols, weights = [], [], []
-
-        def add(a: np.ndarray, b: np.ndarray, ok: np.ndarray, w: float) -> None:
-            rows.append(self._node_of[a[ok]])
-            cols.append(self._node_of[b[ok]])
-            weights.append(np.full(int(ok.sum()), w))
-
-        add(idx[:-1, :], idx[1:, :], f[:-1, :] & f[1:, :], 1.0)
-        add(idx[:, :-1], idx[:, 1:], f[:, :-1] & f[:, 1:], 1.0)
-        # Diagonals need both cells they squeeze between: no corner cutting.
-        d = math.sqrt(2.0)
-        add(idx[:-1, :-1], idx[1:, 1:], f[:-1, :-1] & f[1:, 1:] & f[1:, :-1] & f[:-1, 1:], d)
-        add(idx[:-1, 1:], idx[1:, :-1], f[:-1, 1:] & f[1:, :-1] & f[:-1, :-1] & f[1:, 1:], d)
+    def _build_graph(self) -> csr_matrix:
+        # Both directions, diagonals only between two free cells (no corner cutting); rows in
+        # the order scipy's undirected Dijkstra would scan them (see grid_kernels.grid_graph).
+        indptr, indices, weights = kernels.grid_graph(
+            np.ascontiguousarray(self.free), self._node_of, math.sqrt(2.0)
+        )
         n = self._cell_of.size
-        r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-        c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
-        w = np.concatenate(weights) if weights else np.zeros(0)
-        return coo_matrix((w, (r, c)), shape=(n, n)).tocsr()
+        return csr_matrix((weights, indices, indptr), shape=(n, n))
+
+    def _tree(self, node: int) -> tuple[np.ndarray, np.ndarray]:
+        """Dijkstra from ``node``: (distance in cells, predecessor) per node; the last one is kept,
+        so that a cost map and a path from the same start run it once."""
+        if self._last_tree is None or self._last_tree[0] != node:
+            dist, pred = dijkstra(self._graph, directed=True, indices=node, return_predecessors=True)
+            self._last_tree = (node, dist, pred)
+        return self._last_tree[1], self._last_tree[2]
 
     def _node(self, cell: tuple[int, int]) -> int:
         i, j = int(cell[0]), int(cell[1])
@@ -98,7 +94,7 @@ class GridPlanner:
         node = self._node(start)
         if node < 0:
             return out
-        dist = dijkstra(self._graph, directed=False, indices=node)
+        dist, _ = self._tree(node)
         out.ravel()[self._cell_of] = dist * self.resolution
         return out
 
@@ -109,7 +105,7 @@ class GridPlanner:
             return None
         if s == g:
             return np.array([[int(start[0]), int(start[1])]], dtype=np.int64)
-        dist, pred = dijkstra(self._graph, directed=False, indices=s, return_predecessors=True)
+        dist, pred = self._tree(s)
         if not np.isfinite(dist[g]):
             return None
         chain = [g]
@@ -190,3 +186,19 @@ def shorten_path(grid: TraversabilityGrid, points: np.ndarray) -> np.ndarray:
         k = anchor + 2
     kept.append(len(points) - 1)
     return points[kept]
+
+
+def warm_up() -> None:
+    """Load (on a fresh install: compile into Numba's cache) the compiled navigation kernels
+    (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks)
+    now, not on the first decision, by planning once on a tiny map."""
+    from swarm.map.coverage_map import CoverageMap
+    from swarm.map.delta import Delta
+    from swarm.map.grid import Grid
+
+    cmap = CoverageMap(Grid((0.0, 0.0, 0.0), 0.1, (8, 8, 6)))
+    cmap.apply(Delta.empty())
+    cmap.lam[:] = 1e4  # known and free everywhere
+    cmap.eta[:] = 0.0
+    trav = build_traversability(cmap, robot_radius=0.1, swept=np.full((1, 2), 0.4))
+    GridPlanner(trav).plan(np.array([0.35, 0.35]), np.array([0.45, 0.45]))

@@ -20,10 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import expected_coverage
+from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
+from swarm.navigation import grid_kernels as kernels
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,8 +118,19 @@ class TraversabilityGrid:
         return np.unique(np.concatenate(cells).astype(np.int64), axis=0)
 
     def segment_is_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """True if every cell the straight world segment a -> b passes through is navigable."""
-        return bool(np.all(self.is_free(self.segment_cells(a, b))))
+        """True if every cell the straight world segment a -> b passes through is navigable
+        (every cell of ``segment_cells(a, b)``; compiled, without building the set)."""
+        ox, oy = self.origin
+        res = self.resolution
+        return bool(
+            kernels.segment_is_free(
+                self.free,
+                (float(a[0]) - ox) / res,
+                (float(a[1]) - oy) / res,
+                (float(b[0]) - ox) / res,
+                (float(b[1]) - oy) / res,
+            )
+        )
 
     def path_is_free(self, waypoints: np.ndarray) -> bool:
         """True if every segment of a world polyline (K, 2) is navigable."""
@@ -134,10 +145,8 @@ class TraversabilityGrid:
 def inflate(blocked: np.ndarray, resolution: float, radius: float) -> np.ndarray:
     """Navigable mask: cells whose centre is farther than radius + resolution/2 from every blocked
     cell centre; the area outside the grid counts as blocked."""
-    blocked = np.asarray(blocked, dtype=bool)
-    padded = np.pad(blocked, 1, constant_values=True)
-    cells = ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
-    return cells > radius / resolution + 0.5 + 1e-9  # ties count as blocked
+    blocked = np.ascontiguousarray(blocked, dtype=bool)
+    return kernels.inflate_blocked(blocked, radius / resolution + 0.5 + 1e-9)  # ties count as blocked
 
 
 def band_layers(cmap: CoverageMap, floor_clearance: float, robot_height: float) -> np.ndarray:
@@ -172,39 +181,29 @@ def build_traversability(
         raise ValueError(f"robot_height {robot_height} must exceed floor_clearance {floor_clearance}")
     grid = cmap.grid
     nx, ny, nz = grid.shape
-    layers = band_layers(cmap, floor_clearance, robot_height)
-    lam = cmap.lam.reshape(nx, ny, nz)[:, :, layers]
-    eta = cmap.eta.reshape(nx, ny, nz)[:, :, layers]
-    known = cmap.known_mask().reshape(nx, ny, nz)[:, :, layers]
-    unknown = ~known.all(axis=2)
-    occ = np.zeros(known.shape, dtype=bool)
-    mu = eta[known].astype(np.float64) / lam[known]
-    sigma = 1.0 / np.sqrt(lam[known].astype(np.float64))
-    occ[known] = expected_coverage(mu, sigma) >= free_threshold
-    occupied = occ.any(axis=2)
+    layers = band_layers(cmap, floor_clearance, robot_height)  # contiguous: z grows with k
+    # E[C] is computed only where a bound on it leaves the answer open (most known voxels
+    # have a small sigma and a mean far from the threshold).
+    unknown, occupied, mu, sigma, column = kernels.band_occupancy(
+        cmap.lam,
+        cmap.eta,
+        grid.shape,
+        int(layers[0]),
+        int(layers[-1]) + 1,
+        cmap.known_threshold(),
+        float(free_threshold),
+        SIGMA_MIN,
+        SIGMA_MAX,
+    )
+    occupied[column[expected_coverage(mu, sigma) >= free_threshold]] = True
+    occupied = occupied.reshape(nx, ny)
+    unknown = unknown.reshape(nx, ny)
     origin = (float(grid.lo[0]), float(grid.lo[1]))
     if swept is not None and len(swept):
-        unknown &= ~_discs(np.asarray(swept, dtype=np.float64), origin, grid.voxel, (nx, ny), robot_radius)
+        xy = np.ascontiguousarray(np.asarray(swept, dtype=np.float64)[:, :2])
+        unknown &= ~kernels.disc_cells(xy, origin[0], origin[1], grid.voxel, nx, ny, float(robot_radius))
     # Occupied space is inflated by the robot's radius; unknown space is blocked but not
     # inflated, so a robot may stand next to what it has not seen yet (its camera sees
     # nothing of the floor right around it) and looks at it before it gets there.
     free = inflate(occupied, grid.voxel, robot_radius + margin) & ~unknown
     return TraversabilityGrid(free, occupied, unknown, origin, grid.voxel, robot_radius)
-
-
-def _discs(
-    xy: np.ndarray, origin: tuple[float, float], res: float, shape: tuple[int, int], r: float
-) -> np.ndarray:
-    """Cells whose centre lies within r of any of the points xy (M, 2)."""
-    out = np.zeros(shape, dtype=bool)
-    reach = int(np.ceil(r / res)) + 1
-    for px, py in np.unique(xy[:, :2], axis=0):
-        ci, cj = int(np.floor((px - origin[0]) / res)), int(np.floor((py - origin[1]) / res))
-        i0, i1 = max(ci - reach, 0), min(ci + reach + 1, shape[0])
-        j0, j1 = max(cj - reach, 0), min(cj + reach + 1, shape[1])
-        if i0 >= i1 or j0 >= j1:
-            continue
-        cx = origin[0] + (np.arange(i0, i1) + 0.5) * res - px
-        cy = origin[1] + (np.arange(j0, j1) + 0.5) * res - py
-        out[i0:i1, j0:j1] |= cx[:, None] ** 2 + cy[None, :] ** 2 <= r * r
-    return out

@@ -1,0 +1,106 @@
+"""The numpy/scipy traversability grid and planner graph: the oracles of the compiled versions.
+
+This was the project's code before ``swarm.navigation.grid_kernels``: a Euclidean distance
+transform for the robot's inflation, numpy masks for the band's beliefs, one disc per swept
+position and the planner's graph as a COO matrix. The tests compare the fast versions with
+these, which are slower on the agent's grids because of per-call overheads, not arithmetic.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
+from swarm.navigation.traversability import TraversabilityGrid, band_layers
+
+
+def reference_inflate(blocked: np.ndarray, resolution: float, radius: float) -> np.ndarray:
+    """``traversability.inflate`` by the distance transform (outside the grid blocked)."""
+    blocked = np.asarray(blocked, dtype=bool)
+    padded = np.pad(blocked, 1, constant_values=True)
+    cells = ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
+    return cells > radius / resolution + 0.5 + 1e-9  # ties count as blocked
+
+
+def reference_build_traversability(
+    cmap: CoverageMap,
+    floor_clearance: float = 0.1,
+    robot_height: float = 0.5,
+    robot_radius: float = 0.18,
+    free_threshold: float = 0.2,
+    margin: float = 0.0,
+    swept: np.ndarray | None = None,
+) -> TraversabilityGrid:
+    """``traversability.build_traversability`` with numpy masks over the band's layers."""
+    grid = cmap.grid
+    nx, ny, nz = grid.shape
+    layers = band_layers(cmap, floor_clearance, robot_height)
+    lam = cmap.lam.reshape(nx, ny, nz)[:, :, layers]
+    eta = cmap.eta.reshape(nx, ny, nz)[:, :, layers]
+    known = cmap.known_mask().reshape(nx, ny, nz)[:, :, layers]
+    unknown = ~known.all(axis=2)
+    occ = np.zeros(known.shape, dtype=bool)
+    mu = eta[known].astype(np.float64) / lam[known]
+    sigma = 1.0 / np.sqrt(lam[known].astype(np.float64))
+    occ[known] = expected_coverage(mu, sigma) >= free_threshold
+    occupied = occ.any(axis=2)
+    origin = (float(grid.lo[0]), float(grid.lo[1]))
+    if swept is not None and len(swept):
+        unknown &= ~_discs(np.asarray(swept, dtype=np.float64), origin, grid.voxel, (nx, ny), robot_radius)
+    free = reference_inflate(occupied, grid.voxel, robot_radius + margin) & ~unknown
+    return TraversabilityGrid(free, occupied, unknown, origin, grid.voxel, robot_radius)
+
+
+def _discs(
+    xy: np.ndarray, origin: tuple[float, float], res: float, shape: tuple[int, int], r: float
+) -> np.ndarray:
+    """Cells whose centre lies within r of any of the points xy (M, 2)."""
+    out = np.zeros(shape, dtype=bool)
+    reach = int(np.ceil(r / res)) + 1
+    for px, py in np.unique(xy[:, :2], axis=0):
+        ci, cj = int(np.floor((px - origin[0]) / res)), int(np.floor((py - origin[1]) / res))
+        i0, i1 = max(ci - reach, 0), min(ci + reach + 1, shape[0])
+        j0, j1 = max(cj - reach, 0), min(cj + reach + 1, shape[1])
+        if i0 >= i1 or j0 >= j1:
+            continue
+        cx = origin[0] + (np.arange(i0, i1) + 0.5) * res - px
+        cy = origin[1] + (np.arange(j0, j1) + 0.5) * res - py
+        out[i0:i1, j0:j1] |= cx[:, None] ** 2 + cy[None, :] ** 2 <= r * r
+    return out
+
+
+def reference_graph(free: np.ndarray) -> csr_matrix:
+    """``GridPlanner``'s graph of a bool grid, edge lists as numpy masks, assembled as COO."""
+    f = np.asarray(free, dtype=bool)
+    nx, ny = f.shape
+    node_of = np.full(f.size, -1, dtype=np.int64)
+    cell_of = np.flatnonzero(f.ravel())
+    node_of[cell_of] = np.arange(cell_of.size)
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    rows, cols, weights = [], [], []
+
+    def add(a: np.ndarray, b: np.ndarray, ok: np.ndarray, w: float) -> None:
+        rows.append(node_of[a[ok]])
+        cols.append(node_of[b[ok]])
+        weights.append(np.full(int(ok.sum()), w))
+
+    add(idx[:-1, :], idx[1:, :], f[:-1, :] & f[1:, :], 1.0)
+    add(idx[:, :-1], idx[:, 1:], f[:, :-1] & f[:, 1:], 1.0)
+    d = math.sqrt(2.0)
+    add(idx[:-1, :-1], idx[1:, 1:], f[:-1, :-1] & f[1:, 1:] & f[1:, :-1] & f[:-1, 1:], d)
+    add(idx[:-1, 1:], idx[1:, :-1], f[:-1, 1:] & f[1:, :-1] & f[:-1, :-1] & f[1:, 1:], d)
+    n = cell_of.size
+    return coo_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+    ).tocsr()
+
+
+def reference_tree(free: np.ndarray, node: int) -> tuple[np.ndarray, np.ndarray]:
+    """Dijkstra on ``reference_graph``: (distance in cells, predecessor) of every node from ``node``."""
+    return dijkstra(reference_graph(free), directed=False, indices=node, return_predecessors=True)
