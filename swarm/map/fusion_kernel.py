@@ -9,7 +9,10 @@ The three kernels behind ``swarm.map.fusion.batch_information``:
 - ``fuse_rays``: exact Amanatides-Woo traversal of each ray (the semantics of
   ``swarm.map.traversal``, whose numpy implementation the tests use as the oracle), the
   sensor model of eq. 14 per voxel, and the sums of lam and eta per voxel, with hit
-  precedence.
+  precedence. A voxel's distance to the sensor and its damping factor exp(-2 r / tau) are
+  computed once, when a batch first touches it: in front of a ray's end, eq. 14's lam is
+  the ray's factor times the voxel's, so a voxel update costs no square root and no exp.
+  Only the axis that steps gets its next plane parameter (one division per step).
 
 Per-voxel sums live in compact arrays in first-touch order; a grid-sized ``slots`` map
 (int32, -1 = untouched) finds a voxel's entry and is restored to -1 before returning, so
@@ -185,20 +188,72 @@ def discretize_rays(start, voxel, ends, d, returned, shape, slots):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _slot(b, v, slots, touched, acc_lam, acc_eta, is_hit, n_touched):
-    """The compact entry of the voxel at slot-map position ``b`` (flat index ``v``), created if new.
+def _slot(
+    b,
+    i,
+    j,
+    k,
+    ny,
+    nz,
+    voxel,
+    centre_offset,
+    two_over_tau,
+    slots,
+    touched,
+    acc_lam,
+    acc_eta,
+    acc_r,
+    acc_w,
+    is_hit,
+    n_touched,
+):
+    """The compact entry of voxel (i, j, k) at slot-map position ``b``, created if new.
 
-    Returns (slot, new count)."""
+    A new entry holds zero sums, the distance r from the sensor to the voxel's centre
+    (float32, as eq. 14 is evaluated) and its damping factor exp(-2 r / tau) (0 when it
+    would underflow). Returns (slot, new count).
+    """
     s = slots[b]
     if s < 0:
         s = n_touched
         slots[b] = s
-        touched[s] = v
+        touched[s] = (i * ny + j) * nz + k
+        ox = i * voxel + centre_offset[0]
+        oy = j * voxel + centre_offset[1]
+        oz = k * voxel + centre_offset[2]
+        r = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz)))
         acc_lam[s] = 0.0
         acc_eta[s] = 0.0
+        acc_r[s] = r
+        arg = two_over_tau * np.float64(r)
+        acc_w[s] = math.exp(-arg) if arg < EXP_LIMIT else 0.0
         is_hit[s] = False
         n_touched += 1
     return s, n_touched
+
+
+#: exp() arguments up to this stay far from float64's overflow and underflow.
+EXP_LIMIT = 600.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _information(diff, half32, two_over_tau32, inv_s2, gain, w):
+    """Eq. 14's lam of one voxel at float32 offset ``diff`` = r - d from the ray's end.
+
+    Inside the end voxel's half width lam = 1 / sigma_s^2; in front of it
+    lam = exp(2 (d - e/2 - r) / tau) / sigma_s^2, computed as ``gain * w`` with the ray's
+    gain = exp(2 (d - e/2) / tau) / sigma_s^2 and the voxel's w = exp(-2 r / tau) when both
+    are finite and non-zero (one exp per voxel and per ray, not per update); otherwise, and
+    behind the end, from eq. 14 directly. Bounded by LAM_MAX.
+    """
+    ad = abs(diff)
+    if ad <= half32:
+        lam = inv_s2
+    elif diff < 0 and gain > 0.0 and w > 0.0:
+        lam = gain * w
+    else:
+        lam = np.float64(math.exp((ad - half32) * two_over_tau32)) * inv_s2
+    return min(lam, LAM_MAX)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -228,32 +283,43 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         bound += abs(int(math.floor(ends[r, 2])) - k0)
     capacity = min(bound, size)
     touched = np.empty(capacity, np.int64)
-    acc_lam = np.empty(capacity)  # entries are zeroed when created: no pass over the capacity
+    # Per entry: sums of lam and eta, the distance r to the voxel centre and exp(-2 r / tau).
+    acc_lam = np.empty(capacity)
     acc_eta = np.empty(capacity)
+    acc_r = np.empty(capacity, np.float32)
+    acc_w = np.empty(capacity)
     is_hit = np.empty(capacity, np.bool_)
     n_touched = 0
+    two_over_tau = 2.0 / tau
     if precedence:
         for r in range(m):
             if returned[r]:
-                i, j, k = (
-                    int(math.floor(ends[r, 0])),
-                    int(math.floor(ends[r, 1])),
-                    int(math.floor(ends[r, 2])),
-                )
+                i = int(math.floor(ends[r, 0]))
+                j = int(math.floor(ends[r, 1]))
+                k = int(math.floor(ends[r, 2]))
                 s, n_touched = _slot(
                     _brick(i, j, k, nbj, nbk),
-                    (i * ny + j) * nz + k,
+                    i,
+                    j,
+                    k,
+                    ny,
+                    nz,
+                    voxel,
+                    centre_offset,
+                    two_over_tau,
                     slots,
                     touched,
                     acc_lam,
                     acc_eta,
+                    acc_r,
+                    acc_w,
                     is_hit,
                     n_touched,
                 )
                 is_hit[s] = True
 
     # Per voxel, float32 is enough (as the numpy oracle's float32 path): eq. 14 in float32, sums in float64.
-    two_over_tau32 = np.float32(2.0 / tau)
+    two_over_tau32 = np.float32(two_over_tau)
     half32 = np.float32(0.5 * voxel)
     inv_voxel = np.float32(1.0 / voxel)
     updates = 0
@@ -263,6 +329,8 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         dr32 = np.float32(dr)
         sig_s = sigma_min + zeta * dr
         inv_s2 = 1.0 / (sig_s * sig_s)
+        arg = two_over_tau * (np.float64(dr32) - np.float64(half32))
+        gain = math.exp(arg) * inv_s2 if arg < EXP_LIMIT else 0.0
         # Per axis: direction, crossings left, the next plane and its parameter t.
         dx = ends[r, 0] - start[0]
         dy = ends[r, 1] - start[1]
@@ -287,17 +355,29 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
             last = ni == 0 and nj == 0 and nk == 0
             b = _brick(i, j, k, nbj, nbk)
             s = slots[b]
-            if not (precedence and s >= 0 and is_hit[s] and not (hit and last)):
-                ox = i * voxel + centre_offset[0]
-                oy = j * voxel + centre_offset[1]
-                oz = k * voxel + centre_offset[2]
-                diff = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz))) - dr32
-                excess = max(abs(diff) - half32, np.float32(0.0))
-                lam = min(np.float64(math.exp(excess * two_over_tau32)) * inv_s2, LAM_MAX)
-                if s < 0:
-                    s, n_touched = _slot(
-                        b, (i * ny + j) * nz + k, slots, touched, acc_lam, acc_eta, is_hit, n_touched
-                    )
+            if s < 0:
+                s, n_touched = _slot(
+                    b,
+                    i,
+                    j,
+                    k,
+                    ny,
+                    nz,
+                    voxel,
+                    centre_offset,
+                    two_over_tau,
+                    slots,
+                    touched,
+                    acc_lam,
+                    acc_eta,
+                    acc_r,
+                    acc_w,
+                    is_hit,
+                    n_touched,
+                )
+            if not (precedence and is_hit[s] and not (hit and last)):
+                diff = np.float32(acc_r[s]) - dr32
+                lam = _information(diff, half32, two_over_tau32, inv_s2, gain, acc_w[s])
                 acc_lam[s] += lam
                 if hit:
                     mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
@@ -305,27 +385,24 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
                 updates += 1
             if last:
                 break
-            # Step every axis whose next plane comes first (two or three at an edge or corner),
-            # without branches: which axis steps is what a branch predictor cannot guess.
+            # Step every axis whose next plane comes first (two or three at an edge or corner);
+            # only a stepped axis's next plane parameter is recomputed, exactly as t = (p - s) / d.
             t = min(ti, tj, tk)
-            ci = int(ti == t)
-            cj = int(tj == t)
-            ck = int(tk == t)
-            i += si * ci
-            j += sj * cj
-            k += sk * ck
-            ni -= ci
-            nj -= cj
-            nk -= ck
-            pi += si * ci
-            pj += sj * cj
-            pk += sk * ck
-            qi = (pi - start[0]) / dx
-            qj = (pj - start[1]) / dy
-            qk = (pk - start[2]) / dz
-            ti = qi if ni > 0 else np.inf
-            tj = qj if nj > 0 else np.inf
-            tk = qk if nk > 0 else np.inf
+            if ti == t:
+                i += si
+                ni -= 1
+                pi += si
+                ti = (pi - start[0]) / dx if ni > 0 else np.inf
+            if tj == t:
+                j += sj
+                nj -= 1
+                pj += sj
+                tj = (pj - start[1]) / dy if nj > 0 else np.inf
+            if tk == t:
+                k += sk
+                nk -= 1
+                pk += sk
+                tk = (pk - start[2]) / dz if nk > 0 else np.inf
         if not hit:
             continue
         # The voxel behind the hit: leave the hit voxel through its nearest face(s).
@@ -341,23 +418,28 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         bk = k1 + (sk if (dz != 0 and te_k == t) else 0)
         if bi < 0 or bj < 0 or bk < 0 or bi >= nx or bj >= ny or bk >= nz:
             continue
-        ox = bi * voxel + centre_offset[0]
-        oy = bj * voxel + centre_offset[1]
-        oz = bk * voxel + centre_offset[2]
-        diff = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz))) - dr32
-        excess = max(abs(diff) - half32, np.float32(0.0))
-        lam = min(np.float64(math.exp(excess * two_over_tau32)) * inv_s2, LAM_MAX)
-        mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
         s, n_touched = _slot(
             _brick(bi, bj, bk, nbj, nbk),
-            (bi * ny + bj) * nz + bk,
+            bi,
+            bj,
+            bk,
+            ny,
+            nz,
+            voxel,
+            centre_offset,
+            two_over_tau,
             slots,
             touched,
             acc_lam,
             acc_eta,
+            acc_r,
+            acc_w,
             is_hit,
             n_touched,
         )
+        diff = np.float32(acc_r[s]) - dr32
+        lam = _information(diff, half32, two_over_tau32, inv_s2, gain, acc_w[s])
+        mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
         acc_lam[s] += lam
         acc_eta[s] += mu * lam
         updates += 1
