@@ -62,8 +62,7 @@ class CoverageMap:
             np.add.at(self.lam, idx, delta.dlam)
             np.add.at(self.eta, idx, delta.deta)
         else:
-            self.lam[idx] += delta.dlam
-            self.eta[idx] += delta.deta
+            delta.add_to(self.lam, self.eta)
 
     def integrate(self, origin: np.ndarray, points: np.ndarray) -> BatchResult:
         """Fuse one batch of hit points seen from ``origin``; returns the batch and its delta."""
