@@ -46,10 +46,7 @@ def _slot(
     two_over_tau,
     slots,
     touched,
-    acc_lam,
-    acc_eta,
-    acc_r,
-    acc_w,
+    rec,
     is_hit,
     n_touched,
 ):
@@ -68,11 +65,11 @@ def _slot(
         oy = j * voxel + centre_offset[1]
         oz = k * voxel + centre_offset[2]
         r = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz)))
-        acc_lam[s] = 0.0
-        acc_eta[s] = 0.0
-        acc_r[s] = r
+        rec[s, 0] = 0.0
+        rec[s, 1] = 0.0
+        rec[s, 2] = r
         arg = two_over_tau * np.float64(r)
-        acc_w[s] = math.exp(-arg) if arg < EXP_LIMIT else 0.0
+        rec[s, 3] = math.exp(-arg) if arg < EXP_LIMIT else 0.0
         is_hit[s] = False
         n_touched += 1
     return s, n_touched
@@ -129,11 +126,9 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         bound += abs(int(math.floor(ends[r, 2])) - k0)
     capacity = min(bound, size)
     touched = np.empty(capacity, np.int64)
-    # Per entry: sums of lam and eta, the distance r to the voxel centre and exp(-2 r / tau).
-    acc_lam = np.empty(capacity)
-    acc_eta = np.empty(capacity)
-    acc_r = np.empty(capacity, np.float32)
-    acc_w = np.empty(capacity)
+    # One record per entry (32 bytes, so one cache line at most): sums of lam and eta, the
+    # distance r from the sensor to the voxel centre, and exp(-2 r / tau).
+    rec = np.empty((capacity, 4))
     is_hit = np.empty(capacity, np.bool_)
     n_touched = 0
     two_over_tau = 2.0 / tau
@@ -155,10 +150,7 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
                     two_over_tau,
                     slots,
                     touched,
-                    acc_lam,
-                    acc_eta,
-                    acc_r,
-                    acc_w,
+                    rec,
                     is_hit,
                     n_touched,
                 )
@@ -214,20 +206,17 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
                     two_over_tau,
                     slots,
                     touched,
-                    acc_lam,
-                    acc_eta,
-                    acc_r,
-                    acc_w,
+                    rec,
                     is_hit,
                     n_touched,
                 )
             if not (precedence and is_hit[s] and not (hit and last)):
-                diff = np.float32(acc_r[s]) - dr32
-                lam = _information(diff, half32, two_over_tau32, inv_s2, gain, acc_w[s])
-                acc_lam[s] += lam
+                diff = np.float32(rec[s, 2]) - dr32
+                lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
+                rec[s, 0] += lam
                 if hit:
                     mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
-                    acc_eta[s] += mu * lam
+                    rec[s, 1] += mu * lam
                 updates += 1
             if last:
                 break
@@ -276,18 +265,15 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
             two_over_tau,
             slots,
             touched,
-            acc_lam,
-            acc_eta,
-            acc_r,
-            acc_w,
+            rec,
             is_hit,
             n_touched,
         )
-        diff = np.float32(acc_r[s]) - dr32
-        lam = _information(diff, half32, two_over_tau32, inv_s2, gain, acc_w[s])
+        diff = np.float32(rec[s, 2]) - dr32
+        lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
         mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
-        acc_lam[s] += lam
-        acc_eta[s] += mu * lam
+        rec[s, 0] += lam
+        rec[s, 1] += mu * lam
         updates += 1
 
     # Sorted output: scan the grid when the batch touched much of it, else sort.
@@ -303,8 +289,8 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
                     s = slots[b]
                     if s >= 0:
                         idx[n] = (i * ny + j) * nz + k
-                        lam_out[n] = acc_lam[s]
-                        eta_out[n] = acc_eta[s]
+                        lam_out[n] = rec[s, 0]
+                        eta_out[n] = rec[s, 1]
                         slots[b] = -1
                         n += 1
     else:
@@ -317,7 +303,7 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
             b = _brick(i, j, k, nbj, nbk)
             s = slots[b]
             idx[n] = v
-            lam_out[n] = acc_lam[s]
-            eta_out[n] = acc_eta[s]
+            lam_out[n] = rec[s, 0]
+            eta_out[n] = rec[s, 1]
             slots[b] = -1
     return idx, lam_out, eta_out, updates
