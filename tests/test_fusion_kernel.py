@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.delta import Delta
 from swarm.map.fusion import batch_information
 from swarm.map.fusion_kernel import LAM_MAX
 from swarm.map.grid import Grid
@@ -164,22 +163,6 @@ def test_a_mix_of_near_and_far_points_fuses_the_near_and_counts_the_far():
     assert mixed.voxel_updates > alone.voxel_updates
 
 
-def test_applying_a_sorted_delta_equals_numpys_fancy_indexed_sum():
-    """The compiled one-pass sum gives numpy's float32 ``lam[idx] += dlam`` bit for bit."""
-    rng = np.random.default_rng(7)
-    grid = Grid((0.0, 0.0, 0.0), 0.1, (30, 20, 10))
-    idx = np.sort(rng.choice(grid.size, 2_000, replace=False)).astype(np.uint32)
-    dlam = rng.lognormal(3.0, 4.0, len(idx)).astype(np.float32)
-    deta = (dlam * rng.uniform(0, 1, len(idx))).astype(np.float32)
-    cmap = CoverageMap(grid)
-    cmap.lam[:] = rng.lognormal(0.0, 3.0, grid.size).astype(np.float32)
-    lam, eta = cmap.lam.copy(), cmap.eta.copy()
-    cmap.apply(Delta(idx, dlam, deta))
-    lam[idx.astype(np.int64)] += dlam
-    eta[idx.astype(np.int64)] += deta
-    assert np.array_equal(cmap.lam, lam) and np.array_equal(cmap.eta, eta)
-
-
 def test_a_second_process_loads_the_kernels_from_numbas_cache():
     """Numba's own statistics: a fresh interpreter compiles nothing and hits the cache."""
     script = (
@@ -188,13 +171,10 @@ def test_a_second_process_loads_the_kernels_from_numbas_cache():
         "from swarm.map.fusion import batch_information\n"
         "from swarm.map.grid import Grid\n"
         "from swarm.map.sensor_model import SensorModel\n"
-        "from swarm.map.coverage_map import CoverageMap\n"
-        "from swarm.map import delta as d\n"
         "g = Grid((0, 0, 0), 0.1, (10, 10, 10))\n"
-        "r = batch_information(g, SensorModel(discretize=True), np.full(3, 0.05), np.full((3, 3), 0.5))\n"
-        "CoverageMap(g).apply(r.delta)\n"
+        "batch_information(g, SensorModel(discretize=True), np.full(3, 0.05), np.full((3, 3), 0.5))\n"
         "print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]"
-        " for f in (rb.prepare_rays, rb.discretize_rays, k.fuse_rays, d._add_unique)}))\n"
+        " for f in (rb.prepare_rays, rb.discretize_rays, k.fuse_rays)}))\n"
     )
     root = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=str(root))

@@ -62,7 +62,8 @@ class CoverageMap:
             np.add.at(self.lam, idx, delta.dlam)
             np.add.at(self.eta, idx, delta.deta)
         else:
-            delta.add_to(self.lam, self.eta)
+            self.lam[idx] += delta.dlam
+            self.eta[idx] += delta.deta
 
     def integrate(self, origin: np.ndarray, points: np.ndarray) -> BatchResult:
         """Fuse one batch of hit points seen from ``origin``; returns the batch and its delta."""

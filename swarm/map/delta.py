@@ -11,7 +11,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 
 @dataclass(frozen=True)
@@ -57,14 +56,6 @@ class Delta:
         eta_sum = np.bincount(inverse, weights=eta, minlength=len(idx))
         return cls(idx.astype(np.uint32), lam_sum.astype(np.float32), eta_sum.astype(np.float32))
 
-    def add_to(self, lam: np.ndarray, eta: np.ndarray) -> None:
-        """lam[idx] += dlam and eta[idx] += deta on flat float32 maps, in one compiled pass.
-
-        ``idx`` must be unique and within the maps (``CoverageMap.apply`` checks both first);
-        the float32 sums are those of numpy's ``lam[idx] += dlam``.
-        """
-        _add_unique(lam, eta, self.idx, self.dlam, self.deta)
-
     def is_finite(self) -> bool:
         return bool(np.all(np.isfinite(self.dlam)) and np.all(np.isfinite(self.deta)))
 
@@ -82,19 +73,4 @@ def merge_deltas(deltas: Iterable[Delta], size: int) -> Delta:
         np.concatenate([d.dlam for d in deltas]).astype(np.float64),
         np.concatenate([d.deta for d in deltas]).astype(np.float64),
         size,
-    )
-
-
-@njit(cache=True, nogil=True)
-def _add_unique(lam, eta, idx, dlam, deta):
-    for n in range(idx.shape[0]):
-        v = idx[n]
-        lam[v] += dlam[n]
-        eta[v] += deta[n]
-
-
-def warm_up() -> None:
-    """Load (on a fresh install: compile into Numba's cache) the compiled delta sum now."""
-    Delta(np.zeros(1, np.uint32), np.ones(1, np.float32), np.ones(1, np.float32)).add_to(
-        np.zeros(1, np.float32), np.zeros(1, np.float32)
     )

@@ -18,7 +18,6 @@ import numpy as np
 from swarm.map import fusion_kernel as kernel
 from swarm.map import ray_batch
 from swarm.map.delta import Delta
-from swarm.map.delta import warm_up as warm_up_delta_sum
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 
@@ -144,6 +143,5 @@ def warm_up() -> None:
     A role calls this before it announces itself, so that its first frame is not late.
     """
     grid = Grid((0.0, 0.0, 0.0), 1.0, (2, 2, 2))
-    warm_up_delta_sum()
     for discretize in (False, True):
         batch_information(grid, SensorModel(discretize=discretize), np.full(3, 0.5), np.full((1, 3), 1.5))
