@@ -34,6 +34,24 @@ SGBM_MODES = {
 }
 
 
+#: The texture filter's default threshold (grey levels): on seven real Middlebury pairs it
+#: blanks flat (clipped or synthetic) areas only (docs/stereo.md).
+DEFAULT_MIN_TEXTURE = 0.5
+
+#: With image noise of standard deviation n, a blank area's block standard deviation is about
+#: n (25 pixels: 1.0 n +- 0.14 n), so the filter must sit above it to blank it: 1.5 n.
+NOISE_TEXTURE_FACTOR = 1.5
+
+
+def texture_threshold(noise_std: float) -> float:
+    """The texture filter (grey levels) for images with noise of ``noise_std`` grey levels.
+
+    ``max(DEFAULT_MIN_TEXTURE, NOISE_TEXTURE_FACTOR * noise_std)``: a blank area seen by a
+    noisy camera is noise only, which SGBM would match at random disparities.
+    """
+    return max(DEFAULT_MIN_TEXTURE, NOISE_TEXTURE_FACTOR * float(noise_std))
+
+
 class RectifiedRig(Protocol):
     """Anything with rectified intrinsics: ``fx``, ``cx``, ``baseline`` and optionally ``cx_right``.
 
@@ -119,7 +137,7 @@ class StereoMatcher:
         pre_filter_cap: int = 63,
         mode: Literal["sgbm", "hh", "3way", "hh4"] = "3way",
         pad_border: bool = True,
-        min_texture: float = 0.5,
+        min_texture: float = DEFAULT_MIN_TEXTURE,
         scale: float = 1.0,
     ) -> None:
         if num_disparities < 16 or num_disparities % 16:

@@ -167,14 +167,14 @@ def test_a_second_process_loads_the_kernels_from_numbas_cache():
     """Numba's own statistics: a fresh interpreter compiles nothing and hits the cache."""
     script = (
         "import json, numpy as np\n"
-        "from swarm.map import fusion_kernel as k\n"
+        "from swarm.map import fusion_kernel as k, ray_batch as rb\n"
         "from swarm.map.fusion import batch_information\n"
         "from swarm.map.grid import Grid\n"
         "from swarm.map.sensor_model import SensorModel\n"
         "g = Grid((0, 0, 0), 0.1, (10, 10, 10))\n"
         "batch_information(g, SensorModel(discretize=True), np.full(3, 0.05), np.full((3, 3), 0.5))\n"
         "print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]"
-        " for f in (k.prepare_rays, k.discretize_rays, k.fuse_rays)}))\n"
+        " for f in (rb.prepare_rays, rb.discretize_rays, k.fuse_rays)}))\n"
     )
     root = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=str(root))

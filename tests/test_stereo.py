@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from robot_agent.stereo import StereoMatcher, depth_from_disparity, disparity_range, points_from_depth
+from robot_agent.stereo import (
+    StereoMatcher,
+    depth_from_disparity,
+    disparity_range,
+    points_from_depth,
+    texture_threshold,
+)
 from robot_agent.stereo_command import add_arguments, run
 from swarm.formats.depth_picture import BAR_WIDTH
 from swarm.formats.stereo_calibration import (
@@ -379,6 +385,28 @@ def test_texture_filter_drops_blank_areas() -> None:
     assert np.nanmedian(textured) == pytest.approx(shift, abs=0.1) and np.isfinite(textured).mean() > 0.9
     with pytest.raises(ValueError, match="min_texture"):
         StereoMatcher(min_texture=-1)
+
+
+def test_a_noisy_cameras_blank_area_is_blanked_by_its_texture_threshold() -> None:
+    # Blank above, textured below, with independent Gaussian noise of 1 grey level in each
+    # image (the simulated rig's): at the default 0.5 the noise passes as texture and SGBM
+    # matches it; at texture_threshold(1.0) = 1.5 the blank half gets no disparity.
+    rng = np.random.default_rng(5)
+    scene = np.full((120, 220), 120.0)
+    scene[60:] = rng.integers(0, 256, size=(60, 220))
+    shift = 8
+    noisy = [
+        np.clip(scene[:, s : s + 180] + rng.normal(0.0, 1.0, (120, 180)), 0, 255).round().astype(np.uint8)
+        for s in (0, shift)
+    ]
+    left, right = noisy[0], noisy[1]
+    assert texture_threshold(0.0) == 0.5 and texture_threshold(1.0) == 1.5
+    default = StereoMatcher(num_disparities=16).disparity(left, right)
+    noise_aware = StereoMatcher(num_disparities=16, min_texture=texture_threshold(1.0)).disparity(left, right)
+    assert np.isfinite(default[:54]).mean() > 0.2  # noise matched as if it were texture
+    assert np.isfinite(noise_aware[:54]).mean() < 0.01
+    textured = noise_aware[66:, 40:]
+    assert np.nanmedian(textured) == pytest.approx(shift, abs=0.1) and np.isfinite(textured).mean() > 0.9
 
 
 def test_points_from_depth_equals_a_per_pixel_computation() -> None:

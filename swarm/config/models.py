@@ -82,7 +82,8 @@ class RigConfig(_Section):
     """A rectified stereo rig (or, in ``range`` mode, a depth camera) on a robot.
 
     The left camera is the reference, on the robot's centre at ``camera_height``; the right
-    one is ``baseline`` metres to its right. ``noise_std`` is image noise in grey levels;
+    one is ``baseline`` metres to its right. ``noise_std`` is image noise in grey levels (the
+    simulator adds it; the agent's texture filter stays above 1.5 x it, ``texture_threshold``);
     ``range_noise`` is the depth noise standard deviation per metre of range (range mode);
     ``max_range`` (m) turns farther returns into no return (None: unlimited).
     ``pitch_deg`` is the mounting pitch (positive looks down); ``tilt_range_deg`` > 0 puts

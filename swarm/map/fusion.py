@@ -4,8 +4,8 @@ A batch M_k = (x_k, V_k) is a sensor position and the points where obstacles wer
 detected. Each ray updates the voxels it traverses and the voxel behind its hit with
 the Gaussian sensor model; in information form the update of a voxel is the sum of
 lam = 1/sigma^2 and eta = mu/sigma^2 over the rays that influence it. The work is done
-by the compiled kernels of ``swarm.map.fusion_kernel``; ``tests/fusion_oracle.py`` is the
-numpy implementation they are tested against.
+by the compiled kernels of ``swarm.map.ray_batch`` and ``swarm.map.fusion_kernel``;
+``tests/fusion_oracle.py`` is the numpy implementation they are tested against.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm.map import fusion_kernel as kernel
+from swarm.map import ray_batch
 from swarm.map.delta import Delta
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -54,7 +55,7 @@ def reserve(grid: Grid) -> None:
 
 def _slots(grid: Grid) -> np.ndarray:
     """This thread's slot map for ``grid`` (int32, all -1), kept between batches."""
-    size = kernel.slot_map_size(grid.shape)
+    size = ray_batch.slot_map_size(grid.shape)
     slots = getattr(_local, "slots", None)
     if slots is None or len(slots) != size:
         slots = np.full(size, -1, dtype=np.int32)
@@ -94,7 +95,7 @@ def batch_information(
         raise ValueError(f"sensor origin must be finite, got {origin.tolist()}")
 
     lo, hi, e = grid.lo, grid.hi, grid.voxel
-    ends, d, returned, counts = kernel.prepare_rays(
+    ends, d, returned, counts = ray_batch.prepare_rays(
         origin, points, lo, hi, e, float(sensor.max_range), BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS
     )
     start = (origin - lo) / e
@@ -102,7 +103,7 @@ def batch_information(
     slots = _slots(grid)
     rays = len(ends)
     if discretize and rays:
-        ends, d, returned = kernel.discretize_rays(start, e, ends, d, returned, shape, slots)
+        ends, d, returned = ray_batch.discretize_rays(start, e, ends, d, returned, shape, slots)
     if len(ends):
         idx, lam, eta, updates = kernel.fuse_rays(
             start,
@@ -126,11 +127,11 @@ def batch_information(
         rays=rays,
         measurements=len(ends),
         voxel_updates=int(updates),
-        truncated=int(counts[kernel.TRUNCATED]),
-        skipped_nonfinite=int(counts[kernel.NONFINITE]),
-        skipped_outside=int(counts[kernel.OUTSIDE]),
-        skipped_degenerate=int(counts[kernel.DEGENERATE]),
-        clipped=int(counts[kernel.CLIPPED]),
+        truncated=int(counts[ray_batch.TRUNCATED]),
+        skipped_nonfinite=int(counts[ray_batch.NONFINITE]),
+        skipped_outside=int(counts[ray_batch.OUTSIDE]),
+        skipped_degenerate=int(counts[ray_batch.DEGENERATE]),
+        clipped=int(counts[ray_batch.CLIPPED]),
     )
 
 

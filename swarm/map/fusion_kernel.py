@@ -1,21 +1,19 @@
 """Compiled fusion of one batch (Numba): one ray at a time, straight into per-voxel sums.
 
-The three kernels behind ``swarm.map.fusion.batch_information``:
+``fuse_rays`` is the kernel behind ``swarm.map.fusion.batch_information`` (after
+``swarm.map.ray_batch`` has prepared the rays): exact Amanatides-Woo traversal of each ray
+(the semantics of ``swarm.map.traversal``, whose numpy implementation the tests use as the
+oracle), the sensor model of eq. 14 per voxel, and the sums of lam and eta per voxel, with
+hit precedence.
 
-- ``prepare_rays``: per point, the ray's end in the grid (cut at max range or at the grid's
-  boundary), the range the sensor model uses and whether it ends in a return;
-- ``discretize_rays``: optionally, one measurement per end voxel (the mean end point of
-  the rays ending there), as OctoMap's ``discretize``;
-- ``fuse_rays``: exact Amanatides-Woo traversal of each ray (the semantics of
-  ``swarm.map.traversal``, whose numpy implementation the tests use as the oracle), the
-  sensor model of eq. 14 per voxel, and the sums of lam and eta per voxel, with hit
-  precedence.
+- Per-voxel sums live in compact arrays in first-touch order; the brick-ordered slot map
+  of ``swarm.map.ray_batch`` finds a voxel's entry and is restored to -1 before returning,
+  so one map serves every batch on the same grid. Nothing allocates per (ray, voxel).
+- A voxel's distance r to the sensor and its damping factor exp(-2 r / tau) are computed
+  once, when the batch first touches it: in front of a ray's end eq. 14's lam is the ray's
+  factor times the voxel's, so a voxel update costs no square root and no exp.
+- Only the axis that steps gets its next plane parameter (one division per step).
 
-Per-voxel sums live in compact arrays in first-touch order; a grid-sized ``slots`` map
-(int32, -1 = untouched) finds a voxel's entry and is restored to -1 before returning, so
-one map serves every batch on the same grid. The slot map is laid out in 8 x 8 x 8 bricks
-(``slot_map_size``), so that a ray's next voxel is usually in a cache line already read
-(in C order a step along x jumps ny * nz entries). Nothing here allocates per (ray, voxel).
 Compiled with ``cache=True``: a second process loads the machine code from Numba's cache.
 """
 
@@ -26,179 +24,79 @@ import math
 import numpy as np
 from numba import njit
 
+from swarm.map.ray_batch import BRICK_BITS
+from swarm.map.ray_batch import brick_index as _brick
+
 #: Upper bound of one measurement's information lam = 1/sigma^2 on one voxel (sigma >= 1e-12).
 #: Eq. 14's damping makes lam grow as exp(2 (d - d_l) / tau), which overflows float32 for rays
 #: longer than about 85 m (tau = 2 m); the bound keeps any finite input finite.
 LAM_MAX = 1e24
 
-BRICK_BITS = 3  # bricks of 8 x 8 x 8 voxels in the slot map
-
-
-def slot_map_size(shape: tuple[int, int, int]) -> int:
-    """Entries of the brick-ordered slot map of a grid of ``shape`` (padded to whole bricks)."""
-    b = 1 << BRICK_BITS
-    bricks = 1
-    for n in shape:
-        bricks *= -(-int(n) // b)
-    return bricks * b**3
-
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _brick(i, j, k, nbj, nbk):
-    """Slot-map position of voxel (i, j, k): its brick, then its place within the brick."""
-    b = BRICK_BITS
-    m = (1 << b) - 1
-    brick = ((i >> b) * nbj + (j >> b)) * nbk + (k >> b)
-    return (brick << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m)
+def _slot(
+    b,
+    i,
+    j,
+    k,
+    ny,
+    nz,
+    voxel,
+    centre_offset,
+    two_over_tau,
+    slots,
+    touched,
+    rec,
+    is_hit,
+    n_touched,
+):
+    """The compact entry of voxel (i, j, k) at slot-map position ``b``, created if new.
 
-
-# The counts prepare_rays returns, by position.
-NONFINITE, DEGENERATE, OUTSIDE, TRUNCATED, CLIPPED = 0, 1, 2, 3, 4
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, margin_voxels):
-    """The rays of a batch that fusion traverses (see ``swarm.map.fusion.batch_information``).
-
-    Returns ``ends`` (M, 3) in voxel units from ``lo``, ``d`` (M,) the sensor model's range
-    (metres; min(true range, max range)), ``returned`` (M,) bool, packed in input order, and
-    ``counts`` (5,): points skipped as NaN/inf, as zero-length, as outside (sensor outside
-    the grid, or end just beyond it), then fused rays truncated at max range and clipped at
-    the grid's boundary.
+    A new entry holds zero sums, the distance r from the sensor to the voxel's centre
+    (float32, as eq. 14 is evaluated) and its damping factor exp(-2 r / tau) (0 when it
+    would underflow). Returns (slot, new count).
     """
-    n = points.shape[0]
-    ends = np.empty((n, 3))
-    d = np.empty(n)
-    returned = np.empty(n, np.bool_)
-    counts = np.zeros(5, np.int64)
-    origin_inside = True
-    for a in range(3):
-        if not (origin[a] >= lo[a] and origin[a] < hi[a]):
-            origin_inside = False
-    m = 0
-    for r in range(n):
-        vx = points[r, 0] - origin[0]
-        vy = points[r, 1] - origin[1]
-        vz = points[r, 2] - origin[2]
-        if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
-            counts[NONFINITE] += 1
-            continue
-        scale = max(abs(vx), abs(vy), abs(vz))  # a norm that cannot overflow
-        dist = 0.0
-        if scale > 0.0:
-            dist = scale * math.sqrt((vx / scale) ** 2 + (vy / scale) ** 2 + (vz / scale) ** 2)
-        if not dist > 1e-9:
-            counts[DEGENERATE] += 1
-            continue
-        if not origin_inside:
-            counts[OUTSIDE] += 1
-            continue
-        hit = dist <= max_range
-        reach = 1.0 if hit else max_range / dist
-        exit_at = np.inf
-        for a, va in ((0, vx), (1, vy), (2, vz)):
-            if va > 0:
-                exit_at = min(exit_at, (hi[a] - origin[a]) / va)
-            elif va < 0:
-                exit_at = min(exit_at, (lo[a] - origin[a]) / va)
-        margin = max(margin_fraction * dist, margin_voxels * voxel)
-        cut = reach >= exit_at and (1.0 - exit_at) * dist > margin
-        if cut:
-            reach = exit_at - 1e-6 * voxel / dist
-            hit = False
-        ex = origin[0] + vx * reach
-        ey = origin[1] + vy * reach
-        ez = origin[2] + vz * reach
-        inside = reach * dist > 1e-9
-        for a, ea in ((0, ex), (1, ey), (2, ez)):
-            if not (ea >= lo[a] and ea < hi[a]):
-                inside = False
-        if not inside:
-            counts[OUTSIDE] += 1
-            continue
-        ends[m, 0] = (ex - lo[0]) / voxel
-        ends[m, 1] = (ey - lo[1]) / voxel
-        ends[m, 2] = (ez - lo[2]) / voxel
-        d[m] = min(dist, max_range)
-        returned[m] = hit
-        counts[TRUNCATED] += dist > max_range
-        counts[CLIPPED] += cut
-        m += 1
-    return ends[:m], d[:m], returned[:m], counts
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def discretize_rays(start, voxel, ends, d, returned, shape, slots):
-    """One measurement per (end voxel, returned) pair: the mean end point of its rays.
-
-    ``start`` (3,) and ``ends`` (M, 3) in voxel units; a returned measurement's range is the
-    distance to its mean end point, a free one's the mean of its rays' ranges. Returns
-    ``ends``, ``d``, ``returned`` of the measurements, in first-seen order. ``slots`` is the
-    grid-sized int32 map (all -1), restored before returning.
-    """
-    m = ends.shape[0]
-    nbj = (shape[1] + 7) >> BRICK_BITS
-    nbk = (shape[2] + 7) >> BRICK_BITS
-    sums = np.zeros((2 * m, 4))  # x, y, z, range; rows 2 * group + returned
-    counts = np.zeros(2 * m, np.int64)
-    voxels = np.empty(m, np.int64)
-    groups = 0
-    for r in range(m):
-        v = _brick(
-            int(math.floor(ends[r, 0])), int(math.floor(ends[r, 1])), int(math.floor(ends[r, 2])), nbj, nbk
-        )
-        g = slots[v]
-        if g < 0:
-            g = groups
-            slots[v] = g
-            voxels[g] = v
-            groups += 1
-        row = 2 * g + (1 if returned[r] else 0)
-        sums[row, 0] += ends[r, 0]
-        sums[row, 1] += ends[r, 1]
-        sums[row, 2] += ends[r, 2]
-        sums[row, 3] += d[r]
-        counts[row] += 1
-    for g in range(groups):
-        slots[voxels[g]] = -1
-    out_ends = np.empty((2 * groups, 3))
-    out_d = np.empty(2 * groups)
-    out_returned = np.empty(2 * groups, np.bool_)
-    k = 0
-    for row in range(2 * groups):
-        c = counts[row]
-        if c == 0:
-            continue
-        for a in range(3):
-            out_ends[k, a] = sums[row, a] / c
-        if row % 2 == 1:
-            dx = out_ends[k, 0] - start[0]
-            dy = out_ends[k, 1] - start[1]
-            dz = out_ends[k, 2] - start[2]
-            out_d[k] = voxel * math.sqrt(dx * dx + dy * dy + dz * dz)
-            out_returned[k] = True
-        else:
-            out_d[k] = sums[row, 3] / c
-            out_returned[k] = False
-        k += 1
-    return out_ends[:k], out_d[:k], out_returned[:k]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _slot(b, v, slots, touched, acc_lam, acc_eta, is_hit, n_touched):
-    """The compact entry of the voxel at slot-map position ``b`` (flat index ``v``), created if new.
-
-    Returns (slot, new count)."""
     s = slots[b]
     if s < 0:
         s = n_touched
         slots[b] = s
-        touched[s] = v
-        acc_lam[s] = 0.0
-        acc_eta[s] = 0.0
+        touched[s] = (i * ny + j) * nz + k
+        ox = i * voxel + centre_offset[0]
+        oy = j * voxel + centre_offset[1]
+        oz = k * voxel + centre_offset[2]
+        r = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz)))
+        rec[s, 0] = 0.0
+        rec[s, 1] = 0.0
+        rec[s, 2] = r
+        arg = two_over_tau * np.float64(r)
+        rec[s, 3] = math.exp(-arg) if arg < EXP_LIMIT else 0.0
         is_hit[s] = False
         n_touched += 1
     return s, n_touched
+
+
+#: exp() arguments up to this stay far from float64's overflow and underflow.
+EXP_LIMIT = 600.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _information(diff, half32, two_over_tau32, inv_s2, gain, w):
+    """Eq. 14's lam of one voxel at float32 offset ``diff`` = r - d from the ray's end.
+
+    Inside the end voxel's half width lam = 1 / sigma_s^2; in front of it
+    lam = exp(2 (d - e/2 - r) / tau) / sigma_s^2, computed as ``gain * w`` with the ray's
+    gain = exp(2 (d - e/2) / tau) / sigma_s^2 and the voxel's w = exp(-2 r / tau) when both
+    are finite and non-zero (one exp per voxel and per ray, not per update); otherwise, and
+    behind the end, from eq. 14 directly. Bounded by LAM_MAX.
+    """
+    ad = abs(diff)
+    if ad <= half32:
+        lam = inv_s2
+    elif diff < 0 and gain > 0.0 and w > 0.0:
+        lam = gain * w
+    else:
+        lam = np.float64(math.exp((ad - half32) * two_over_tau32)) * inv_s2
+    return min(lam, LAM_MAX)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -228,32 +126,38 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         bound += abs(int(math.floor(ends[r, 2])) - k0)
     capacity = min(bound, size)
     touched = np.empty(capacity, np.int64)
-    acc_lam = np.empty(capacity)  # entries are zeroed when created: no pass over the capacity
-    acc_eta = np.empty(capacity)
+    # One record per entry (32 bytes, so one cache line at most): sums of lam and eta, the
+    # distance r from the sensor to the voxel centre, and exp(-2 r / tau).
+    rec = np.empty((capacity, 4))
     is_hit = np.empty(capacity, np.bool_)
     n_touched = 0
+    two_over_tau = 2.0 / tau
     if precedence:
         for r in range(m):
             if returned[r]:
-                i, j, k = (
-                    int(math.floor(ends[r, 0])),
-                    int(math.floor(ends[r, 1])),
-                    int(math.floor(ends[r, 2])),
-                )
+                i = int(math.floor(ends[r, 0]))
+                j = int(math.floor(ends[r, 1]))
+                k = int(math.floor(ends[r, 2]))
                 s, n_touched = _slot(
                     _brick(i, j, k, nbj, nbk),
-                    (i * ny + j) * nz + k,
+                    i,
+                    j,
+                    k,
+                    ny,
+                    nz,
+                    voxel,
+                    centre_offset,
+                    two_over_tau,
                     slots,
                     touched,
-                    acc_lam,
-                    acc_eta,
+                    rec,
                     is_hit,
                     n_touched,
                 )
                 is_hit[s] = True
 
     # Per voxel, float32 is enough (as the numpy oracle's float32 path): eq. 14 in float32, sums in float64.
-    two_over_tau32 = np.float32(2.0 / tau)
+    two_over_tau32 = np.float32(two_over_tau)
     half32 = np.float32(0.5 * voxel)
     inv_voxel = np.float32(1.0 / voxel)
     updates = 0
@@ -263,6 +167,8 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         dr32 = np.float32(dr)
         sig_s = sigma_min + zeta * dr
         inv_s2 = 1.0 / (sig_s * sig_s)
+        arg = two_over_tau * (np.float64(dr32) - np.float64(half32))
+        gain = math.exp(arg) * inv_s2 if arg < EXP_LIMIT else 0.0
         # Per axis: direction, crossings left, the next plane and its parameter t.
         dx = ends[r, 0] - start[0]
         dy = ends[r, 1] - start[1]
@@ -287,45 +193,51 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
             last = ni == 0 and nj == 0 and nk == 0
             b = _brick(i, j, k, nbj, nbk)
             s = slots[b]
-            if not (precedence and s >= 0 and is_hit[s] and not (hit and last)):
-                ox = i * voxel + centre_offset[0]
-                oy = j * voxel + centre_offset[1]
-                oz = k * voxel + centre_offset[2]
-                diff = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz))) - dr32
-                excess = max(abs(diff) - half32, np.float32(0.0))
-                lam = min(np.float64(math.exp(excess * two_over_tau32)) * inv_s2, LAM_MAX)
-                if s < 0:
-                    s, n_touched = _slot(
-                        b, (i * ny + j) * nz + k, slots, touched, acc_lam, acc_eta, is_hit, n_touched
-                    )
-                acc_lam[s] += lam
+            if s < 0:
+                s, n_touched = _slot(
+                    b,
+                    i,
+                    j,
+                    k,
+                    ny,
+                    nz,
+                    voxel,
+                    centre_offset,
+                    two_over_tau,
+                    slots,
+                    touched,
+                    rec,
+                    is_hit,
+                    n_touched,
+                )
+            if not (precedence and is_hit[s] and not (hit and last)):
+                diff = np.float32(rec[s, 2]) - dr32
+                lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
+                rec[s, 0] += lam
                 if hit:
                     mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
-                    acc_eta[s] += mu * lam
+                    rec[s, 1] += mu * lam
                 updates += 1
             if last:
                 break
-            # Step every axis whose next plane comes first (two or three at an edge or corner),
-            # without branches: which axis steps is what a branch predictor cannot guess.
+            # Step every axis whose next plane comes first (two or three at an edge or corner);
+            # only a stepped axis's next plane parameter is recomputed, exactly as t = (p - s) / d.
             t = min(ti, tj, tk)
-            ci = int(ti == t)
-            cj = int(tj == t)
-            ck = int(tk == t)
-            i += si * ci
-            j += sj * cj
-            k += sk * ck
-            ni -= ci
-            nj -= cj
-            nk -= ck
-            pi += si * ci
-            pj += sj * cj
-            pk += sk * ck
-            qi = (pi - start[0]) / dx
-            qj = (pj - start[1]) / dy
-            qk = (pk - start[2]) / dz
-            ti = qi if ni > 0 else np.inf
-            tj = qj if nj > 0 else np.inf
-            tk = qk if nk > 0 else np.inf
+            if ti == t:
+                i += si
+                ni -= 1
+                pi += si
+                ti = (pi - start[0]) / dx if ni > 0 else np.inf
+            if tj == t:
+                j += sj
+                nj -= 1
+                pj += sj
+                tj = (pj - start[1]) / dy if nj > 0 else np.inf
+            if tk == t:
+                k += sk
+                nk -= 1
+                pk += sk
+                tk = (pk - start[2]) / dz if nk > 0 else np.inf
         if not hit:
             continue
         # The voxel behind the hit: leave the hit voxel through its nearest face(s).
@@ -341,25 +253,27 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         bk = k1 + (sk if (dz != 0 and te_k == t) else 0)
         if bi < 0 or bj < 0 or bk < 0 or bi >= nx or bj >= ny or bk >= nz:
             continue
-        ox = bi * voxel + centre_offset[0]
-        oy = bj * voxel + centre_offset[1]
-        oz = bk * voxel + centre_offset[2]
-        diff = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz))) - dr32
-        excess = max(abs(diff) - half32, np.float32(0.0))
-        lam = min(np.float64(math.exp(excess * two_over_tau32)) * inv_s2, LAM_MAX)
-        mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
         s, n_touched = _slot(
             _brick(bi, bj, bk, nbj, nbk),
-            (bi * ny + bj) * nz + bk,
+            bi,
+            bj,
+            bk,
+            ny,
+            nz,
+            voxel,
+            centre_offset,
+            two_over_tau,
             slots,
             touched,
-            acc_lam,
-            acc_eta,
+            rec,
             is_hit,
             n_touched,
         )
-        acc_lam[s] += lam
-        acc_eta[s] += mu * lam
+        diff = np.float32(rec[s, 2]) - dr32
+        lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
+        mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
+        rec[s, 0] += lam
+        rec[s, 1] += mu * lam
         updates += 1
 
     # Sorted output: scan the grid when the batch touched much of it, else sort.
@@ -375,8 +289,8 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
                     s = slots[b]
                     if s >= 0:
                         idx[n] = (i * ny + j) * nz + k
-                        lam_out[n] = acc_lam[s]
-                        eta_out[n] = acc_eta[s]
+                        lam_out[n] = rec[s, 0]
+                        eta_out[n] = rec[s, 1]
                         slots[b] = -1
                         n += 1
     else:
@@ -389,7 +303,7 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
             b = _brick(i, j, k, nbj, nbk)
             s = slots[b]
             idx[n] = v
-            lam_out[n] = acc_lam[s]
-            eta_out[n] = acc_eta[s]
+            lam_out[n] = rec[s, 0]
+            eta_out[n] = rec[s, 1]
             slots[b] = -1
     return idx, lam_out, eta_out, updates

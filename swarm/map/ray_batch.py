@@ -1,0 +1,171 @@
+"""Compiled preparation of a batch's rays (Numba): where each ray ends in the grid, and OctoMap's discretize.
+
+- ``prepare_rays``: per point, the ray's end in the grid (cut at max range or at the grid's
+  boundary), the range the sensor model uses and whether it ends in a return;
+- ``discretize_rays``: optionally, one measurement per end voxel (the mean end point of
+  the rays ending there), as OctoMap's ``discretize``.
+
+Both, and ``swarm.map.fusion_kernel``, find a voxel's per-batch entry through a grid-sized
+slot map (int32, -1 = untouched) laid out in 8 x 8 x 8 bricks (``slot_map_size``,
+``brick_index``), so that a ray's next voxel is usually in a cache line already read (in C
+order a step along x jumps ny * nz entries). Compiled with ``cache=True``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+BRICK_BITS = 3  # bricks of 8 x 8 x 8 voxels in the slot map
+
+
+def slot_map_size(shape: tuple[int, int, int]) -> int:
+    """Entries of the brick-ordered slot map of a grid of ``shape`` (padded to whole bricks)."""
+    b = 1 << BRICK_BITS
+    bricks = 1
+    for n in shape:
+        bricks *= -(-int(n) // b)
+    return bricks * b**3
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def brick_index(i, j, k, nbj, nbk):
+    """Slot-map position of voxel (i, j, k): its brick, then its place within the brick."""
+    b = BRICK_BITS
+    m = (1 << b) - 1
+    brick = ((i >> b) * nbj + (j >> b)) * nbk + (k >> b)
+    return (brick << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m)
+
+
+# The counts prepare_rays returns, by position.
+NONFINITE, DEGENERATE, OUTSIDE, TRUNCATED, CLIPPED = 0, 1, 2, 3, 4
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, margin_voxels):
+    """The rays of a batch that fusion traverses (see ``swarm.map.fusion.batch_information``).
+
+    Returns ``ends`` (M, 3) in voxel units from ``lo``, ``d`` (M,) the sensor model's range
+    (metres; min(true range, max range)), ``returned`` (M,) bool, packed in input order, and
+    ``counts`` (5,): points skipped as NaN/inf, as zero-length, as outside (sensor outside
+    the grid, or end just beyond it), then fused rays truncated at max range and clipped at
+    the grid's boundary.
+    """
+    n = points.shape[0]
+    ends = np.empty((n, 3))
+    d = np.empty(n)
+    returned = np.empty(n, np.bool_)
+    counts = np.zeros(5, np.int64)
+    origin_inside = True
+    for a in range(3):
+        if not (origin[a] >= lo[a] and origin[a] < hi[a]):
+            origin_inside = False
+    m = 0
+    for r in range(n):
+        vx = points[r, 0] - origin[0]
+        vy = points[r, 1] - origin[1]
+        vz = points[r, 2] - origin[2]
+        if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
+            counts[NONFINITE] += 1
+            continue
+        scale = max(abs(vx), abs(vy), abs(vz))  # a norm that cannot overflow
+        dist = 0.0
+        if scale > 0.0:
+            dist = scale * math.sqrt((vx / scale) ** 2 + (vy / scale) ** 2 + (vz / scale) ** 2)
+        if not dist > 1e-9:
+            counts[DEGENERATE] += 1
+            continue
+        if not origin_inside:
+            counts[OUTSIDE] += 1
+            continue
+        hit = dist <= max_range
+        reach = 1.0 if hit else max_range / dist
+        exit_at = np.inf
+        for a, va in ((0, vx), (1, vy), (2, vz)):
+            if va > 0:
+                exit_at = min(exit_at, (hi[a] - origin[a]) / va)
+            elif va < 0:
+                exit_at = min(exit_at, (lo[a] - origin[a]) / va)
+        margin = max(margin_fraction * dist, margin_voxels * voxel)
+        cut = reach >= exit_at and (1.0 - exit_at) * dist > margin
+        if cut:
+            reach = exit_at - 1e-6 * voxel / dist
+            hit = False
+        ex = origin[0] + vx * reach
+        ey = origin[1] + vy * reach
+        ez = origin[2] + vz * reach
+        inside = reach * dist > 1e-9
+        for a, ea in ((0, ex), (1, ey), (2, ez)):
+            if not (ea >= lo[a] and ea < hi[a]):
+                inside = False
+        if not inside:
+            counts[OUTSIDE] += 1
+            continue
+        ends[m, 0] = (ex - lo[0]) / voxel
+        ends[m, 1] = (ey - lo[1]) / voxel
+        ends[m, 2] = (ez - lo[2]) / voxel
+        d[m] = min(dist, max_range)
+        returned[m] = hit
+        counts[TRUNCATED] += dist > max_range
+        counts[CLIPPED] += cut
+        m += 1
+    return ends[:m], d[:m], returned[:m], counts
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def discretize_rays(start, voxel, ends, d, returned, shape, slots):
+    """One measurement per (end voxel, returned) pair: the mean end point of its rays.
+
+    ``start`` (3,) and ``ends`` (M, 3) in voxel units; a returned measurement's range is the
+    distance to its mean end point, a free one's the mean of its rays' ranges. Returns
+    ``ends``, ``d``, ``returned`` of the measurements, in first-seen order. ``slots`` is the
+    grid-sized int32 map (all -1), restored before returning.
+    """
+    m = ends.shape[0]
+    nbj = (shape[1] + 7) >> BRICK_BITS
+    nbk = (shape[2] + 7) >> BRICK_BITS
+    sums = np.zeros((2 * m, 4))  # x, y, z, range; rows 2 * group + returned
+    counts = np.zeros(2 * m, np.int64)
+    voxels = np.empty(m, np.int64)
+    groups = 0
+    for r in range(m):
+        v = brick_index(
+            int(math.floor(ends[r, 0])), int(math.floor(ends[r, 1])), int(math.floor(ends[r, 2])), nbj, nbk
+        )
+        g = slots[v]
+        if g < 0:
+            g = groups
+            slots[v] = g
+            voxels[g] = v
+            groups += 1
+        row = 2 * g + (1 if returned[r] else 0)
+        sums[row, 0] += ends[r, 0]
+        sums[row, 1] += ends[r, 1]
+        sums[row, 2] += ends[r, 2]
+        sums[row, 3] += d[r]
+        counts[row] += 1
+    for g in range(groups):
+        slots[voxels[g]] = -1
+    out_ends = np.empty((2 * groups, 3))
+    out_d = np.empty(2 * groups)
+    out_returned = np.empty(2 * groups, np.bool_)
+    k = 0
+    for row in range(2 * groups):
+        c = counts[row]
+        if c == 0:
+            continue
+        for a in range(3):
+            out_ends[k, a] = sums[row, a] / c
+        if row % 2 == 1:
+            dx = out_ends[k, 0] - start[0]
+            dy = out_ends[k, 1] - start[1]
+            dz = out_ends[k, 2] - start[2]
+            out_d[k] = voxel * math.sqrt(dx * dx + dy * dy + dz * dz)
+            out_returned[k] = True
+        else:
+            out_d[k] = sums[row, 3] / c
+            out_returned[k] = False
+        k += 1
+    return out_ends[:k], out_d[:k], out_returned[:k]
