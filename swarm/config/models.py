@@ -139,9 +139,9 @@ class SensorConfig(_Section):
     zeta: FiniteFloat = Field(default=0.0375, ge=0)
     tau: FiniteFloat = Field(default=2.0, gt=0)
     max_range: FiniteFloat = Field(default=5.0, gt=0)
-    # Off for missions: on the range-mode e2e mission it cut F1 (observed) from 0.96 to 0.70
-    # (docs/map-core.md); on by default for single clouds (SensorModel, swarm ingest).
-    hit_precedence: bool = False
+    # On, as OctoMap and SensorModel: it keeps the surfaces (docs/map-core.md gives its effect
+    # on the office and depot missions).
+    hit_precedence: bool = True
     discretize: Literal["auto", "on", "off"] = "auto"
 
     def model(self, pixels: int | None = None) -> SensorModel:
