@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from swarm.map import ray_batch
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.fusion import batch_information
 from swarm.map.fusion_kernel import LAM_MAX
@@ -161,6 +162,27 @@ def test_a_mix_of_near_and_far_points_fuses_the_near_and_counts_the_far():
     )
     assert set(alone.delta.idx.tolist()) <= set(mixed.delta.idx.tolist())
     assert mixed.voxel_updates > alone.voxel_updates
+
+
+def test_rays_ordered_by_direction_are_a_stable_permutation_grouped_by_cell():
+    rng = np.random.default_rng(11)
+    start = np.array([20.5, 20.5, 10.5])
+    ends = start + rng.normal(0.0, 8.0, (5_000, 3))
+    ends[:50] = start + [3.0, 0.0, 0.0]  # repeats, to check stability
+    d = np.arange(len(ends), dtype=np.float64)  # the original position, carried along
+    returned = rng.uniform(size=len(ends)) < 0.5
+    out_ends, out_d, out_returned = ray_batch.order_by_direction(start, ends, d, returned, 32)
+    order = out_d.astype(np.int64)
+    assert sorted(order.tolist()) == list(range(len(ends)))  # a permutation
+    assert np.array_equal(out_ends, ends[order]) and np.array_equal(out_returned, returned[order])
+    v = ends[order] - start
+    n = np.abs(v).sum(axis=1)
+    a = np.minimum(((v[:, 0] / n + 1) * 16).astype(int), 31)
+    b = np.minimum(((v[:, 1] / n + 1) * 16).astype(int), 31)
+    cells = ((v[:, 2] > 0) * 32 + a) * 32 + b
+    assert np.all(np.diff(cells) >= 0)  # grouped by cell, cells in order
+    same_cell = np.diff(cells) == 0
+    assert np.all(np.diff(order)[same_cell] > 0)  # stable within a cell
 
 
 def test_a_second_process_loads_the_kernels_from_numbas_cache():

@@ -3,7 +3,9 @@
 - ``prepare_rays``: per point, the ray's end in the grid (cut at max range or at the grid's
   boundary), the range the sensor model uses and whether it ends in a return;
 - ``discretize_rays``: optionally, one measurement per end voxel (the mean end point of
-  the rays ending there), as OctoMap's ``discretize``.
+  the rays ending there), as OctoMap's ``discretize``;
+- ``order_by_direction``: the measurements grouped by direction, so that consecutive rays
+  traverse nearby voxels (on the real scan's whole beam, 10 % off the fusion time).
 
 Both, and ``swarm.map.fusion_kernel``, find a voxel's per-batch entry through a grid-sized
 slot map (int32, -1 = untouched) laid out in 8 x 8 x 8 bricks (``slot_map_size``,
@@ -169,3 +171,52 @@ def discretize_rays(start, voxel, ends, d, returned, shape, slots):
             out_returned[k] = False
         k += 1
     return out_ends[:k], out_d[:k], out_returned[:k]
+
+
+#: Direction cells per axis of ``order_by_direction``'s octahedral map (2 x 32 x 32 cells).
+DIRECTION_BINS = 32
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def direction_cell(dx, dy, dz, bins):
+    """The cell of direction (dx, dy, dz) on the octahedron |x| + |y| + |z| = 1: (x, y) binned
+    ``bins`` x ``bins``, and the sign of z. No trigonometry; neighbouring cells hold
+    neighbouring directions."""
+    n = abs(dx) + abs(dy) + abs(dz)
+    if not n > 0.0:
+        return 0
+    a = min(int((dx / n + 1.0) * 0.5 * bins), bins - 1)
+    b = min(int((dy / n + 1.0) * 0.5 * bins), bins - 1)
+    return ((1 if dz > 0 else 0) * bins + a) * bins + b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def order_by_direction(start, ends, d, returned, bins):
+    """``ends``, ``d``, ``returned`` (M rays from ``start``, voxel units) reordered by direction cell.
+
+    A stable counting sort on ``direction_cell``: rays in one cell keep their order. Fusion's
+    sums do not depend on the order but for float rounding; its memory traffic does, as
+    consecutive rays then touch the same voxels while they are in cache.
+    """
+    m = ends.shape[0]
+    cells = 2 * bins * bins
+    key = np.empty(m, np.int64)
+    first = np.zeros(cells + 1, np.int64)
+    for r in range(m):
+        c = direction_cell(ends[r, 0] - start[0], ends[r, 1] - start[1], ends[r, 2] - start[2], bins)
+        key[r] = c
+        first[c + 1] += 1
+    for c in range(cells):
+        first[c + 1] += first[c]
+    out_ends = np.empty_like(ends)
+    out_d = np.empty_like(d)
+    out_returned = np.empty_like(returned)
+    for r in range(m):
+        k = first[key[r]]
+        first[key[r]] += 1
+        out_ends[k, 0] = ends[r, 0]
+        out_ends[k, 1] = ends[r, 1]
+        out_ends[k, 2] = ends[r, 2]
+        out_d[k] = d[r]
+        out_returned[k] = returned[r]
+    return out_ends, out_d, out_returned
