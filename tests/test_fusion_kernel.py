@@ -1,11 +1,5 @@
 """The compiled fusion kernel: equal to the numpy oracle, hit precedence, far rays, Numba's cache."""
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -16,6 +10,7 @@ from swarm.map.fusion_kernel import LAM_MAX
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from tests.fusion_oracle import reference_batch_information
+from tests.numba_cache import second_run_cache_statistics
 
 GRID = Grid((-2.0, -2.0, -1.0), 0.1, (40, 40, 20))
 OPTIONS = [(False, False), (True, False), (False, True), (True, True)]  # (hit precedence, discretize)
@@ -187,25 +182,16 @@ def test_rays_ordered_by_direction_are_a_stable_permutation_grouped_by_cell():
 
 def test_a_second_process_loads_the_kernels_from_numbas_cache():
     """Numba's own statistics: a fresh interpreter compiles nothing and hits the cache."""
-    script = (
-        "import json, numpy as np\n"
+    stats = second_run_cache_statistics(
+        "import numpy as np\n"
         "from swarm.map import fusion_kernel as k, ray_batch as rb\n"
         "from swarm.map.fusion import batch_information\n"
         "from swarm.map.grid import Grid\n"
         "from swarm.map.sensor_model import SensorModel\n"
         "g = Grid((0, 0, 0), 0.1, (10, 10, 10))\n"
-        "batch_information(g, SensorModel(discretize=True), np.full(3, 0.05), np.full((3, 3), 0.5))\n"
-        "print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]"
-        " for f in (rb.prepare_rays, rb.discretize_rays, k.fuse_rays)}))\n"
+        "batch_information(g, SensorModel(discretize=True), np.full(3, 0.05), np.full((3, 3), 0.5))",
+        "(rb.prepare_rays, rb.discretize_rays, rb.order_by_direction, k.fuse_rays)",
     )
-    root = Path(__file__).resolve().parents[1]
-    env = dict(os.environ, PYTHONPATH=str(root))
-    runs = []
-    for _ in range(2):  # the first may compile and write the cache; the second must load it
-        out = subprocess.run(
-            [sys.executable, "-c", script], cwd=root, env=env, capture_output=True, text=True, timeout=600
-        )
-        assert out.returncode == 0, out.stderr
-        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    for name, (hits, misses) in runs[1].items():
-        assert hits >= 1 and misses == 0, (name, runs)
+    assert len(stats) == 4
+    for name, (hits, misses) in stats.items():
+        assert hits >= 1 and misses == 0, (name, stats)

@@ -2,12 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -25,6 +19,7 @@ from tests.navigation_oracle import (
     reference_inflate,
     reference_tree,
 )
+from tests.numba_cache import second_run_cache_statistics
 
 
 def random_map(rng: np.random.Generator, shape=(41, 29, 9), voxel: float = 0.1) -> CoverageMap:
@@ -189,25 +184,13 @@ def test_band_occupancy_bound_never_decides_against_expected_coverage(threshold:
 
 def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> None:
     """Numba's own statistics after the agent's warm-up of planning: a fresh interpreter hits the cache."""
-    script = (
-        "import json\n"
+    stats = second_run_cache_statistics(
         "from swarm.map import coverage_map as c\n"
         "from swarm.navigation import grid_kernels as k, planner\n"
-        "planner.warm_up()\n"
-        "fs = (k.band_occupancy, k.inflate_blocked, k.disc_cells, k.grid_graph, k.segment_is_free, "
-        "c._add_information)\n"
-        "print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]"
-        " for f in fs}))\n"
+        "planner.warm_up()",
+        "(k.band_occupancy, k.inflate_blocked, k.disc_cells, k.grid_graph, k.segment_is_free,"
+        " c._add_information)",
     )
-    root = Path(__file__).resolve().parents[1]
-    env = dict(os.environ, PYTHONPATH=str(root))
-    runs = []
-    for _ in range(2):  # the first may compile and write the cache; the second must load it
-        out = subprocess.run(
-            [sys.executable, "-c", script], cwd=root, env=env, capture_output=True, text=True, timeout=600
-        )
-        assert out.returncode == 0, out.stderr
-        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    assert len(runs[1]) == 6
-    for name, (hits, misses) in runs[1].items():
-        assert hits >= 1 and misses == 0, (name, runs)
+    assert len(stats) == 6
+    for name, (hits, misses) in stats.items():
+        assert hits >= 1 and misses == 0, (name, stats)

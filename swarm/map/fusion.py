@@ -104,9 +104,8 @@ def batch_information(
     rays = len(ends)
     if discretize and rays:
         ends, d, returned = ray_batch.discretize_rays(start, e, ends, d, returned, shape, slots)
-    if len(ends) > 1:
-        ends, d, returned = ray_batch.order_by_direction(start, ends, d, returned, ray_batch.DIRECTION_BINS)
     if len(ends):
+        ends, d, returned = ray_batch.order_by_direction(start, ends, d, returned, ray_batch.DIRECTION_BINS)
         idx, lam, eta, updates = kernel.fuse_rays(
             start,
             ends,

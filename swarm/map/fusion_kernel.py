@@ -34,28 +34,16 @@ LAM_MAX = 1e24
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _slot(
-    b,
-    i,
-    j,
-    k,
-    ny,
-    nz,
-    voxel,
-    centre_offset,
-    two_over_tau,
-    slots,
-    touched,
-    rec,
-    is_hit,
-    n_touched,
-):
+def _slot(b, i, j, k, geometry, store, n_touched):
     """The compact entry of voxel (i, j, k) at slot-map position ``b``, created if new.
 
-    A new entry holds zero sums, the distance r from the sensor to the voxel's centre
-    (float32, as eq. 14 is evaluated) and its damping factor exp(-2 r / tau) (0 when it
-    would underflow). Returns (slot, new count).
+    ``geometry`` = (ny, nz, voxel, centre_offset, 2 / tau); ``store`` = (slots, touched,
+    rec, is_hit). A new entry holds zero sums, the distance r from the sensor to the voxel's
+    centre (float32, as eq. 14 is evaluated) and its damping factor exp(-2 r / tau) (0 when
+    it would underflow). Returns (slot, new count).
     """
+    ny, nz, voxel, centre_offset, two_over_tau = geometry
+    slots, touched, rec, is_hit = store
     s = slots[b]
     if s < 0:
         s = n_touched
@@ -132,28 +120,15 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
     is_hit = np.empty(capacity, np.bool_)
     n_touched = 0
     two_over_tau = 2.0 / tau
+    geometry = (ny, nz, voxel, centre_offset, two_over_tau)
+    store = (slots, touched, rec, is_hit)
     if precedence:
         for r in range(m):
             if returned[r]:
                 i = int(math.floor(ends[r, 0]))
                 j = int(math.floor(ends[r, 1]))
                 k = int(math.floor(ends[r, 2]))
-                s, n_touched = _slot(
-                    _brick(i, j, k, nbj, nbk),
-                    i,
-                    j,
-                    k,
-                    ny,
-                    nz,
-                    voxel,
-                    centre_offset,
-                    two_over_tau,
-                    slots,
-                    touched,
-                    rec,
-                    is_hit,
-                    n_touched,
-                )
+                s, n_touched = _slot(_brick(i, j, k, nbj, nbk), i, j, k, geometry, store, n_touched)
                 is_hit[s] = True
 
     # Per voxel, float32 is enough (as the numpy oracle's float32 path): eq. 14 in float32, sums in float64.
@@ -194,22 +169,7 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
             b = _brick(i, j, k, nbj, nbk)
             s = slots[b]
             if s < 0:
-                s, n_touched = _slot(
-                    b,
-                    i,
-                    j,
-                    k,
-                    ny,
-                    nz,
-                    voxel,
-                    centre_offset,
-                    two_over_tau,
-                    slots,
-                    touched,
-                    rec,
-                    is_hit,
-                    n_touched,
-                )
+                s, n_touched = _slot(b, i, j, k, geometry, store, n_touched)
             if not (precedence and is_hit[s] and not (hit and last)):
                 diff = np.float32(rec[s, 2]) - dr32
                 lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
@@ -253,22 +213,7 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         bk = k1 + (sk if (dz != 0 and te_k == t) else 0)
         if bi < 0 or bj < 0 or bk < 0 or bi >= nx or bj >= ny or bk >= nz:
             continue
-        s, n_touched = _slot(
-            _brick(bi, bj, bk, nbj, nbk),
-            bi,
-            bj,
-            bk,
-            ny,
-            nz,
-            voxel,
-            centre_offset,
-            two_over_tau,
-            slots,
-            touched,
-            rec,
-            is_hit,
-            n_touched,
-        )
+        s, n_touched = _slot(_brick(bi, bj, bk, nbj, nbk), bi, bj, bk, geometry, store, n_touched)
         diff = np.float32(rec[s, 2]) - dr32
         lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
         mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
