@@ -78,8 +78,9 @@ class Coordinator:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._declared: list = []
-        #: milliseconds each answered ``coord/assign`` took, from its arrival to the reply
+        #: milliseconds each ``coord/assign`` took, from when the answering thread took it to its reply
         self.answer_ms: deque[float] = deque(maxlen=ANSWER_TIMES_KEPT)
+        self._answer_ms_lock = threading.Lock()  # appended by the answering thread, read by coord/stats
 
     @property
     def counts(self) -> Counter[str]:
@@ -163,16 +164,21 @@ class Coordinator:
                 query = self._queries.get(timeout=0.2)
             except queue.Empty:
                 continue
-            started = time.perf_counter()
             try:
-                self._answer(query)
+                self._answer(query, time.perf_counter())
             finally:
                 query.drop()
+
+    def _timed(self, started: float) -> None:
+        """Record one answer's time, before its reply goes out (so coord/stats already counts it)."""
+        with self._answer_ms_lock:
             self.answer_ms.append(1e3 * (time.perf_counter() - started))
 
     def stats(self) -> dict:
         """The ``coord/stats`` object: answer times (ms) and every counter (docs/protocol.md)."""
-        return {"answer_ms": answer_time_summary(list(self.answer_ms)), "counts": dict(self.counts)}
+        with self._answer_ms_lock:
+            times = list(self.answer_ms)
+        return {"answer_ms": answer_time_summary(times), "counts": dict(self.counts)}
 
     def _on_stats(self, query: zenoh.Query) -> None:
         try:
@@ -182,20 +188,24 @@ class Coordinator:
             log.exception("coord/stats failed")
             query.reply_err(f"coord/stats: {exc}".encode())
 
-    def _answer(self, query: zenoh.Query) -> None:
+    def _answer(self, query: zenoh.Query, started: float) -> None:
         payload = b"" if query.payload is None else query.payload.to_bytes()
         try:
             answer = self.state.handle_request(payload, self.clock())
         except WireError as exc:
             log.warning("rejected assign request: %s", exc)
+            self._timed(started)
             query.reply_err(f"coord/assign: {exc}".encode())
             return
         except Exception as exc:  # never die of one request
             self.state.counts["requests_failed"] += 1
             log.exception("assign request failed")
+            self._timed(started)
             query.reply_err(f"coord/assign: internal error: {exc}".encode())
             return
-        query.reply(query.key_expr, answer.reply.encode())
+        reply = answer.reply.encode()
+        self._timed(started)
+        query.reply(query.key_expr, reply)
         _log_answer(answer)
 
     def stop(self) -> None:
