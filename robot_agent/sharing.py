@@ -40,6 +40,12 @@ class DeltaOutbox:
         self.pending_lam = np.zeros(size, np.float32)
         self.pending_eta = np.zeros(size, np.float32)
         self._touched = np.zeros(size, bool)
+        # What the utility filter last judged not worth sending, per voxel: the map's lam and
+        # eta then, and whether the pending part changed since. A pending voxel whose map
+        # values and pending part are unchanged gets the same verdict again, so it is skipped.
+        self._judged_lam = np.full(size, np.nan, np.float32)
+        self._judged_eta = np.full(size, np.nan, np.float32)
+        self._pending_changed = np.zeros(size, bool)
         self.seq = 0
         self.unacked: OrderedDict[int, Delta] = OrderedDict()
         self.stats = OutboxStats()
@@ -50,6 +56,7 @@ class DeltaOutbox:
         self.pending_lam[idx] += delta.dlam
         self.pending_eta[idx] += delta.deta
         self._touched[idx] = True
+        self._pending_changed[idx] = True
 
     def take(self, lam: np.ndarray, eta: np.ndarray, flush: bool = False) -> tuple[int, Delta] | None:
         """The next delta to send, numbered, or None when nothing is worth sending.
@@ -61,16 +68,29 @@ class DeltaOutbox:
         idx = np.flatnonzero(self._touched)
         if len(idx) == 0:
             return None
-        dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
         if not flush and self.share_min_bits > 0:
             lam_now, eta_now = lam[idx], eta[idx]
+            # only the voxels whose map or pending part changed since they were last judged
+            stale = (
+                self._pending_changed[idx]
+                | (lam_now != self._judged_lam[idx])
+                | (eta_now != self._judged_eta[idx])
+            )
+            idx, lam_now, eta_now = idx[stale], lam_now[stale], eta_now[stale]
+            dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
             lam_team = np.maximum(lam_now - dlam, np.float32(1e-12))
             h_team = self.table((eta_now - deta) / lam_team, 1.0 / np.sqrt(lam_team))
             h_now = self.table(eta_now / lam_now, 1.0 / np.sqrt(lam_now))
             useful = (h_team - h_now) >= self.share_min_bits
+            kept = idx[~useful]
+            self._judged_lam[kept] = lam_now[~useful]
+            self._judged_eta[kept] = eta_now[~useful]
+            self._pending_changed[kept] = False
             idx, dlam, deta = idx[useful], dlam[useful], deta[useful]
             if len(idx) == 0:
                 return None
+        else:
+            dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
         delta = Delta(idx.astype(np.uint32), dlam.copy(), deta.copy())
         self.pending_lam[idx] = 0
         self.pending_eta[idx] = 0

@@ -68,3 +68,50 @@ def test_acks_forget_deltas_and_the_store_is_bounded():
     assert outbox.stats.dropped_unacked == 2
     outbox.acknowledge(4)
     assert [s for s, _ in outbox.to_resend()] == [5]
+
+
+def reference_useful(table, lam, eta, pending_lam, pending_eta, touched, share_min_bits):
+    """The utility filter judged afresh on every pending voxel (the outbox skips unchanged ones)."""
+    idx = np.flatnonzero(touched)
+    dlam, deta = pending_lam[idx], pending_eta[idx]
+    lam_now, eta_now = lam[idx], eta[idx]
+    lam_team = np.maximum(lam_now - dlam, np.float32(1e-12))
+    h_team = table((eta_now - deta) / lam_team, 1.0 / np.sqrt(lam_team))
+    h_now = table(eta_now / lam_now, 1.0 / np.sqrt(lam_now))
+    return idx[(h_team - h_now) >= share_min_bits]
+
+
+def test_skipping_unchanged_voxels_sends_what_judging_all_of_them_would():
+    # own frames add small and large information, teammates' deltas change the map under
+    # pending voxels (which can make them worth sending), and some steps change nothing
+    rng = np.random.default_rng(2)
+    table = default_table()
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=table)
+    sent_any = 0
+    for step in range(60):
+        if step % 3 != 2:
+            idx = np.unique(rng.integers(0, GRID.size, 40))
+            own = Delta(
+                idx.astype(np.uint32),
+                rng.lognormal(0.0, 2.0, len(idx)).astype(np.float32),
+                rng.uniform(0, 1, len(idx)).astype(np.float32),
+            )
+            fused(cmap, outbox, own)
+        if step % 4 == 1:
+            idx = np.unique(rng.integers(0, GRID.size, 60))
+            dl = rng.lognormal(1.0, 2.0, len(idx)).astype(np.float32)
+            cmap.apply(Delta(idx.astype(np.uint32), dl, (dl * 0.1).astype(np.float32)))  # a teammate's
+        expected = reference_useful(
+            table, cmap.lam, cmap.eta, outbox.pending_lam, outbox.pending_eta, outbox._touched, 0.5
+        )
+        pending = outbox.pending_lam.copy(), outbox.pending_eta.copy()
+        taken = outbox.take(cmap.lam, cmap.eta)
+        got = np.zeros(0, np.int64) if taken is None else taken[1].idx.astype(np.int64)
+        assert np.array_equal(got, expected), step
+        if taken is not None:
+            sent_any += 1
+            assert np.array_equal(taken[1].dlam, pending[0][got]) and np.array_equal(
+                taken[1].deta, pending[1][got]
+            )
+    assert sent_any >= 10
