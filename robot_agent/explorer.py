@@ -23,7 +23,7 @@ import numpy as np
 from scipy import ndimage
 
 from robot_agent import stereo
-from robot_agent.stereo import StereoMatcher, points_from_depth, texture_threshold
+from robot_agent.stereo import matcher_for_rig, points_from_depth
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
@@ -93,12 +93,7 @@ class Explorer:
         self.table = default_table()
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
         self.threshold = mission.threshold_bits()
-        camera = self.rig.camera()
-        self.matcher = (
-            StereoMatcher.for_rig(camera, min_texture=texture_threshold(self.rig.noise_std))
-            if self.rig.mode == "stereo"
-            else None
-        )
+        self.matcher = matcher_for_rig(self.rig) if self.rig.mode == "stereo" else None
         body = mission.robot
         self.follower = PathFollower(
             FollowerLimits(max_speed=body.max_speed, max_turn_rate=body.max_turn_rate)

@@ -52,6 +52,13 @@ def texture_threshold(noise_std: float) -> float:
     return max(DEFAULT_MIN_TEXTURE, NOISE_TEXTURE_FACTOR * float(noise_std))
 
 
+def matcher_for_rig(rig: Any) -> StereoMatcher:
+    """The matcher an agent uses for a mission rig (``swarm.config.RigConfig``): the disparity
+    range of its camera (``rig.camera()``), the texture filter above its image noise
+    (``texture_threshold(rig.noise_std)``), the other settings at their defaults."""
+    return StereoMatcher.for_rig(rig.camera(), min_texture=texture_threshold(rig.noise_std))
+
+
 class RectifiedRig(Protocol):
     """Anything with rectified intrinsics: ``fx``, ``cx``, ``baseline`` and optionally ``cx_right``.
 

@@ -14,6 +14,7 @@ from robot_agent.stereo import (
     StereoMatcher,
     depth_from_disparity,
     disparity_range,
+    matcher_for_rig,
     points_from_depth,
     texture_threshold,
 )
@@ -407,6 +408,14 @@ def test_a_noisy_cameras_blank_area_is_blanked_by_its_texture_threshold() -> Non
     assert np.isfinite(noise_aware[:54]).mean() < 0.01
     textured = noise_aware[66:, 40:]
     assert np.nanmedian(textured) == pytest.approx(shift, abs=0.1) and np.isfinite(textured).mean() > 0.9
+
+
+def test_the_agents_matcher_follows_its_rigs_camera_and_noise() -> None:
+    from swarm.config.models import RigConfig  # noqa: PLC0415
+
+    noisy, clean = RigConfig(width=640, height=480, noise_std=2.0), RigConfig()
+    assert matcher_for_rig(noisy).min_texture == 3.0 and matcher_for_rig(clean).min_texture == 0.5
+    assert matcher_for_rig(noisy).num_disparities == StereoMatcher.for_rig(noisy.camera()).num_disparities
 
 
 def test_points_from_depth_equals_a_per_pixel_computation() -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from robot_agent.stereo import StereoMatcher, points_from_depth, texture_threshold
+from robot_agent.stereo import matcher_for_rig, points_from_depth
 from sim2d.render import Renderer, camera_pose
 from swarm.bench import best_cpu_seconds, best_seconds, timed_seconds
 from swarm.config import load_mission
@@ -49,7 +49,7 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
         spec.start.x, spec.start.y, spec.start.yaw, rig.camera_height, math.radians(rig.pitch_deg)
     )
     left, right = renderer.stereo_pair(pose)
-    matcher = StereoMatcher.for_rig(camera, min_texture=texture_threshold(rig.noise_std))
+    matcher = matcher_for_rig(rig)
     max_range = mission.sensor.max_range
 
     def stereo() -> np.ndarray:

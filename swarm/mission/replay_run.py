@@ -26,7 +26,7 @@ from replay.frames import RecordedPair, make_frame, rectified_camera
 from replay.matching import Matched
 from replay.publisher import FramePublisher
 from robot_agent.explorer import load_kernels
-from robot_agent.stereo import StereoMatcher
+from robot_agent.stereo import matcher_for_rig
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
 from swarm.formats.point_cloud_file import write_ply_points
@@ -120,7 +120,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     sub = bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta)
     client = MapClient(session, name, timeout=2.0)
     camera = rectified_camera(recording.calibration)
-    matcher = StereoMatcher.for_rig(mission.rig_for(options.robot).camera())
+    matcher = matcher_for_rig(mission.rig_for(options.robot))  # the agent's matcher
     procs = []
     rows: list[dict] = []
     publisher = None
