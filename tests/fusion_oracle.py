@@ -26,10 +26,12 @@ def reference_batch_information(
     points: np.ndarray,
     hit_precedence: bool | None = None,
     discretize: bool | None = None,
+    weighted: bool | None = None,
 ) -> BatchResult:
     """``swarm.map.fusion.batch_information`` in numpy (options default to the sensor's)."""
     hit_precedence = sensor.hit_precedence if hit_precedence is None else hit_precedence
     discretize = sensor.discretize if discretize is None else discretize
+    weighted = sensor.weighted if weighted is None else weighted
     origin = np.asarray(origin, dtype=np.float64).reshape(3)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
 
@@ -59,8 +61,10 @@ def reference_batch_information(
     end, dist, returned, truncated = end[inside], dist[inside], returned[inside], truncated[inside]
     d_model = np.minimum(dist, sensor.max_range)
     rays = len(end)
+    weight = np.ones(len(end))
     if discretize:
-        end, d_model, returned = _discretize(grid, origin, end, d_model, returned)
+        end, d_model, returned, counts = _discretize(grid, origin, end, d_model, returned)
+        weight = counts.astype(np.float64) if weighted else np.ones(len(end))
 
     voxels = traverse(grid, origin, end, hit=returned)
     i, j, k, ray, behind = voxels.i, voxels.j, voxels.k, voxels.ray, voxels.behind
@@ -80,7 +84,7 @@ def reference_batch_information(
     excess = np.maximum(np.abs(diff) - grid.voxel / 2, 0.0)
     sigma_s = sensor.sigma_min + sensor.zeta * d
     with np.errstate(over="ignore"):
-        lam = np.minimum(np.exp(2.0 * excess / sensor.tau) / sigma_s**2, LAM_MAX)
+        lam = np.minimum(weight[ray] * np.exp(2.0 * excess / sensor.tau) / sigma_s**2, LAM_MAX)
     return BatchResult(
         delta=Delta.accumulate(flat, lam, mu * lam, grid.size),
         rays=rays,
@@ -95,7 +99,7 @@ def reference_batch_information(
 
 
 def _discretize(grid, origin, end, d_model, returned):
-    """One measurement per (end voxel, returned): mean end point; range to it, or mean range."""
+    """One measurement per (end voxel, returned): mean end point; range to it, or mean range; ray count."""
     key = grid.flat(grid.index_of(end)) * 2 + returned
     groups, inverse = np.unique(key, return_inverse=True)
     counts = np.bincount(inverse)
@@ -103,7 +107,7 @@ def _discretize(grid, origin, end, d_model, returned):
     mean_d = np.bincount(inverse, weights=d_model) / counts
     is_returned = (groups % 2) == 1
     d = np.where(is_returned, np.linalg.norm(mean_end - origin, axis=1), mean_d)
-    return mean_end, d, is_returned
+    return mean_end, d, is_returned, counts
 
 
 def _grid_exit(grid: Grid, origin: np.ndarray, vec: np.ndarray) -> np.ndarray:

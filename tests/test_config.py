@@ -79,6 +79,24 @@ def test_defaults_and_models(tmp_path):
     assert mission.threshold_bits() == pytest.approx(0.25 * 7 * 40 * 30 * 20)
 
 
+def test_information_model_by_camera_size_and_yaml_switches(tmp_path):
+    """auto: weighted up to 100,000 pixels, discretize above; YAML's unquoted on/off are taken as meant."""
+    mission = load_mission(write_mission(tmp_path, base()))
+    models = {p: mission.sensor.model(pixels=p) for p in (160 * 120, 320 * 240, 640 * 480)}
+    chosen = [(m.discretize, m.weighted) for m in models.values()]
+    assert chosen == [(True, True), (True, True), (True, False)]
+    assert not mission.sensor.model().discretize  # size unknown: one measurement per ray
+    path = tmp_path / "switch.yaml"
+    for text, expected in (("off", (False, False)), ("on", (True, False)), ("weighted", (True, True))):
+        write_mission(tmp_path, base(), name="switch.yaml")
+        path.write_text(path.read_text() + f"sensor: {{discretize: {text}}}\n")
+        model = load_mission(path).sensor.model(pixels=160 * 120)
+        assert (model.discretize, model.weighted) == expected, text
+    path.write_text(path.read_text().replace("discretize: weighted", "discretize: sometimes"))
+    with pytest.raises(ConfigError, match=r"switch.yaml: sensor.discretize: must be one of"):
+        load_mission(path)
+
+
 def test_negative_voxel_is_rejected_naming_file_and_field(tmp_path):
     path = write_mission(tmp_path, base(workspace={"lo": [0, 0, 0], "hi": [4, 3, 2], "voxel": -0.1}))
     with pytest.raises(ConfigError) as err:

@@ -2,7 +2,8 @@
 
 Frames are rendered by sim2d from the office mission (a robot in the corridor). Stereo is
 OpenCV SGBM plus depth and world points; fusion is one batch into the local map, under both
-information models (one measurement per ray, and ``discretize``: one per end voxel);
+information models (one measurement per ray; ``weighted``: one per end voxel carrying its
+rays' information; ``discretize``: one per end voxel, as OctoMap);
 planning is a traversability grid from the map, a Dijkstra cost map and one path.
 """
 
@@ -61,8 +62,9 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     points = stereo()
     cmap = look_around_map(mission, rid)
     origin = np.asarray(pose.xyz)
-    per_ray = replace(cmap.sensor, discretize=False)
-    per_voxel = replace(cmap.sensor, discretize=True)
+    per_ray = replace(cmap.sensor, discretize=False, weighted=False)
+    weighted = replace(cmap.sensor, discretize=True, weighted=True)
+    per_voxel = replace(cmap.sensor, discretize=True, weighted=False)
 
     def fuse(sensor, cloud: np.ndarray = points) -> None:
         cmap.apply(batch_information(cmap.grid, sensor, origin, cloud).delta)
@@ -85,20 +87,29 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     return {
         "size": f"{width}x{height}",
         "disparities": matcher.num_disparities,
-        "default_model": "discretize" if default.discretize else "one per ray",
+        "default_model": model_name(default),
         "frame_s": best_seconds(frame, repeat),
         "points": len(points),
         "stereo_s": best_seconds(stereo, repeat),
         # (best, median) wall seconds
         "fusion_s": timed_seconds(lambda: fuse(per_ray), repeat),
+        "weighted_fusion_s": timed_seconds(lambda: fuse(weighted), repeat),
         "discretized_fusion_s": timed_seconds(lambda: fuse(per_voxel), repeat),
         "measurements": batch_information(cmap.grid, per_voxel, origin, points).measurements,
         "planning_s": timed_seconds(plan, repeat),
         "fusion_cpu_s": best_cpu_seconds(lambda: fuse(per_ray), repeat),
+        "weighted_fusion_cpu_s": best_cpu_seconds(lambda: fuse(weighted), repeat),
         "discretized_fusion_cpu_s": best_cpu_seconds(lambda: fuse(per_voxel), repeat),
         "planning_cpu_s": best_cpu_seconds(plan, repeat),
         "voxels": cmap.grid.size,
     }
+
+
+def model_name(sensor) -> str:
+    """The information model of ``sensor`` as the table names it."""
+    if not sensor.discretize:
+        return "one per ray"
+    return "weighted" if sensor.weighted else "discretize"
 
 
 def run(config: Path, sizes: list[tuple[int, int]], repeat: int = 5) -> list[dict]:
@@ -107,31 +118,37 @@ def run(config: Path, sizes: list[tuple[int, int]], repeat: int = 5) -> list[dic
     return [measure(mission, mission.robot_ids[0], w, h, repeat) for w, h in sizes]
 
 
+_MODELS = ("fusion", "weighted_fusion", "discretized_fusion")  # one per ray, weighted, discretize
+
+
 def format_table(rows: list[dict]) -> str:
     lines = [
-        "| image | points | stereo ms | fusion ms, one per ray | us/ray | fusion ms, discretize "
-        "| end voxels | planning ms | fusion + planning ms, per ray | fusion + planning ms, discretize "
-        "| map voxels | disparities | whole frame ms (default model) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| image | points | stereo ms | fusion ms, one per ray | us/ray | fusion ms, weighted "
+        "| fusion ms, discretize | end voxels | planning ms | fusion + planning ms, per ray "
+        "| fusion + planning ms, weighted | fusion + planning ms, discretize | map voxels | disparities "
+        "| whole frame ms (default model) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        wall = [r[k][0] * 1e3 for k in ("fusion_s", "discretized_fusion_s", "planning_s")]
-        median = [r[k][1] * 1e3 for k in ("fusion_s", "discretized_fusion_s", "planning_s")]
-        cpu = [r[k] * 1e3 for k in ("fusion_cpu_s", "discretized_fusion_cpu_s", "planning_cpu_s")]
+        keys = [*_MODELS, "planning"]
+        wall = [r[f"{k}_s"][0] * 1e3 for k in keys]
+        median = [r[f"{k}_s"][1] * 1e3 for k in keys]
+        cpu = [r[f"{k}_cpu_s"] * 1e3 for k in keys]
         cells = [f"{w:.1f} / {m:.1f} ({c:.1f})" for w, m, c in zip(wall, median, cpu, strict=True)]
         totals = [
-            f"{wall[i] + wall[2]:.1f} / {median[i] + median[2]:.1f} ({cpu[i] + cpu[2]:.1f})" for i in (0, 1)
+            f"{wall[i] + wall[3]:.1f} / {median[i] + median[3]:.1f} ({cpu[i] + cpu[3]:.1f})" for i in range(3)
         ]
         lines.append(
             f"| {r['size']} | {r['points']:,} | {r['stereo_s'] * 1e3:.1f} | {cells[0]} "
-            f"| {cpu[0] * 1e3 / max(r['points'], 1):.3f} | {cells[1]} | {r['measurements']:,} | {cells[2]} "
-            f"| {totals[0]} | {totals[1]} | {r['voxels']:,} | {r['disparities']} "
+            f"| {cpu[0] * 1e3 / max(r['points'], 1):.3f} | {cells[1]} | {cells[2]} | {r['measurements']:,} "
+            f"| {cells[3]} | {totals[0]} | {totals[1]} | {totals[2]} | {r['voxels']:,} | {r['disparities']} "
             f"| {r['frame_s'] * 1e3:.1f} ({r['default_model']}) |"
         )
     lines.append(
         "\nms: best / median wall time of the repeats (in parentheses: best CPU time of the thread, which "
         "a shared machine disturbs less; totals add the stages' figures); us/ray from the CPU time. "
-        "Whole frame: stereo, fusion with the agent's "
+        "Models: one measurement per ray; weighted: one per end voxel with its rays' information; "
+        "discretize: one per end voxel (OctoMap's). Whole frame: stereo, fusion with the agent's "
         "default information model at that size (sensor.discretize: auto) and planning, timed as one call."
     )
     return "\n".join(lines)

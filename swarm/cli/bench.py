@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Time per frame of the agent's stages (stereo: SGBM + depth + points; fusion; "
         "planning: traversability + Dijkstra + one path) on frames rendered from a mission, at "
         "160x120, 640x480 and 752x480 by default; fusion with one measurement per ray and with "
-        "discretize (one per end voxel).",
+        "weighted (one per end voxel carrying its rays' information) and discretize (one per end voxel).",
     )
     agent.add_argument("--config", type=Path, default=Path("configs/office.yaml"), help="mission to render")
     agent.add_argument(

@@ -19,6 +19,7 @@ from pydantic import (
     Field,
     FiniteFloat,
     PrivateAttr,
+    field_validator,
     model_validator,
 )
 
@@ -127,8 +128,10 @@ class RigConfig(_Section):
         )
 
 
-#: ``discretize: auto`` discretizes frames of more pixels than this (320 x 240 = 76,800 does not):
-#: above it a frame has many rays per end voxel, and per-ray fusion costs more without new information.
+#: ``discretize: auto`` fuses frames of more pixels than this with ``on`` (320 x 240 = 76,800 does not):
+#: above it a frame has many rays per end voxel, and per-ray information would grow with the
+#: resolution for no new information. Smaller frames get ``weighted``: their rays' information,
+#: traversed once per end voxel.
 AUTO_DISCRETIZE_PIXELS = 100_000
 
 
@@ -142,26 +145,40 @@ class SensorConfig(_Section):
     # On, as OctoMap and SensorModel: it keeps the surfaces (docs/map-core.md gives its effect
     # on the office and depot missions).
     hit_precedence: bool = True
-    discretize: Literal["auto", "on", "off"] = "auto"
+    discretize: Literal["auto", "on", "off", "weighted"] = "auto"
+
+    @field_validator("discretize", mode="before")
+    @classmethod
+    def _yaml_switch(cls, value: Any) -> Any:
+        """YAML reads an unquoted ``on``/``off`` as true/false: take them as meant."""
+        if isinstance(value, bool):
+            return "on" if value else "off"
+        return value
 
     def model(self, pixels: int | None = None) -> SensorModel:
         """The sensor model; ``pixels`` (the camera's width x height) decides ``discretize: auto``.
 
         ``hit_precedence``: a voxel holding a return of a frame gets no free-space update from
         the frame's other rays (a departure from the paper's text, as OctoMap; docs/map-core.md).
-        ``discretize``: one measurement per end voxel (the mean end point of the rays ending
-        there); ``auto`` turns it on for frames of more than ``AUTO_DISCRETIZE_PIXELS`` pixels.
+        ``discretize``: ``off``, one measurement per ray; ``on``, one per end voxel (the mean
+        end point of the rays ending there, OctoMap's option); ``weighted``, that measurement
+        with the information of all its rays; ``auto``, ``on`` for frames of more than
+        ``AUTO_DISCRETIZE_PIXELS`` pixels, else ``weighted`` (``off`` when ``pixels`` is unknown).
         """
-        discretize = self.discretize == "on" or (
-            self.discretize == "auto" and pixels is not None and pixels > AUTO_DISCRETIZE_PIXELS
-        )
+        mode = self.discretize
+        if mode == "auto":
+            if pixels is None:
+                mode = "off"
+            else:
+                mode = "on" if pixels > AUTO_DISCRETIZE_PIXELS else "weighted"
         return SensorModel(
             self.sigma_min,
             self.zeta,
             self.tau,
             self.max_range,
             hit_precedence=self.hit_precedence,
-            discretize=discretize,
+            discretize=mode in ("on", "weighted"),
+            weighted=mode == "weighted",
         )
 
 

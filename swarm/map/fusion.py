@@ -70,6 +70,7 @@ def batch_information(
     points: np.ndarray,
     hit_precedence: bool | None = None,
     discretize: bool | None = None,
+    weighted: bool | None = None,
 ) -> BatchResult:
     """Information increments of one batch: sensor at ``origin`` (3,), hit points (N, 3), world metres.
 
@@ -85,10 +86,13 @@ def batch_information(
     ``hit_precedence`` (default ``sensor.hit_precedence``): a voxel holding a return of this
     batch gets no free-space update from its other rays. ``discretize`` (default
     ``sensor.discretize``): one measurement per end voxel, the mean end point of its rays.
-    Raises ValueError for a non-finite origin.
+    ``weighted`` (default ``sensor.weighted``; only with ``discretize``): that measurement
+    carries the information of all its rays (eq. 14's lam times their number), as the rays
+    themselves would, but traversed once. Raises ValueError for a non-finite origin.
     """
     hit_precedence = sensor.hit_precedence if hit_precedence is None else hit_precedence
     discretize = sensor.discretize if discretize is None else discretize
+    weighted = sensor.weighted if weighted is None else weighted
     origin = np.asarray(origin, dtype=np.float64).reshape(3)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if not np.all(np.isfinite(origin)):
@@ -102,15 +106,20 @@ def batch_information(
     shape = np.asarray(grid.shape, dtype=np.int64)
     slots = _slots(grid)
     rays = len(ends)
+    weight = np.ones(rays)
     if discretize and rays:
-        ends, d, returned = ray_batch.discretize_rays(start, e, ends, d, returned, shape, slots)
+        ends, d, returned, n_rays = ray_batch.discretize_rays(start, e, ends, d, returned, shape, slots)
+        weight = n_rays if weighted else np.ones(len(ends))
     if len(ends):
-        ends, d, returned = ray_batch.order_by_direction(start, ends, d, returned, ray_batch.DIRECTION_BINS)
+        ends, d, returned, weight = ray_batch.order_by_direction(
+            start, ends, d, returned, weight, ray_batch.DIRECTION_BINS
+        )
         idx, lam, eta, updates = kernel.fuse_rays(
             start,
             ends,
             d,
             returned,
+            weight,
             shape,
             e,
             lo - origin + 0.5 * e,
@@ -144,5 +153,6 @@ def warm_up() -> None:
     A role calls this before it announces itself, so that its first frame is not late.
     """
     grid = Grid((0.0, 0.0, 0.0), 1.0, (2, 2, 2))
-    for discretize in (False, True):
-        batch_information(grid, SensorModel(discretize=discretize), np.full(3, 0.5), np.full((1, 3), 1.5))
+    for discretize, weighted in ((False, False), (True, False), (True, True)):
+        sensor = SensorModel(discretize=discretize, weighted=weighted)
+        batch_information(grid, sensor, np.full(3, 0.5), np.full((1, 3), 1.5))

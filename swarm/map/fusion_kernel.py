@@ -88,12 +88,16 @@ def _information(diff, half32, two_over_tau32, inv_s2, gain, w):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, zeta, tau, precedence, slots):
+def fuse_rays(
+    start, ends, d, returned, weight, shape, voxel, centre_offset, sigma_min, zeta, tau, precedence, slots
+):
     """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
 
     ``start`` (3,) and ``ends`` (M, 3) in voxel units (inside the grid), ``d`` (M,) the model's
     range in metres, ``returned`` (M,) bool: a ray with a return updates its hit voxel and
-    the voxel behind it (eq. 8); one without updates free space (mean 0). ``centre_offset``
+    the voxel behind it (eq. 8); one without updates free space (mean 0). ``weight`` (M,):
+    a ray's information is eq. 14's lam times its weight (1 for one measurement; the number
+    of rays a weighted discretize measurement stands for), bounded by ``LAM_MAX``. ``centre_offset``
     (3,) = grid lo - sensor + voxel / 2 (metres). With ``precedence`` a voxel holding a
     return of the batch gets no update from the batch's other rays except as their
     behind voxel. ``slots`` (grid size, int32, all -1) is restored before returning.
@@ -141,7 +145,7 @@ def fuse_rays(start, ends, d, returned, shape, voxel, centre_offset, sigma_min, 
         dr = d[r]
         dr32 = np.float32(dr)
         sig_s = sigma_min + zeta * dr
-        inv_s2 = 1.0 / (sig_s * sig_s)
+        inv_s2 = weight[r] / (sig_s * sig_s)
         arg = two_over_tau * (np.float64(dr32) - np.float64(half32))
         gain = math.exp(arg) * inv_s2 if arg < EXP_LIMIT else 0.0
         # Per axis: direction, crossings left, the next plane and its parameter t.

@@ -3,7 +3,7 @@
 - ``prepare_rays``: per point, the ray's end in the grid (cut at max range or at the grid's
   boundary), the range the sensor model uses and whether it ends in a return;
 - ``discretize_rays``: optionally, one measurement per end voxel (the mean end point of
-  the rays ending there), as OctoMap's ``discretize``;
+  the rays ending there), as OctoMap's ``discretize``, with the number of rays it stands for;
 - ``order_by_direction``: the measurements grouped by direction, so that consecutive rays
   traverse nearby voxels (on the real scan's whole beam, 10 % off the fusion time).
 
@@ -122,8 +122,9 @@ def discretize_rays(start, voxel, ends, d, returned, shape, slots):
 
     ``start`` (3,) and ``ends`` (M, 3) in voxel units; a returned measurement's range is the
     distance to its mean end point, a free one's the mean of its rays' ranges. Returns
-    ``ends``, ``d``, ``returned`` of the measurements, in first-seen order. ``slots`` is the
-    grid-sized int32 map (all -1), restored before returning.
+    ``ends``, ``d``, ``returned`` and ``rays`` (float64: how many rays each measurement
+    stands for) of the measurements, in first-seen order. ``slots`` is the grid-sized int32
+    map (all -1), restored before returning.
     """
     m = ends.shape[0]
     nbj = (shape[1] + 7) >> BRICK_BITS
@@ -153,6 +154,7 @@ def discretize_rays(start, voxel, ends, d, returned, shape, slots):
     out_ends = np.empty((2 * groups, 3))
     out_d = np.empty(2 * groups)
     out_returned = np.empty(2 * groups, np.bool_)
+    out_rays = np.empty(2 * groups)
     k = 0
     for row in range(2 * groups):
         c = counts[row]
@@ -169,8 +171,9 @@ def discretize_rays(start, voxel, ends, d, returned, shape, slots):
         else:
             out_d[k] = sums[row, 3] / c
             out_returned[k] = False
+        out_rays[k] = c
         k += 1
-    return out_ends[:k], out_d[:k], out_returned[:k]
+    return out_ends[:k], out_d[:k], out_returned[:k], out_rays[:k]
 
 
 #: Direction cells per axis of ``order_by_direction``'s octahedral map (2 x 32 x 32 cells).
@@ -191,8 +194,8 @@ def direction_cell(dx, dy, dz, bins):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def order_by_direction(start, ends, d, returned, bins):
-    """``ends``, ``d``, ``returned`` (M rays from ``start``, voxel units) reordered by direction cell.
+def order_by_direction(start, ends, d, returned, weight, bins):
+    """``ends``, ``d``, ``returned``, ``weight`` (M rays from ``start``, voxel units), by direction cell.
 
     A stable counting sort on ``direction_cell``: rays in one cell keep their order. Fusion's
     sums do not depend on the order but for float rounding; its memory traffic does, as
@@ -211,6 +214,7 @@ def order_by_direction(start, ends, d, returned, bins):
     out_ends = np.empty_like(ends)
     out_d = np.empty_like(d)
     out_returned = np.empty_like(returned)
+    out_weight = np.empty_like(weight)
     for r in range(m):
         k = first[key[r]]
         first[key[r]] += 1
@@ -219,4 +223,5 @@ def order_by_direction(start, ends, d, returned, bins):
         out_ends[k, 2] = ends[r, 2]
         out_d[k] = d[r]
         out_returned[k] = returned[r]
-    return out_ends, out_d, out_returned
+        out_weight[k] = weight[r]
+    return out_ends, out_d, out_returned, out_weight

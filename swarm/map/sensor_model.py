@@ -18,7 +18,9 @@ class SensorModel:
     departure from the paper's text, as OctoMap does): a voxel holding a return of the batch
     gets no free-space update from the batch's other rays. ``discretize`` (OctoMap's
     option): one measurement per end voxel, the mean end point of the rays ending there.
-    These two say how batches are fused, not what the map means: they take no part in
+    ``weighted`` (with ``discretize``): that measurement carries the information of all its
+    rays (lam times their number), so a frame gives what its rays would, traversed once.
+    These say how batches are fused, not what the map means: they take no part in
     equality (a map saved with one setting is the same mission's map under the other).
     """
 
@@ -28,6 +30,7 @@ class SensorModel:
     max_range: float = 5.0
     hit_precedence: bool = field(default=True, compare=False)
     discretize: bool = field(default=False, compare=False)
+    weighted: bool = field(default=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("sigma_min", "tau", "max_range"):
