@@ -92,11 +92,18 @@ class FramePublisher:
         t0_rec = t0_wall = None
         sent_at: list[float] = []
         for frame in frames:
+            # One clock for pacing and for the log, and the first frame's send time as the origin:
+            # a frame can then never leave before its recorded offset, however late the first went.
+            now = time.perf_counter()
             if realtime:
                 if t0_rec is None:
-                    t0_rec, t0_wall = frame.t, time.monotonic()
-                time.sleep(max(0.0, (frame.t - t0_rec) - (time.monotonic() - t0_wall)))
-            sent_at.append(time.perf_counter())
+                    t0_rec, t0_wall = frame.t, now
+                wait = (frame.t - t0_rec) - (now - t0_wall)
+                while wait > 0:
+                    time.sleep(wait)
+                    now = time.perf_counter()
+                    wait = (frame.t - t0_rec) - (now - t0_wall)
+            sent_at.append(now)
             rtt = self.send(frame, None if realtime else timeout)
             if rtt is None and not realtime:
                 log.unanswered += 1
