@@ -211,7 +211,8 @@ def _surface_quality(
     in_workspace: np.ndarray,
     sensor_observable: np.ndarray | None,
 ) -> dict[str, Any] | None:
-    """Surface accuracy and completeness of the map against the record's floor plan."""
+    """Surface accuracy and completeness of the map against the record's floor plan: accuracy
+    against the whole true surface, completeness over the part some sensor can observe."""
     plan = record.floor_plan
     if plan is None:
         return None
@@ -226,7 +227,7 @@ def _surface_quality(
     occupied = np.flatnonzero((np.ravel(exp_cov) > 0.5) & np.ravel(in_workspace))
     centres = grid.centres().reshape(-1, 3)[occupied]
     tolerance = surface_quality.TOLERANCE_EDGES * grid.voxel
-    out = surface_quality.surface_accuracy_completeness(centres, points, tolerance, floor_z=0.0)
+    out = surface_quality.plan_accuracy_completeness(plan, centres, points, tolerance)
     out["tolerance_m"] = tolerance
     return out
 
@@ -249,7 +250,8 @@ def write_run_folder(
     mission_yaml_text: str,
     record: RunRecord,
 ) -> None:
-    """Write ``metrics.json``, ``map.npz``, ``config.yaml``, ``entropy.png``, ``top_view.png``,
+    """Write ``metrics.json``, ``map.npz``, ``config.yaml``, ``trajectories.json`` (robot id ->
+    [[t s, x m, y m], ...], the simulator's true poses), ``entropy.png``, ``top_view.png``,
     ``map_3d.png`` and the slice stack ``slices/`` (:mod:`swarm.mission.map_pictures`)."""
     from swarm.mission.map_pictures import plot_map_3d, plot_slices
 
@@ -258,6 +260,8 @@ def write_run_folder(
     (out / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=2) + "\n", encoding="utf-8")
     save_map(out / "map.npz", cmap)
     (out / "config.yaml").write_text(mission_yaml_text, encoding="utf-8")
+    trajectories = json.dumps(_jsonable(record.trajectories))
+    (out / "trajectories.json").write_text(trajectories + "\n", encoding="utf-8")
     plot_entropy(out / "entropy.png", metrics)
     plot_top_view(out / "top_view.png", cmap, record)
     plot_map_3d(out / "map_3d.png", cmap, record.trajectories)

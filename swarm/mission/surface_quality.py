@@ -11,10 +11,14 @@ mission metrics and ``swarm bench fusion`` alike, which calls them precision and
 - **completeness**: the share of the true surface (points sampled on it) within
   ``tolerance`` of a mapped occupied voxel's centre.
 
-For a floor plan the true surface is the obstacles' sides and tops, sampled every half voxel
-edge (:func:`plan_surface_points`); the floor plane z = 0 also counts as true surface for
-accuracy (a voxel mapped on the floor is where a surface is) but not for completeness (the
-floor is not an obstacle the robots are asked to map as occupied).
+For a floor plan (:func:`plan_accuracy_completeness`) accuracy takes each mapped centre's
+exact distance to the obstacles' sides and tops and to the floor plane z = 0
+(:mod:`swarm.mission.plan_distance`; a voxel mapped on the floor is where a surface is);
+completeness samples the obstacles' sides and tops every half voxel edge
+(:func:`plan_surface_points`; not the floor, which the robots are not asked to map as
+occupied). Accuracy must not be measured against sampled points: they overstate every
+distance by up to the sampling's half-diagonal, which turns a centre exactly 1.5 edges from
+a wall (every second voxel layer of a grid-aligned thick wall) from accurate to inaccurate.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from swarm.mission.plan_distance import surface_distance
 
 #: Default tolerance in voxel edges.
 TOLERANCE_EDGES = 1.5
@@ -66,6 +72,28 @@ def surface_accuracy_completeness(
         "mapped": len(mapped),
         "surface": len(surface),
     }
+
+
+def plan_accuracy_completeness(
+    plan, mapped_centres: np.ndarray, surface_points: np.ndarray, tolerance: float
+) -> dict[str, float | int | None]:
+    """Accuracy and completeness of mapped occupied voxel centres (M, 3) against a floor plan
+    (``swarm.formats.floor_plan.FloorPlan``), ``tolerance`` in metres.
+
+    Accuracy: the share of centres whose exact distance to the plan's surface (sides, tops,
+    the floor z = 0) is at most ``tolerance``. Completeness: the share of ``surface_points``
+    (S, 3; :func:`plan_surface_points`, or the part of them a mission's sensors can observe)
+    within ``tolerance`` of a centre. Returns ``accuracy, completeness, mapped, surface``
+    as :func:`surface_accuracy_completeness`; raises ValueError for a tolerance not > 0.
+    """
+    if not tolerance > 0:
+        raise ValueError(f"tolerance must be > 0, got {tolerance}")
+    mapped = np.asarray(mapped_centres, dtype=np.float64).reshape(-1, 3)
+    out = surface_accuracy_completeness(mapped, surface_points, tolerance)
+    if len(mapped):
+        distance = surface_distance(plan, mapped, cap=2 * tolerance)
+        out["accuracy"] = float(np.mean(distance <= tolerance * (1 + 1e-9)))
+    return out
 
 
 @dataclass(frozen=True)
