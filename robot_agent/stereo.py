@@ -24,6 +24,7 @@ import cv2
 import numba
 import numpy as np
 
+from robot_agent.disparity_kernels import depth_of_disparity, valid_disparity
 from swarm.map.rotation import rotation_zyx
 
 SGBM_MODES = {
@@ -41,6 +42,8 @@ DEFAULT_MIN_TEXTURE = 0.5
 #: With image noise of standard deviation n, a blank area's block standard deviation is about
 #: n (25 pixels: 1.0 n +- 0.14 n), so the filter must sit above it to blank it: 1.5 n.
 NOISE_TEXTURE_FACTOR = 1.5
+
+_NO_TEXTURE = np.zeros((0, 0), np.float32)  # valid_disparity's "no texture filter"
 
 
 def texture_threshold(noise_std: float) -> float:
@@ -220,22 +223,14 @@ class StereoMatcher:
             raw = self._sgbm.compute(
                 cv2.copyMakeBorder(gl, 0, 0, pl, pr, cv2.BORDER_CONSTANT, value=0),
                 cv2.copyMakeBorder(gr, 0, 0, pl, pr, cv2.BORDER_CONSTANT, value=0),
-            )[:, pl : pl + w]
+            )
         else:
             raw = self._sgbm.compute(gl, gr)
-        disp = raw.astype(np.float32)
-        disp *= np.float32(1.0 / 16.0)
-        invalid = raw < self.min_disparity * 16
-        # A match that lands in the padding is outside the right image: not a measurement.
-        # u_right = u - d must lie in [0, w - 1].
-        columns = np.arange(w, dtype=np.float32)
-        invalid |= disp > columns
-        if self.min_disparity < 0:
-            invalid |= disp < columns - np.float32(w - 1)
+        texture = _NO_TEXTURE
         if self.min_texture > 0:
-            invalid |= texture_variance(gl, self.block_size) < np.float32(self.min_texture**2)
-        disp[invalid] = np.nan
-        return disp
+            texture = texture_variance(gl, self.block_size)
+        # A match that lands in the padding is outside the right image: not a measurement.
+        return valid_disparity(raw, pl, w, self.min_disparity, texture, np.float32(self.min_texture**2))
 
     def depth(self, left: np.ndarray, right: np.ndarray, calib: RectifiedRig) -> np.ndarray:
         """Depth (m, NaN unknown) of a pair, rectifying it first when ``calib`` carries maps."""
@@ -264,12 +259,8 @@ def depth_from_disparity(disp: np.ndarray, calib: RectifiedRig) -> np.ndarray:
 
     Disparities that give a non-positive denominator (points at or beyond infinity) are NaN.
     """
-    disp = np.asarray(disp, dtype=np.float32)
-    denom = disp + np.float32(_disparity_offset(calib))
-    fb = np.float32(float(calib.fx) * float(calib.baseline))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(denom > 0, fb / denom, np.float32(np.nan))
-    return depth.astype(np.float32, copy=False)
+    disp = np.ascontiguousarray(disp, dtype=np.float32)
+    return depth_of_disparity(disp, float(calib.fx) * float(calib.baseline), _disparity_offset(calib))
 
 
 def rotation_ypr(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -333,5 +324,7 @@ def _camera_points(
 
 
 def warm_up() -> None:
-    """Load (or compile, on a fresh install) the compiled point kernel before the first frame."""
+    """Load (or compile, on a fresh install) the compiled stereo kernels before the first frame."""
     points_from_depth(np.ones((1, 1), np.float32), 1.0, 1.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    raw = np.zeros((1, 1), np.int16)
+    depth_of_disparity(valid_disparity(raw, 0, 1, 0, _NO_TEXTURE, np.float32(0.0)), 1.0, 0.0)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from robot_agent.disparity_kernels import depth_of_disparity, valid_disparity
 from robot_agent.stereo import (
     StereoMatcher,
     depth_from_disparity,
@@ -26,6 +27,7 @@ from swarm.formats.stereo_calibration import (
     calibration_from_dict,
     load_calibration,
 )
+from tests.stereo_oracle import reference_depth, reference_valid_disparity
 
 W, H = 160, 120
 FX = 0.5 * W / math.tan(math.radians(30))  # 60 deg horizontal field of view
@@ -433,3 +435,24 @@ def test_points_from_depth_equals_a_per_pixel_computation() -> None:
     got = points_from_depth(depth, FX, FX * 1.1, CX, CY, xyz, ypr, max_range=5.0)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
     assert len(points_from_depth(depth, FX, FX * 1.1, CX, CY, xyz, ypr)) == len(z)
+
+
+@pytest.mark.parametrize("min_disparity", [0, -4, 3])
+@pytest.mark.parametrize("pad_left", [0, 5])
+def test_compiled_disparity_and_depth_equal_the_numpy_forms(min_disparity, pad_left):
+    """valid_disparity and depth_of_disparity against tests/stereo_oracle.py, bit for bit."""
+    rng = np.random.default_rng(pad_left + 10 * abs(min_disparity))
+    height, width = 37, 61
+    # SGBM's fixed-point output: invalid marks, sub-pixel values, matches landing in the padding
+    raw = rng.integers((min_disparity - 1) * 16, 80 * 16, (height, pad_left + width + 3)).astype(np.int16)
+    raw[:, :4] = (min_disparity - 1) * 16
+    for texture, threshold in ((rng.uniform(0, 4, (height, width)).astype(np.float32), 1.5), (None, 0.0)):
+        tex = np.zeros((0, 0), np.float32) if texture is None else texture
+        ours = valid_disparity(raw, pad_left, width, min_disparity, tex, np.float32(threshold))
+        oracle = reference_valid_disparity(raw, pad_left, width, min_disparity, tex, threshold)
+        np.testing.assert_array_equal(ours, oracle)  # NaN where the oracle has NaN
+        assert np.isnan(ours).any() and np.isfinite(ours).any()
+        for offset in (0.0, 7.5, -3.0):
+            np.testing.assert_array_equal(
+                depth_of_disparity(ours, 12.5, offset), reference_depth(ours, 12.5, offset)
+            )
