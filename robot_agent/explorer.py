@@ -87,7 +87,8 @@ class Explorer:
         self.rng = np.random.default_rng([seed, sum(robot_id.encode())])
         self.grid = mission.workspace.grid()
         self.rig = mission.rig_for(robot_id)
-        self.sensor = mission.sensor.model(pixels=self.rig.width * self.rig.height)
+        # Returns beyond the rig's hit range are free space up to it, no hit (SensorModel.reach).
+        self.sensor = mission.sensor_model_for(robot_id)
         self.map = CoverageMap(self.grid, self.sensor)
         load_kernels()  # before the first frame
         self.table = default_table()
@@ -112,9 +113,7 @@ class Explorer:
         self.looked_before_done = False
         self.looks_in_place = 0  # targets in a row at the robot's own cell
         # where the camera can look (the head only ever looks up), for 3-D frontier views
-        self.camera = CameraReach.of_rig(
-            self.rig, self.sensor.max_range, looks_up=self.rig.tilt_range_deg > 0
-        )
+        self.camera = CameraReach.of_rig(self.rig, self.sensor.reach, looks_up=self.rig.tilt_range_deg > 0)
         self.tried_views: list[np.ndarray] = []  # x-y of the columns a view target was chosen for
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0

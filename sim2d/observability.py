@@ -19,9 +19,12 @@ The model, from the mission alone:
   height field (obstacles stand on the floor; the floor z = 0 returns too). A ray
   observes the voxels it crosses up to and including the one it ends in and the one
   behind it (the fusion updates the voxel behind a hit too, ``swarm.map.fusion``), when
-  it ends on a surface at a range in [``min_range``, ``max_range``]; a ray that meets
-  nothing within range returns nothing and observes nothing (the agent drops returns
-  beyond the sensor's range, so no free-space evidence either).
+  it ends on a surface at a range in [``min_range``, ``hit_range``]. A ray that ends on a
+  surface between ``hit_range`` and ``max_range`` observes only the voxels it crosses up
+  to ``hit_range`` (the agent fuses it as free space up to there, no hit:
+  ``swarm.config.RigConfig.hit_range_m``). A ray that meets nothing within ``max_range``
+  returns nothing and observes nothing (the agent drops returns beyond the sensor's range,
+  so no free-space evidence either).
 
 This is a sampling of poses and directions: a voxel seen by only a few grazing rays may be
 missed, so the mask errs towards "unobservable" at the fringes; the spacing and angle step
@@ -54,6 +57,7 @@ class ObservabilityModel:
     elevation_hi: float
     max_range: float
     min_range: float = 0.0
+    hit_range: float | None = None  # None: max_range
     robot_radius: float = 0.18
     spacing: float = 0.5
     angle_step: float = math.radians(1.5)
@@ -66,10 +70,11 @@ class ObservabilityModel:
         Elevation band: the mounting pitch (positive down) +- half the vertical field of
         view +- the tilt head's range. Range: the sensor model's ``max_range``, capped by a
         depth camera's ``max_range``; stereo rigs return nothing nearer than 0.3 m (the
-        matcher's disparity range).
+        matcher's disparity range). Hit range: the rig's (``RigConfig.hit_range_m`` at the
+        workspace's voxel), at most its range; the widest over the robots.
         """
         rigs = [mission.rig_for(r) for r in mission.robot_ids]
-        lo, hi, far, near = math.inf, -math.inf, 0.0, math.inf
+        lo, hi, far, near, hit = math.inf, -math.inf, 0.0, math.inf, 0.0
         for rig in rigs:
             half_v = math.atan(0.5 * rig.height / rig.fx)
             centre = -math.radians(rig.pitch_deg)
@@ -80,6 +85,8 @@ class ObservabilityModel:
             if rig.max_range is not None:
                 reach = min(reach, rig.max_range)
             far = max(far, reach)
+            hit_range = rig.hit_range_m(mission.workspace.voxel)
+            hit = max(hit, reach if hit_range is None else min(reach, hit_range))
             near = min(near, 0.3 if rig.mode == "stereo" else 0.0)
         heights = {rig.camera_height for rig in rigs}
         if len(heights) != 1:
@@ -90,6 +97,7 @@ class ObservabilityModel:
             elevation_hi=min(hi, math.pi / 2),
             max_range=far,
             min_range=near,
+            hit_range=hit if hit < far else None,
             robot_radius=mission.robot.radius,
         )
         params.update(overrides)
@@ -170,12 +178,14 @@ def observable_voxels(
     positions = sensor_positions(reach, lo, model.raster, model.spacing)
     top, origin = _raster(plan, lo, hi, model.raster)
     dirs = _directions(model.elevation_lo, model.elevation_hi, model.angle_step)
+    cut = model.max_range if model.hit_range is None else min(model.max_range, model.hit_range)
     seen = np.zeros(grid.size, dtype=np.uint8)
     if positions.size:
         eye = np.column_stack([positions, np.full(len(positions), model.camera_height)])
         _cast(
             top, origin.astype(np.float64), float(model.raster), eye, dirs,
-            float(model.min_range), float(model.max_range), 0.5 * min(grid.voxel, 2 * model.raster),
+            float(model.min_range), float(model.max_range), float(cut),
+            0.5 * min(grid.voxel, 2 * model.raster),
             float(top.max(initial=0.0)),
             grid.lo.astype(np.float64), float(grid.voxel), np.asarray(grid.shape, np.int64), seen,
         )  # fmt: skip
@@ -183,10 +193,12 @@ def observable_voxels(
 
 
 @njit(cache=True)
-def _cast(top, origin, res, eyes, dirs, near, far, ds, ztop, glo, e, shape, seen):  # pragma: no cover - numba
+def _cast(top, origin, res, eyes, dirs, near, far, cut, ds, ztop, glo, e, shape, seen):  # pragma: no cover
     """March every ray of every eye through the height field; mark the voxels of rays that return.
 
-    A ray that rises above the tallest obstacle (``ztop``) can return nothing any more.
+    A ray returning at range s in [near, far] marks the voxels it crossed up to min(s, cut),
+    and, when s <= cut, the one behind its hit. A ray that rises above the tallest obstacle
+    (``ztop``) can return nothing any more.
     """
     nx, ny, nz = shape[0], shape[1], shape[2]
     hx, hy = top.shape
@@ -216,7 +228,7 @@ def _cast(top, origin, res, eyes, dirs, near, far, ds, ztop, glo, e, shape, seen
                 vi = int(math.floor((x - glo[0]) / e))
                 vj = int(math.floor((y - glo[1]) / e))
                 vk = int(math.floor((z - glo[2]) / e))
-                if 0 <= vi < nx and 0 <= vj < ny and 0 <= vk < nz:
+                if s <= cut and 0 <= vi < nx and 0 <= vj < ny and 0 <= vk < nz:
                     flat = (vi * ny + vj) * nz + vk
                     if flat != last:
                         buf[n] = flat
@@ -224,19 +236,20 @@ def _cast(top, origin, res, eyes, dirs, near, far, ds, ztop, glo, e, shape, seen
                         last = flat
                 if hit:
                     if s >= near:
-                        # the fusion also updates the voxel behind the hit (the surface's far side)
-                        for b in range(1, int(2.0 * e / ds) + 2):
-                            sb = s + b * ds
-                            bi = int(math.floor((ex + sb * dx - glo[0]) / e))
-                            bj = int(math.floor((ey + sb * dy - glo[1]) / e))
-                            bk = int(math.floor((ez + sb * dz - glo[2]) / e))
-                            if not (0 <= bi < nx and 0 <= bj < ny and 0 <= bk < nz):
-                                break
-                            behind = (bi * ny + bj) * nz + bk
-                            if behind != last:
-                                buf[n] = behind
-                                n += 1
-                                break
+                        if s <= cut:  # a hit; beyond the cut: free space up to it, no hit
+                            # the fusion also updates the voxel behind the hit (the surface's far side)
+                            for b in range(1, int(2.0 * e / ds) + 2):
+                                sb = s + b * ds
+                                bi = int(math.floor((ex + sb * dx - glo[0]) / e))
+                                bj = int(math.floor((ey + sb * dy - glo[1]) / e))
+                                bk = int(math.floor((ez + sb * dz - glo[2]) / e))
+                                if not (0 <= bi < nx and 0 <= bj < ny and 0 <= bk < nz):
+                                    break
+                                behind = (bi * ny + bj) * nz + bk
+                                if behind != last:
+                                    buf[n] = behind
+                                    n += 1
+                                    break
                         for q in range(n):
                             seen[buf[q]] = 1
                     break

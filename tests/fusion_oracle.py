@@ -3,7 +3,7 @@
 This was the project's fusion before the Numba kernel: every (ray, voxel) pair of a batch
 as numpy arrays (``swarm.map.traversal.traverse``, itself checked against a rational
 brute force), the sensor model per pair, and one ``bincount`` per voxel. It implements the
-same model as the kernel (cut rays at max range, the information bound, hit precedence,
+same model as the kernel (cut rays at max range or the hit range, the information bound, hit precedence,
 discretize) with independent code, and is slow and memory-hungry on purpose.
 """
 
@@ -43,9 +43,11 @@ def reference_batch_information(
     dist = np.where(scale > 0, scale * np.sqrt(np.einsum("ij,ij->i", unit, unit)), 0.0)
     nondegenerate = dist > 1e-9
     vec, dist = vec[nondegenerate], dist[nondegenerate]
-    returned = dist <= sensor.max_range
+    # A ray is cut at max range, or at the hit range when that is shorter: no hit beyond.
+    cut_at = sensor.max_range if sensor.hit_range is None else min(sensor.max_range, sensor.hit_range)
+    returned = dist <= cut_at
     truncated = ~returned
-    reach = np.where(returned, 1.0, sensor.max_range / dist)
+    reach = np.where(returned, 1.0, cut_at / dist)
     if grid.contains_point(origin):
         exit_at = _grid_exit(grid, origin, vec)
         margin = np.maximum(BOUNDARY_MARGIN_FRACTION * dist, BOUNDARY_MARGIN_VOXELS * grid.voxel)
@@ -59,7 +61,7 @@ def reference_batch_information(
         end = origin + vec
         inside = np.zeros(len(vec), dtype=bool)
     end, dist, returned, truncated = end[inside], dist[inside], returned[inside], truncated[inside]
-    d_model = np.minimum(dist, sensor.max_range)
+    d_model = np.minimum(dist, cut_at)
     rays = len(end)
     weight = np.ones(len(end))
     if discretize:

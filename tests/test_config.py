@@ -97,6 +97,37 @@ def test_information_model_by_camera_size_and_yaml_switches(tmp_path):
         load_mission(path)
 
 
+def test_hit_range_auto_from_the_rig_a_number_or_off(tmp_path):
+    """auto: where the depth error reaches one voxel edge; the agent's sensor model carries it."""
+    mission = load_mission(write_mission(tmp_path, base()))
+    rig = mission.rig_for("r1")
+    fb = rig.fx * rig.baseline  # 12.47 px m
+    auto = rig.hit_range_m(0.1)
+    assert auto == pytest.approx(3.53, abs=0.01)
+    assert auto**2 * 0.1 / fb == pytest.approx(0.1)  # sigma_Z = Z^2 sigma_d / (fx b): one voxel edge
+    assert rig.hit_range_m(0.05) == pytest.approx(auto / np.sqrt(2))
+    assert mission.sensor_model_for("r1").hit_range == pytest.approx(auto)
+    assert mission.sensor_model_for("r1").reach == pytest.approx(auto)
+    assert mission.sensor_model_for("r1") == mission.sensor.model()  # the map means the same
+    depth = RigConfig(mode="range", range_noise=0.02)
+    assert depth.hit_range_m(0.1) == pytest.approx(5.0)
+    assert RigConfig(mode="range", range_noise=0.0).hit_range_m(0.1) is None
+    path = tmp_path / "hit.yaml"
+    for text, expected in (("off", None), ("null", None), ("2.5", 2.5), ("auto", auto)):
+        write_mission(tmp_path, base(), name="hit.yaml")
+        path.write_text(path.read_text() + f"rig: {{hit_range: {text}}}\n")
+        assert load_mission(path).sensor_model_for("r1").hit_range == pytest.approx(expected), text
+    for bad in ("-1", "0", "sometimes"):
+        write_mission(tmp_path, base(), name="hit.yaml")
+        path.write_text(path.read_text() + f"rig: {{hit_range: {bad}, disparity_sigma_px: 0.2}}\n")
+        with pytest.raises(ConfigError, match=r"hit.yaml: rig\.hit_range"):
+            load_mission(path)
+    write_mission(tmp_path, base(), name="hit.yaml")
+    path.write_text(path.read_text() + "rig: {disparity_sigma_px: 0}\n")
+    with pytest.raises(ConfigError, match=r"hit.yaml: rig\.disparity_sigma_px: must be > 0"):
+        load_mission(path)
+
+
 def test_negative_voxel_is_rejected_naming_file_and_field(tmp_path):
     path = write_mission(tmp_path, base(workspace={"lo": [0, 0, 0], "hi": [4, 3, 2], "voxel": -0.1}))
     with pytest.raises(ConfigError) as err:

@@ -23,13 +23,17 @@ def random_batch(rng, n=200):
     return origin, points
 
 
+CUT = 2.3  # where both sensors below cut a ray: SENSOR's max range, the other's hit range
+
+
+@pytest.mark.parametrize("sensor", [SENSOR, SensorModel(max_range=5.0, hit_range=CUT)], ids=["max", "hit"])
 @pytest.mark.parametrize("hit_precedence", [False, True])
-def test_batch_equals_independent_per_ray_sum(hit_precedence):
+def test_batch_equals_independent_per_ray_sum(hit_precedence, sensor):
     """Each ray's voxels (exact reference traversal) get lam = 1/sigma^2, eta = mu/sigma^2 (eq. 14).
 
-    A ray beyond max range is free space (mu = 0) with the sigma of a ray of length max range;
-    with hit precedence a voxel holding a return gets nothing from the other rays but as the
-    voxel behind their hit.
+    A ray beyond max range (or beyond the hit range, when shorter) is free space (mu = 0) up
+    to that range, with the sigma of a ray of that length; with hit precedence a voxel
+    holding a return gets nothing from the other rays but as the voxel behind their hit.
     """
     rng = np.random.default_rng(0)
     origin, points = random_batch(rng, 40)
@@ -38,10 +42,10 @@ def test_batch_equals_independent_per_ray_sum(hit_precedence):
     rays = []
     for p in points:
         dist = float(np.linalg.norm(p - origin))
-        returned = dist <= SENSOR.max_range
-        end = p if returned else origin + (p - origin) * SENSOR.max_range / dist
+        returned = dist <= CUT
+        end = p if returned else origin + (p - origin) * CUT / dist
         voxels, _, behind = reference(GRID, origin, end, hit=returned)
-        rays.append((min(dist, SENSOR.max_range), returned, voxels, behind, tuple(GRID.index_of(end))))
+        rays.append((min(dist, CUT), returned, voxels, behind, tuple(GRID.index_of(end))))
     hits = {r[4] for r in rays if r[1]}
     lam, eta = {}, {}
     for d, returned, voxels, behind, hit_voxel in rays:
@@ -53,16 +57,42 @@ def test_batch_equals_independent_per_ray_sum(hit_precedence):
                 continue
             d_l = float(np.linalg.norm(GRID.centre(np.array(v)) - origin))
             mu = SENSOR.mean(d, d_l, GRID.voxel) if returned else 0.0
-            sigma = SENSOR.sigma(d, d_l, GRID.voxel)
+            sigma = SENSOR.sigma(d, d_l, GRID.voxel)  # eq. 14 does not depend on the max range
             key = int(GRID.flat(np.array(v)))
             lam[key] = lam.get(key, 0.0) + 1 / sigma**2
             eta[key] = eta.get(key, 0.0) + mu / sigma**2
-    result = batch_information(GRID, SENSOR, origin, points, hit_precedence=hit_precedence)
+    result = batch_information(GRID, sensor, origin, points, hit_precedence=hit_precedence)
     assert result.truncated == 5
     assert sorted(lam) == result.delta.idx.tolist()
     keys = result.delta.idx.tolist()
     np.testing.assert_allclose(result.delta.dlam, [lam[k] for k in keys], rtol=2e-5)
     np.testing.assert_allclose(result.delta.deta, [eta[k] for k in keys], rtol=2e-5, atol=1e-3)
+
+
+def test_a_return_beyond_the_hit_range_is_free_space_up_to_it_and_no_hit():
+    """A wall 2.8 m away seen with a 2.0 m hit range: nothing occupied, and nothing updated
+    farther than 2.0 m (the end voxel's centre is within half a voxel diagonal of the cut)."""
+    origin = np.array([0.05, 0.05, 0.05])
+    ys, zs = np.meshgrid(np.linspace(-0.5, 0.5, 11), np.linspace(-0.3, 0.3, 7))
+    wall = np.column_stack([np.full(ys.size, 2.85), ys.ravel(), zs.ravel()])
+    near = batch_information(GRID, SensorModel(max_range=5.0), origin, wall)
+    cut = batch_information(GRID, SensorModel(max_range=5.0, hit_range=2.0), origin, wall)
+    assert near.truncated == 0 and cut.truncated == len(wall) and cut.rays == len(wall)
+    assert np.any(near.delta.deta > 0.5 * near.delta.dlam)  # the wall's hits: mean coverage above 0.5
+    assert np.all(cut.delta.deta == 0.0)
+    dist = np.linalg.norm(GRID.centre(GRID.unflat(cut.delta.idx.astype(np.int64))) - origin, axis=1)
+    assert dist.max() <= 2.0 + 0.5 * np.sqrt(3) * GRID.voxel
+    assert dist.max() > 2.0 - GRID.voxel  # free space right up to the cut
+    # the hit range takes no part in the map's meaning: same prior, same equality
+    assert SensorModel(max_range=5.0, hit_range=2.0) == SensorModel(max_range=5.0)
+
+
+def test_a_hit_range_must_be_positive():
+    for bad in (0.0, -1.0, np.nan, np.inf):
+        with pytest.raises(ValueError, match="hit_range"):
+            SensorModel(hit_range=bad)
+    assert SensorModel(max_range=5.0, hit_range=7.0).reach == 5.0
+    assert SensorModel(max_range=5.0, hit_range=3.0).reach == 3.0
 
 
 def test_order_of_batches_and_deltas_does_not_matter():

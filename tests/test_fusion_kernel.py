@@ -44,8 +44,9 @@ def assert_same(grid, sensor, origin, points, hit_precedence, discretize, weight
 @pytest.mark.parametrize(("hit_precedence", "discretize", "weighted"), OPTIONS)
 def test_random_rays_equal_the_numpy_oracle(hit_precedence, discretize, weighted):
     rng = np.random.default_rng(7)
-    for max_range in (1.2, 5.0):
-        sensor = SensorModel(max_range=max_range)
+    # (max range, hit range): the cut at max range, and at a shorter hit range
+    for max_range, hit_range in ((1.2, None), (5.0, None), (5.0, 1.7), (1.2, 3.0)):
+        sensor = SensorModel(max_range=max_range, hit_range=hit_range)
         for _ in range(3):
             origin = rng.uniform(-1.0, 1.0, 3) * [1, 1, 0.5]
             direction = rng.normal(size=(400, 3))

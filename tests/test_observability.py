@@ -115,6 +115,40 @@ def test_a_ray_that_returns_nothing_observes_nothing():
     assert not observable_voxels(None, grid, np.array([[1.0, 1.0]]), down).any()  # floor out of range
 
 
+def test_beyond_the_hit_range_a_ray_observes_free_space_up_to_it_only():
+    """Robots kept behind a 0.1 m fence at x = 1 (the camera, 0.4 m high, sees over it) look at
+    a 1 m wall at x = 3: at least 2.18 m away. With a 1.5 m hit range its face is never a hit,
+    the free space 1.25 m away still is observed (rays towards the wall are cut there)."""
+    fence = rectangle(np.array([1.0, 1.5]), np.array([0.05, 20.0]))
+    wall = rectangle(np.array([3.1, 1.5]), np.array([0.2, 20.0]))
+    plan = _plan([fence, wall], [0.1, 1.0])
+    grid = Grid.from_bounds(np.array([0.0, 0.0, 0.0]), np.array([4.0, 3.0, 1.4]), 0.1)
+    starts = np.array([[0.5, 1.5]])
+    full = observable_voxels(plan, grid, starts, MODEL)
+    cut = observable_voxels(plan, grid, starts, ObservabilityModel(**{**MODEL.__dict__, "hit_range": 1.5}))
+    near = observable_voxels(plan, grid, starts, ObservabilityModel(**{**MODEL.__dict__, "max_range": 1.5}))
+    ijk = lambda x, y, z: tuple(int(v) for v in np.floor((np.array([x, y, z]) - grid.lo) / 0.1))  # noqa: E731
+    face, free = ijk(2.95, 1.5, 0.45), ijk(2.05, 1.5, 0.45)
+    assert full[face] and not cut[face]
+    assert full[free] and cut[free] and not near[free]  # near: the wall's rays return nothing
+    assert not (cut & ~full).any()  # a cut ray observes a part of what the whole one does
+    assert not (near & ~cut).any()  # and at least what a sensor of that range does
+    # eyes stand at x <= 0.82: nothing beyond x = 0.82 + 1.5 (and a voxel) is observed
+    assert not cut[ijk(2.45, 0.0, 0.0)[0] :].any() and full[ijk(2.45, 0.0, 0.0)[0] :].any()
+    # the hit range of a mission: the rig's (at the workspace's voxel), at most the max range
+    far = {
+        "mission": "far",
+        "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [4.0, 3.0, 1.4], "voxel": 0.1},
+        "robots": [{"id": "r1", "start": {"x": 0.5, "y": 1.5}}],
+    }
+    mission = mission_from_dict(far)
+    model = ObservabilityModel.for_mission(mission)
+    assert model.hit_range == pytest.approx(math.sqrt(0.1 * mission.rig.fx * 0.09 / 0.1))
+    for hit_range in (7.0, None):  # beyond the max range, or none: no cut
+        mission = mission_from_dict({**far, "rig": {"hit_range": hit_range}})
+        assert ObservabilityModel.for_mission(mission).hit_range is None
+
+
 MISSION = {
     "mission": "room",
     "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [4.0, 3.0, 1.4], "voxel": 0.1},

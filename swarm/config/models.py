@@ -79,6 +79,13 @@ class Pose2D(_Section):
     yaw: FiniteFloat = 0.0
 
 
+#: SGBM's disparity error (standard deviation, px) on the simulator's frames: from the depth
+#: errors of 40 rendered frames of the default rig (docs/stereo.md, "Far returns"), where
+#: 13 % of points at 3-4 m and 31-38 % at 4-5 m are more than 0.15 m off: sigma_Z = 0.10 m at
+#: 3.5 m and 0.16 m at 4.5 m, both sigma_d = sigma_Z fx b / Z^2 = 0.10 px.
+DISPARITY_SIGMA_PX = 0.1
+
+
 class RigConfig(_Section):
     """A rectified stereo rig (or, in ``range`` mode, a depth camera) on a robot.
 
@@ -90,6 +97,11 @@ class RigConfig(_Section):
     ``pitch_deg`` is the mounting pitch (positive looks down); ``tilt_range_deg`` > 0 puts
     the camera on a tilt head that commands can point up to that many degrees up or down
     from the mounting pitch (0: a fixed camera).
+
+    ``hit_range`` (m): a return farther than this gives free space up to it and no hit
+    (``hit_range_m``); ``auto`` derives it from the rig's depth error, None turns it off.
+    ``disparity_sigma_px`` is the stereo matcher's disparity error (standard deviation, px)
+    that ``auto`` assumes.
     """
 
     width: int = Field(default=160, ge=8)
@@ -103,6 +115,38 @@ class RigConfig(_Section):
     mode: Literal["stereo", "range"] = "stereo"
     range_noise: FiniteFloat = Field(default=0.01, ge=0)
     max_range: FiniteFloat | None = Field(default=None, gt=0)
+    hit_range: Literal["auto"] | FiniteFloat | None = "auto"
+    disparity_sigma_px: FiniteFloat = Field(default=DISPARITY_SIGMA_PX, gt=0)
+
+    @field_validator("hit_range", mode="before")
+    @classmethod
+    def _hit_range(cls, value: Any) -> Any:
+        """``auto``, a range > 0 (m), or null / ``off`` (YAML reads an unquoted one as false)."""
+        if value is None or value is False or value == "off":
+            return None
+        if value == "auto":
+            return value
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if number and math.isfinite(value) and value > 0:
+            return float(value)
+        raise ValueError(f"must be 'auto', a range > 0 (m), or null/off (got {value!r})")
+
+    def hit_range_m(self, voxel: float) -> float | None:
+        """The range (m) beyond which a return of this rig is no hit, or None (no such range).
+
+        ``auto``: the range where the depth error (one standard deviation) reaches one voxel
+        edge ``voxel``, so that a hit lands in its voxel or a neighbour. Stereo: depth
+        Z = fx b / d, so a disparity error sigma_d gives sigma_Z = Z^2 sigma_d / (fx b), and
+        the range is sqrt(voxel fx b / sigma_d) (the default rig: 3.5 m at 0.1 m voxels).
+        Range mode: sigma = range_noise Z, so voxel / range_noise (None without noise).
+        Measured rays are longer than the optical-axis depth off the image centre; the
+        range is applied to the ray length, which errs on the side of fewer hits.
+        """
+        if self.hit_range is None or self.hit_range != "auto":
+            return self.hit_range
+        if self.mode == "stereo":
+            return math.sqrt(voxel * self.fx * self.baseline / self.disparity_sigma_px)
+        return voxel / self.range_noise if self.range_noise > 0 else None
 
     @model_validator(mode="after")
     def _stereo_needs_baseline(self) -> RigConfig:
@@ -155,8 +199,11 @@ class SensorConfig(_Section):
             return "on" if value else "off"
         return value
 
-    def model(self, pixels: int | None = None) -> SensorModel:
+    def model(self, pixels: int | None = None, hit_range: float | None = None) -> SensorModel:
         """The sensor model; ``pixels`` (the camera's width x height) decides ``discretize: auto``.
+
+        ``hit_range``: the rig's (``RigConfig.hit_range_m``; None: max range), as the agent
+        fuses its frames (``SensorModel.hit_range``).
 
         ``hit_precedence``: a voxel holding a return of a frame gets no free-space update from
         the frame's other rays (a departure from the paper's text, as OctoMap; docs/map-core.md).
@@ -179,6 +226,7 @@ class SensorConfig(_Section):
             hit_precedence=self.hit_precedence,
             discretize=mode in ("on", "weighted"),
             weighted=mode == "weighted",
+            hit_range=hit_range,
         )
 
 
@@ -307,6 +355,15 @@ class Mission(_Section):
         """The resolved rig of a robot (its own overrides applied to the default rig)."""
         self.robot_spec(robot_id)
         return self._robot_rigs.get(robot_id, self.rig)
+
+    def sensor_model_for(self, robot_id: str) -> SensorModel:
+        """The sensor model a robot fuses its frames with: its camera's size decides
+        ``discretize: auto``, its rig's hit range (``RigConfig.hit_range_m`` at the
+        workspace's voxel) cuts its far returns."""
+        rig = self.rig_for(robot_id)
+        return self.sensor.model(
+            pixels=rig.width * rig.height, hit_range=rig.hit_range_m(self.workspace.voxel)
+        )
 
     def floor_plan_ref(self) -> FloorPlanRef | None:
         """The floor plan reference with its path made absolute."""

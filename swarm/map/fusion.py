@@ -37,7 +37,7 @@ class BatchResult:
     delta: Delta
     rays: int  # rays fused
     voxel_updates: int  # (measurement, voxel) updates applied
-    truncated: int  # rays longer than max range: free space up to max range, no hit
+    truncated: int  # rays longer than the sensor's reach: free space up to it, no hit
     skipped_nonfinite: int  # NaN/inf points
     skipped_outside: int  # sensor outside the grid, or point just beyond its boundary
     skipped_degenerate: int  # zero-length rays
@@ -75,11 +75,12 @@ def batch_information(
     """Information increments of one batch: sensor at ``origin`` (3,), hit points (N, 3), world metres.
 
     Points that are NaN/inf, zero-length rays and all rays of a sensor outside the grid
-    are skipped and counted. Rays longer than ``sensor.max_range`` update free space up to
-    max range (mean 0) with the information of a ray of length max range, and give no hit
-    (as OctoMap's max range). Rays that leave the grid are treated alike at the grid's
-    boundary (mean 0, the sensor model at their true range); but a point within the
-    boundary margin (``BOUNDARY_MARGIN_FRACTION``) beyond the boundary is skipped. One
+    are skipped and counted. Rays longer than ``sensor.reach`` (max range, or the hit range
+    when shorter) update free space up to that range (mean 0) with the information of a ray
+    of that length, and give no hit (as OctoMap's max range). Rays that leave the grid are
+    treated alike at the grid's boundary (mean 0, the sensor model at their true range);
+    but a point within the boundary margin (``BOUNDARY_MARGIN_FRACTION``) beyond the
+    boundary is skipped. One
     measurement's lam is at most ``fusion_kernel.LAM_MAX``, so no finite input gives
     non-finite information.
 
@@ -100,7 +101,7 @@ def batch_information(
 
     lo, hi, e = grid.lo, grid.hi, grid.voxel
     ends, d, returned, counts = ray_batch.prepare_rays(
-        origin, points, lo, hi, e, float(sensor.max_range), BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS
+        origin, points, lo, hi, e, sensor.reach, BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS
     )
     start = (origin - lo) / e
     shape = np.asarray(grid.shape, dtype=np.int64)

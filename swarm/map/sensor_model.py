@@ -20,6 +20,10 @@ class SensorModel:
     option): one measurement per end voxel, the mean end point of the rays ending there.
     ``weighted`` (with ``discretize``): that measurement carries the information of all its
     rays (lam times their number), so a frame gives what its rays would, traversed once.
+    ``hit_range`` (m; None: ``max_range``): a return farther than this is too uncertain to
+    place a surface within a voxel (a stereo rig's depth error grows with the square of the
+    range; ``swarm.config.RigConfig.hit_range_m``): its ray updates free space up to
+    ``hit_range`` and gives no hit, as a ray beyond max range does (OctoMap's max range).
     These say how batches are fused, not what the map means: they take no part in
     equality (a map saved with one setting is the same mission's map under the other).
     """
@@ -31,6 +35,7 @@ class SensorModel:
     hit_precedence: bool = field(default=True, compare=False)
     discretize: bool = field(default=False, compare=False)
     weighted: bool = field(default=False, compare=False)
+    hit_range: float | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("sigma_min", "tau", "max_range"):
@@ -39,6 +44,18 @@ class SensorModel:
                 raise ValueError(f"sensor model: {name} must be > 0, got {value!r}")
         if not (np.isfinite(self.zeta) and self.zeta >= 0):
             raise ValueError(f"sensor model: zeta must be >= 0, got {self.zeta!r}")
+        if self.hit_range is not None and not (np.isfinite(self.hit_range) and self.hit_range > 0):
+            raise ValueError(f"sensor model: hit_range must be > 0 or None, got {self.hit_range!r}")
+
+    @property
+    def reach(self) -> float:
+        """The range (m) up to which a ray updates the map: ``min(max_range, hit_range)``.
+
+        A ray longer than this is cut there: free space up to it, no hit (``swarm.map.fusion``).
+        """
+        if self.hit_range is None:
+            return float(self.max_range)
+        return float(min(self.max_range, self.hit_range))
 
     def sigma_s(self, d: np.ndarray) -> np.ndarray:
         """Sensor standard deviation at range d (eq. 14, sigma_s)."""

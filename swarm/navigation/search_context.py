@@ -112,12 +112,13 @@ class SearchContext:
 
     def unknown_in_view(self) -> bool:
         """Is any unknown slab voxel that borders known free space (4-neighbours) in view of
-        reachable space within the sensor's range? (Unknown voxels enclosed by surfaces or
-        by other unknown voxels alone do not count: no view would reach them.)"""
+        reachable space within the sensor's reach (``SensorModel.reach``)? (Unknown voxels
+        enclosed by surfaces or by other unknown voxels alone do not count: no view would
+        reach them.)"""
         border = ~self.slab_known & grow(self.slab_known & ~self.opaque, square=False)
         if not border.any():
             return False
-        return bool(np.any(self.in_view(self.cmap.sensor.max_range) & border))
+        return bool(np.any(self.in_view(self.cmap.sensor.reach) & border))
 
     def unknown_area(self, i: int, j: int, max_range: float) -> float:
         """Unknown floor area (m^2, traversability columns) within ``max_range`` of cell (i, j)."""
