@@ -9,7 +9,7 @@ import logging
 import math
 import threading
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -46,14 +46,15 @@ SWEPT_STEP = 0.05
 def params_from_mission(mission: Mission) -> CoordinationParams:
     """The assignment parameters of a mission's ``coordination`` section.
 
-    The footprint radius defaults to min(2 xi, sensor max range): two robots whose targets
-    are at least 2 xi apart choose their next targets (within xi of where they stand, eq. 30)
-    from disjoint neighbourhoods, and nothing beyond the sensor's range is seen from a target.
+    The footprint radius defaults to min(2 xi, sensor reach): two robots whose targets are
+    at least 2 xi apart choose their next targets (within xi of where they stand, eq. 30)
+    from disjoint neighbourhoods, and nothing beyond the sensor's reach (its max range, or
+    the rigs' hit range when shorter: ``Mission.sensor_reach``) is seen from a target.
     """
     c = mission.coordination
     footprint = c.footprint_radius
     if footprint is None:
-        footprint = min(2.0 * mission.exploration.radius, mission.sensor.max_range)
+        footprint = min(2.0 * mission.exploration.radius, mission.sensor_reach())
     return CoordinationParams(
         beta=c.beta,
         footprint_radius=footprint,
@@ -89,7 +90,9 @@ class CoordinatorState:
     def __init__(self, mission: Mission, params: CoordinationParams | None = None) -> None:
         self.mission = mission
         self.params = params or params_from_mission(mission)
-        self.team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+        # the team's reach (rigs' hit range) decides what is still in view, as on the robots
+        sensor = replace(mission.sensor.model(), hit_range=mission.sensor_reach())
+        self.team = TeamMap(mission.workspace.grid(), sensor)
         self.book = AssignmentBook(self.params)
         self.counts: Counter[str] = Counter()
         self._book_lock = threading.Lock()

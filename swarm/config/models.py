@@ -247,7 +247,7 @@ class SharingConfig(_Section):
 class CoordinationConfig(_Section):
     """The coordinator's Burgard-style assignment (docs/coordinator.md).
 
-    ``footprint_radius`` None: min(2 * exploration.radius, sensor.max_range).
+    ``footprint_radius`` None: min(2 * exploration.radius, the sensor reach: ``Mission.sensor_reach``).
     """
 
     beta: FiniteFloat = Field(default=0.1, ge=0, description="utility lost per metre of path (1/m)")
@@ -364,6 +364,11 @@ class Mission(_Section):
         return self.sensor.model(
             pixels=rig.width * rig.height, hit_range=rig.hit_range_m(self.workspace.voxel)
         )
+
+    def sensor_reach(self) -> float:
+        """The widest range (m) up to which a robot's frames update the map: the largest
+        ``SensorModel.reach`` of its robots' sensor models (``sensor_model_for``)."""
+        return max(self.sensor_model_for(r).reach for r in self.robot_ids)
 
     def floor_plan_ref(self) -> FloorPlanRef | None:
         """The floor plan reference with its path made absolute."""
