@@ -1,4 +1,4 @@
-"""The explorer's state machine: the tilt head's look-up after a gaze."""
+"""The explorer's state machine (the tilt head's look-up after a gaze) and its fusion of far returns."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from robot_agent.explorer import Explorer
-from swarm.config import load_mission
+from swarm.config import load_mission, mission_from_dict
 from swarm.navigation.exploration import ExplorationTarget
+from swarm.protocol.wire import Frame, Pose
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -76,3 +77,38 @@ def test_a_target_at_the_robots_own_cell_is_avoided_after_two_looks():
         states.append(decision.state)
     assert states == ["gaze", "gaze", "choose"]
     assert len(explorer.failed) == 1 and np.allclose(explorer.failed[0], here + 0.05)
+
+
+def test_a_wall_beyond_the_rigs_hit_range_is_free_space_up_to_it_and_no_hit():
+    """A depth frame of a wall 4 m ahead: a hit with no hit range; with a 3 m one, free space
+    up to 3 m only. The default stereo rig's hit range is auto: 3.53 m at 0.1 m voxels."""
+
+    def explorer(rig: dict) -> Explorer:
+        mission = mission_from_dict(
+            {
+                "mission": "wall",
+                "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [8.0, 4.0, 2.0], "voxel": 0.1},
+                "robots": [{"id": "r1", "start": {"x": 1.0, "y": 2.0}}],
+                "rig": rig,
+                "stop": {"entropy_threshold_bits": 1.0},
+            }
+        )
+        return Explorer(mission, "r1")
+
+    def fused(explorer: Explorer) -> tuple[np.ndarray, np.ndarray]:
+        cam = explorer.rig.camera()
+        depth = np.full((cam.height, cam.width), 4.0, np.float32)
+        frame = Frame("r1", 0, 0.0, Pose((1.0, 2.0, 0.4), (0.0, 0.0, 0.0)), cam, "f32", depth=depth)
+        delta = explorer.fuse(frame)
+        centres = explorer.grid.centre(explorer.grid.unflat(delta.idx.astype(np.int64)))
+        occupied = delta.deta > 0.5 * delta.dlam
+        return np.linalg.norm(centres - [1.0, 2.0, 0.4], axis=1), occupied
+
+    depth_rig = {"mode": "range", "width": 32, "height": 24, "range_noise": 0.0}
+    dist, occupied = fused(explorer({**depth_rig, "hit_range": None}))
+    assert occupied.any() and dist[occupied].min() > 3.9
+    dist, occupied = fused(explorer({**depth_rig, "hit_range": 3.0}))
+    assert not occupied.any() and 2.9 < dist.max() <= 3.0 + 0.5 * math.sqrt(3) * 0.1
+    stereo = explorer({})
+    assert stereo.sensor.hit_range == pytest.approx(3.53, abs=0.01)
+    assert stereo.camera.max_range == pytest.approx(stereo.sensor.hit_range)  # view targets within it
