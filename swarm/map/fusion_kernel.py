@@ -63,6 +63,22 @@ def _slot(b, i, j, k, geometry, store, n_touched):
     return s, n_touched
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def entries_bound(start, ends, shape):
+    """At most how many voxels ``fuse_rays`` touches: each ray's voxels (its L1 length in voxel
+    steps, plus one) and the voxel behind its end, and never more than the grid's size."""
+    i0 = int(math.floor(start[0]))
+    j0 = int(math.floor(start[1]))
+    k0 = int(math.floor(start[2]))
+    bound = 0
+    for r in range(ends.shape[0]):
+        bound += 2
+        bound += abs(int(math.floor(ends[r, 0])) - i0)
+        bound += abs(int(math.floor(ends[r, 1])) - j0)
+        bound += abs(int(math.floor(ends[r, 2])) - k0)
+    return min(bound, shape[0] * shape[1] * shape[2])
+
+
 #: exp() arguments up to this stay far from float64's overflow and underflow.
 EXP_LIMIT = 600.0
 
@@ -89,7 +105,20 @@ def _information(diff, half32, two_over_tau32, inv_s2, gain, w):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def fuse_rays(
-    start, ends, d, returned, weight, shape, voxel, centre_offset, sigma_min, zeta, tau, precedence, slots
+    start,
+    ends,
+    d,
+    returned,
+    weight,
+    shape,
+    voxel,
+    centre_offset,
+    sigma_min,
+    zeta,
+    tau,
+    precedence,
+    slots,
+    buffers,
 ):
     """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
 
@@ -101,6 +130,8 @@ def fuse_rays(
     (3,) = grid lo - sensor + voxel / 2 (metres). With ``precedence`` a voxel holding a
     return of the batch gets no update from the batch's other rays except as their
     behind voxel. ``slots`` (grid size, int32, all -1) is restored before returning.
+    ``buffers`` = (touched int64, records (n, 4) float64, is_hit bool), each of at least
+    ``entries_bound`` entries: scratch space, kept between batches by the caller.
     """
     m = ends.shape[0]
     nx, ny, nz = shape[0], shape[1], shape[2]
@@ -110,18 +141,9 @@ def fuse_rays(
     i0 = int(math.floor(start[0]))
     j0 = int(math.floor(start[1]))
     k0 = int(math.floor(start[2]))
-    bound = 0
-    for r in range(m):
-        bound += 2
-        bound += abs(int(math.floor(ends[r, 0])) - i0)
-        bound += abs(int(math.floor(ends[r, 1])) - j0)
-        bound += abs(int(math.floor(ends[r, 2])) - k0)
-    capacity = min(bound, size)
-    touched = np.empty(capacity, np.int64)
+    touched, rec, is_hit = buffers
     # One record per entry (32 bytes, so one cache line at most): sums of lam and eta, the
     # distance r from the sensor to the voxel centre, and exp(-2 r / tau).
-    rec = np.empty((capacity, 4))
-    is_hit = np.empty(capacity, np.bool_)
     n_touched = 0
     two_over_tau = 2.0 / tau
     geometry = (ny, nz, voxel, centre_offset, two_over_tau)
