@@ -99,7 +99,8 @@ def test_information_model_by_camera_size_and_yaml_switches(tmp_path):
 
 def test_hit_range_auto_from_the_rig_a_number_or_off(tmp_path):
     """auto: where the depth error reaches one voxel edge; the agent's sensor model carries it."""
-    mission = load_mission(write_mission(tmp_path, base()))
+    assert load_mission(write_mission(tmp_path, base())).sensor_model_for("r1").hit_range is None  # default
+    mission = load_mission(write_mission(tmp_path, base(rig={"hit_range": "auto"})))
     rig = mission.rig_for("r1")
     fb = rig.fx * rig.baseline  # 12.47 px m
     auto = rig.hit_range_m(0.1)
@@ -109,9 +110,9 @@ def test_hit_range_auto_from_the_rig_a_number_or_off(tmp_path):
     assert mission.sensor_model_for("r1").hit_range == pytest.approx(auto)
     assert mission.sensor_model_for("r1").reach == pytest.approx(auto)
     assert mission.sensor_model_for("r1") == mission.sensor.model()  # the map means the same
-    depth = RigConfig(mode="range", range_noise=0.02)
+    depth = RigConfig(mode="range", range_noise=0.02, hit_range="auto")
     assert depth.hit_range_m(0.1) == pytest.approx(5.0)
-    assert RigConfig(mode="range", range_noise=0.0).hit_range_m(0.1) is None
+    assert RigConfig(mode="range", range_noise=0.0, hit_range="auto").hit_range_m(0.1) is None
     path = tmp_path / "hit.yaml"
     for text, expected in (("off", None), ("null", None), ("2.5", 2.5), ("auto", auto)):
         write_mission(tmp_path, base(), name="hit.yaml")

@@ -109,6 +109,6 @@ def test_a_wall_beyond_the_rigs_hit_range_is_free_space_up_to_it_and_no_hit():
     assert occupied.any() and dist[occupied].min() > 3.9
     dist, occupied = fused(explorer({**depth_rig, "hit_range": 3.0}))
     assert not occupied.any() and 2.9 < dist.max() <= 3.0 + 0.5 * math.sqrt(3) * 0.1
-    stereo = explorer({})
+    stereo = explorer({"hit_range": "auto"})
     assert stereo.sensor.hit_range == pytest.approx(3.53, abs=0.01)
     assert stereo.camera.max_range == pytest.approx(stereo.sensor.hit_range)  # view targets within it

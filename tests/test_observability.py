@@ -140,6 +140,7 @@ def test_beyond_the_hit_range_a_ray_observes_free_space_up_to_it_only():
         "mission": "far",
         "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [4.0, 3.0, 1.4], "voxel": 0.1},
         "robots": [{"id": "r1", "start": {"x": 0.5, "y": 1.5}}],
+        "rig": {"hit_range": "auto"},
     }
     mission = mission_from_dict(far)
     model = ObservabilityModel.for_mission(mission)
