@@ -47,6 +47,7 @@ FAILED_MEMORY = 12  # how many given-up targets to avoid
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
 MAX_LOOKS_IN_PLACE = 2  # targets in a row at the robot's own cell before it is avoided
 BOXED_IN_CELLS = 30  # fewer reachable cells than this: step blind to free floor beyond
+FRONTIER_LOOKS = 3  # frontier strategy: looks at a 3-D frontier column, each from another cell
 
 
 @dataclass
@@ -115,6 +116,7 @@ class Explorer:
         # where the camera can look (the head only ever looks up), for 3-D frontier views
         self.camera = CameraReach.of_rig(self.rig, self.sensor.reach, looks_up=self.rig.tilt_range_deg > 0)
         self.tried_views: list[np.ndarray] = []  # x-y of the columns a view target was chosen for
+        self.view_stands: list[np.ndarray] = []  # x-y of the standing point of each of tried_views
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
@@ -260,12 +262,14 @@ class Explorer:
             exclude=exclude,
             camera=self.camera,
             tried=self.tried_views,
+            **self._retry_views(),
         )
         if target is not None:
             self.target_kinds[target.kind] += 1
         if target is not None and target.kind in ("view", "frontier3d") and target.voxel is not None:
             i, j, _k = np.unravel_index(target.voxel, self.grid.shape)
             self.tried_views.append(self.grid.lo[:2] + (np.array([i, j]) + 0.5) * self.grid.voxel)
+            self.view_stands.append(np.asarray(target.xy, dtype=np.float64))
         if target is None:
             if not self.looked_before_done:
                 # Nothing reachable looks informative: turn once more (head raised, if it
@@ -278,9 +282,11 @@ class Explorer:
         self.looked_before_done = False
         if np.hypot(*(target.xy - here)) < 0.15:
             # Already there: just look. Looking from here again and again has not settled
-            # it, though, after MAX_LOOKS_IN_PLACE in a row: try elsewhere.
+            # it, though, after MAX_LOOKS_IN_PLACE in a row: try elsewhere. (A frontier
+            # strategy's 3-D view is bounded by its own count of looks per column, each
+            # from another cell, and a new one from here is at another column.)
             self.looks_in_place += 1
-            if self.looks_in_place <= MAX_LOOKS_IN_PLACE:
+            if self.looks_in_place <= MAX_LOOKS_IN_PLACE or self._bounded_view(target):
                 self.target = target
                 self.state = "gaze"
                 return self._gaze(yaw)
@@ -303,6 +309,17 @@ class Explorer:
         self.state = "drive"
         self.progress = _Progress(here.copy(), 0)
         return self._drive(here, yaw)
+
+    def _retry_views(self) -> dict:
+        """The frontier strategy looks at a 3-D frontier column up to FRONTIER_LOOKS times,
+        each from another cell (Yamauchi's robot goes on while a frontier it can observe is
+        left); the entropy strategy looks at each column once."""
+        if self.strategy != "frontier":
+            return {}
+        return {"stands": self.view_stands, "max_looks": FRONTIER_LOOKS}
+
+    def _bounded_view(self, target: ExplorationTarget) -> bool:
+        return self.strategy == "frontier" and target.kind == "frontier3d"
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
         self.progress.frames += 1

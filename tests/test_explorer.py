@@ -112,3 +112,22 @@ def test_a_wall_beyond_the_rigs_hit_range_is_free_space_up_to_it_and_no_hit():
     stereo = explorer({"hit_range": "auto"})
     assert stereo.sensor.hit_range == pytest.approx(3.53, abs=0.01)
     assert stereo.camera.max_range == pytest.approx(stereo.sensor.hit_range)  # view targets within it
+
+
+def test_a_frontier_robot_keeps_looking_from_its_own_cell_at_3d_frontier_columns():
+    # The frontier strategy's 3-D views are bounded by their count of looks per column (each
+    # from another cell), so a new one from where the robot stands is looked at, not avoided:
+    # avoiding it put every reachable cell of the lab out of bounds (a 1 m disc per spot).
+    mission = load_mission(CONFIGS / "lab.yaml")
+    mission.rig.tilt_range_deg = 0.0
+    here = np.array([1.0, 1.0])
+    for strategy, kind, expected in (
+        ("frontier", "frontier3d", ["gaze", "gaze", "gaze", "gaze"]),
+        ("entropy", "view", ["gaze", "gaze", "choose", "gaze"]),  # unchanged: avoided after two
+    ):
+        explorer = Explorer(mission, "r1", strategy=strategy)
+        explorer.assigner = lambda k=kind: ExplorationTarget(here + 0.05, 0.3, 1.0, 5, k)
+        explorer.state = "choose"
+        states = [explorer.decide(here[0], here[1], 0.3).state for _ in range(4)]
+        assert states == expected, strategy
+        assert len(explorer.failed) == (0 if strategy == "frontier" else 1)

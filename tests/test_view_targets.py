@@ -12,7 +12,7 @@ from swarm.map.grid import Grid
 from swarm.navigation.exploration import choose_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
-from swarm.navigation.view_targets import CameraReach
+from swarm.navigation.view_targets import RESTAND_RADIUS, CameraReach
 
 GRID = Grid((0.0, 0.0, 0.0), 0.1, (40, 20, 16))  # 4 m x 2 m x 1.6 m
 HALF_V = math.atan(0.5 * 120 / (0.5 * 160 / math.tan(math.radians(30))))  # the default rig's
@@ -76,3 +76,60 @@ def test_unknown_air_out_of_range_gives_nothing():
     cmap = _known_below(1.0)
     short = CameraReach(-HALF_V, HALF_V, 0.6)  # 0.65 m above the camera: out of a 0.6 m range
     assert _choose("entropy", cmap, short) is None
+
+
+def _one_unknown_column(i: int = 20, j: int = 10, z_from: float = 1.0) -> CoverageMap:
+    """Every voxel known free but column (i, j) from ``z_from`` up: a single frontier column."""
+    cmap = _known_below(10.0)
+    z = GRID.lo[2] + (np.arange(GRID.shape[2]) + 0.5) * GRID.voxel
+    prior = CoverageMap(GRID)
+    cmap.lam.reshape(GRID.shape)[i, j, z >= z_from] = prior.lam[0]
+    cmap.eta.reshape(GRID.shape)[i, j, z >= z_from] = prior.eta[0]
+    return cmap
+
+
+def _choose_frontier(cmap, camera, tried, stands, max_looks, pose=(1.0, 1.0, 0.0)):
+    trav = build_traversability(cmap, robot_height=0.5, robot_radius=0.18)
+    cell = tuple(int(c) for c in trav.cell_of(np.array(pose[:2])))
+    cost = GridPlanner(trav).cost_map(cell)
+    entropy = np.zeros(GRID.size)
+    rng = np.random.default_rng(0)
+    return choose_target(
+        "frontier", cmap, entropy, pose, 0.4, trav, cost, 1.5, rng, camera=camera,
+        tried=tried, stands=stands, max_looks=max_looks,
+    )  # fmt: skip
+
+
+def test_a_frontier_column_left_unknown_is_looked_at_again_from_other_cells_then_given_up():
+    cmap = _one_unknown_column()
+    assert (~cmap.known_mask()).sum() == 6  # z 1.0-1.6 m of column (20, 10): x 2.05, y 1.05
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(35), 5.0)
+    column = np.array([2.05, 1.05])
+    tried, stands = [], []
+    for _ in range(3):
+        target = _choose_frontier(cmap, camera, tried, stands, max_looks=3)
+        assert target is not None and target.kind == "frontier3d"
+        i, j, k = np.unravel_index(target.voxel, GRID.shape)
+        assert (i, j, k) == (20, 10, 10)
+        # each look from a cell farther than RESTAND_RADIUS from the earlier ones
+        for s in stands:
+            assert np.linalg.norm(target.xy - s) > RESTAND_RADIUS
+        d = np.linalg.norm(column - target.xy)
+        assert math.atan2(0.65, d) <= camera.elevation_hi + 1e-9  # in the band
+        tried.append(column)
+        stands.append(target.xy)
+    # three looks and still unknown: given up (the search is finite)
+    assert _choose_frontier(cmap, camera, tried, stands, max_looks=3) is None
+    # one look (the entropy strategy's rule, and the default) gives it up at once
+    assert _choose_frontier(cmap, camera, tried[:1], stands[:1], max_looks=1) is None
+    assert _choose_frontier(cmap, camera, tried[:1], None, max_looks=1) is None
+    assert _choose("entropy", cmap, camera, tried=tried[:1]) is None
+
+
+def test_retried_views_reject_bad_arguments():
+    cmap = _one_unknown_column()
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(35), 5.0)
+    with pytest.raises(ValueError, match="max_looks"):
+        _choose_frontier(cmap, camera, [], [], max_looks=0)
+    with pytest.raises(ValueError, match="one stand per look"):
+        _choose_frontier(cmap, camera, [np.array([2.05, 1.05])], [], max_looks=3)

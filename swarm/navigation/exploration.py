@@ -124,6 +124,8 @@ def choose_target(
     widen: bool = True,
     camera: CameraReach | None = None,
     tried: Sequence[np.ndarray] = (),
+    stands: Sequence[np.ndarray] | None = None,
+    max_looks: int = 1,
 ) -> ExplorationTarget | None:
     """The next target of ``strategy`` ("entropy", "frontier" or "random"), or None when done.
 
@@ -141,7 +143,10 @@ def choose_target(
     targets have run out (no eq. 35 target and no unknown slab voxel in view; no 2-D frontier)
     goes on to the nearest 3-D frontier voxel it can be pointed at
     (:func:`swarm.navigation.view_targets.view_target`, kind ``"view"``), skipping the
-    columns in ``tried`` (x-y); None only when none is left either.
+    columns in ``tried`` (x-y); None only when none is left either. For ``"frontier"``,
+    ``stands`` (where the robot stood for each of ``tried``) and ``max_looks`` let a column be
+    looked at again from elsewhere, up to ``max_looks`` times (see
+    :mod:`swarm.navigation.view_targets`); the entropy strategy looks at each column once.
     """
     ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     if strategy == "entropy":
@@ -149,7 +154,7 @@ def choose_target(
     if strategy == "frontier":
         found = frontier_target(ctx, view.far)
         if found is None and camera is not None:
-            found = view_target(ctx, camera, tried, kind="frontier3d")
+            found = view_target(ctx, camera, tried, kind="frontier3d", stands=stands, max_looks=max_looks)
         return found
     if strategy == "random":
         return random_target(ctx, 2.0 * radius, rng, view.far)

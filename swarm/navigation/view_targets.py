@@ -18,6 +18,12 @@ stand to see them:
 
 Targets whose columns were already looked at (``tried``) are skipped, so a voxel that stays
 unknown when looked at (hidden in ways the slab test cannot tell) is given up after one try.
+With ``max_looks`` > 1 and the standing points of those looks (``stands``), a column is
+looked at again, up to ``max_looks`` times, each time from a reachable cell away from the
+ones it was already looked at from (another side, another distance): one look often leaves
+part of a column unknown (its slab voxel seen, the voxels near the band's edge not; the
+floor at the camera's near limit), and Yamauchi's robot goes on while a frontier it can
+still observe remains. The bound keeps the search finite.
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ from swarm.navigation.targets import ExplorationTarget
 
 #: Frontier columns examined per call, nearest first (straight-line distance to the robot).
 MAX_COLUMNS = 400
+#: A column is looked at again only from cells farther than this (m) from where it was looked at.
+RESTAND_RADIUS = 0.3
 
 
 @dataclass(frozen=True)
@@ -79,10 +87,22 @@ def view_target(
     tried: Sequence[np.ndarray] = (),
     tried_radius: float = 0.25,
     kind: str = "view",
+    *,
+    stands: Sequence[np.ndarray] | None = None,
+    max_looks: int = 1,
 ) -> ExplorationTarget | None:
     """Where to stand to see the nearest 3-D frontier voxel (see the module doc); None if no
-    frontier voxel has a reachable standing point. ``tried``: x-y of columns already looked at,
-    skipped within ``tried_radius``. ``utility``: the column's frontier voxels (count)."""
+    frontier voxel has a reachable standing point. ``tried``: x-y of columns already looked at;
+    a column with ``max_looks`` of them within ``tried_radius`` is skipped. ``stands``: where
+    the robot stood for each of ``tried`` (same length); a column is then looked at again only
+    from cells farther than RESTAND_RADIUS from the stands of its earlier looks. ``utility``:
+    the column's frontier voxels (count).
+
+    Raises ValueError when ``max_looks`` < 1 or ``stands`` and ``tried`` differ in length."""
+    if max_looks < 1:
+        raise ValueError(f"max_looks must be >= 1, got {max_looks}")
+    if stands is not None and len(stands) != len(tried):
+        raise ValueError(f"stands has {len(stands)} points, tried {len(tried)}: one stand per look")
     grid = ctx.cmap.grid
     e = grid.voxel
     front = frontier_voxels_3d(ctx)
@@ -91,11 +111,14 @@ def view_target(
     if cols.size == 0 or not ctx.reach.any():
         return None
     xy = np.stack([ctx.cx[cols[:, 0]], ctx.cy[cols[:, 1]]], axis=1)
-    for p in tried:
-        keep = np.hypot(*(xy - np.asarray(p)[:2]).T) > tried_radius
-        cols, xy = cols[keep], xy[keep]
+    looked = np.zeros((len(cols), len(tried)), dtype=bool)  # column n was looked at by look m
+    for m, p in enumerate(tried):
+        looked[:, m] = np.hypot(*(xy - np.asarray(p)[:2]).T) <= tried_radius
+    keep = looked.sum(axis=1) < max_looks
+    cols, xy, looked = cols[keep], xy[keep], looked[keep]
     if cols.size == 0:
         return None
+    stood = None if stands is None else np.asarray(stands, dtype=np.float64).reshape(-1, 2)
     order = np.argsort(np.hypot(*(xy - ctx.position[:2]).T), kind="stable")[:MAX_COLUMNS]
     z_centres = grid.lo[2] + (np.arange(grid.shape[2]) + 0.5) * e
     h = float(ctx.position[2])
@@ -111,7 +134,8 @@ def view_target(
         d_lo, d_hi = _distance_window(dz, camera, e)
         if d_lo > d_hi or (best is not None and dist[n] - d_hi > best[0]):
             continue
-        stand = _stand_for(ctx, i, j, d_lo, d_hi)
+        avoid = None if stood is None or not looked[n].any() else _near(ctx, stood[looked[n]], RESTAND_RADIUS)
+        stand = _stand_for(ctx, i, j, d_lo, d_hi, avoid)
         if stand is None:
             continue
         cost = 0.0 if stand == ctx.start else float(ctx.cost[stand])
@@ -152,14 +176,26 @@ def _distance_window(dz: np.ndarray, camera: CameraReach, e: float) -> tuple[flo
     return lo_all, hi_all
 
 
-def _stand_for(ctx: SearchContext, i: int, j: int, d_lo: float, d_hi: float) -> tuple[int, int] | None:
-    """The reachable allowed cell of least path cost at horizontal distance [d_lo, d_hi] from
-    column (i, j) with a clear slab line of sight to it; None if none."""
+def _near(ctx: SearchContext, points: np.ndarray, radius: float) -> np.ndarray:
+    """Cells (nx, ny) whose centre is within ``radius`` (m) of one of ``points`` (M, 2)."""
+    near = np.zeros(ctx.reach.shape, dtype=bool)
+    for x, y in points:
+        near |= (ctx.cx[:, None] - x) ** 2 + (ctx.cy[None, :] - y) ** 2 <= radius**2
+    return near
+
+
+def _stand_for(
+    ctx: SearchContext, i: int, j: int, d_lo: float, d_hi: float, avoid: np.ndarray | None = None
+) -> tuple[int, int] | None:
+    """The reachable allowed cell (not in ``avoid``) of least path cost at horizontal distance
+    [d_lo, d_hi] from column (i, j) with a clear slab line of sight to it; None if none."""
     e = ctx.voxel
     n = int(math.ceil(d_hi / e)) + 1
     nx, ny = ctx.reach.shape
     i0, i1, j0, j1 = max(i - n, 0), min(i + n + 1, nx), max(j - n, 0), min(j + n + 1, ny)
     pool = ctx.reach[i0:i1, j0:j1] & ctx.allowed[i0:i1, j0:j1]
+    if avoid is not None:
+        pool &= ~avoid[i0:i1, j0:j1]
     ii, jj = np.nonzero(pool)
     if ii.size == 0:
         return None
