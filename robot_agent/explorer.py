@@ -249,21 +249,14 @@ class Explorer:
                 cost = planner.cost_map(cell)
         exclude = self.failed[-FAILED_MEMORY:]
         target = self.assigner() if self.assigner is not None else None
-        target = target or choose_target(
-            self.strategy,
-            self.map,
-            self.entropy.values,
-            (here[0], here[1], yaw),
-            self.rig.camera_height,
-            trav,
-            cost,
-            self.mission.exploration.radius,
-            self.rng,
-            exclude=exclude,
-            camera=self.camera,
-            tried=self.tried_views,
-            **self._retry_views(),
-        )
+        target = target or self._own_target(here, yaw, trav, cost, exclude)
+        if target is None and exclude and self.strategy == "frontier":
+            # The spots given up (1 m around each) can cover all the reachable floor of a
+            # small room while frontiers are still in view of it (the lab: 4 spots, 185
+            # viewable frontier columns left): forget them before concluding. Finite, as
+            # every 3-D view uses up one of a column's FRONTIER_LOOKS.
+            self.failed.clear()
+            target = self._own_target(here, yaw, trav, cost, [])
         if target is not None:
             self.target_kinds[target.kind] += 1
         if target is not None and target.kind in ("view", "frontier3d") and target.voxel is not None:
@@ -282,11 +275,9 @@ class Explorer:
         self.looked_before_done = False
         if np.hypot(*(target.xy - here)) < 0.15:
             # Already there: just look. Looking from here again and again has not settled
-            # it, though, after MAX_LOOKS_IN_PLACE in a row: try elsewhere. (A frontier
-            # strategy's 3-D view is bounded by its own count of looks per column, each
-            # from another cell, and a new one from here is at another column.)
+            # it, though, after MAX_LOOKS_IN_PLACE in a row: try elsewhere.
             self.looks_in_place += 1
-            if self.looks_in_place <= MAX_LOOKS_IN_PLACE or self._bounded_view(target):
+            if self.looks_in_place <= MAX_LOOKS_IN_PLACE:
                 self.target = target
                 self.state = "gaze"
                 return self._gaze(yaw)
@@ -318,8 +309,25 @@ class Explorer:
             return {}
         return {"stands": self.view_stands, "max_looks": FRONTIER_LOOKS}
 
-    def _bounded_view(self, target: ExplorationTarget) -> bool:
-        return self.strategy == "frontier" and target.kind == "frontier3d"
+    def _own_target(
+        self, here: np.ndarray, yaw: float, trav: TraversabilityGrid, cost: np.ndarray, exclude: list
+    ) -> ExplorationTarget | None:
+        """This robot's own choice of target by its strategy (``choose_target``)."""
+        return choose_target(
+            self.strategy,
+            self.map,
+            self.entropy.values,
+            (here[0], here[1], yaw),
+            self.rig.camera_height,
+            trav,
+            cost,
+            self.mission.exploration.radius,
+            self.rng,
+            exclude=exclude,
+            camera=self.camera,
+            tried=self.tried_views,
+            **self._retry_views(),
+        )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
         self.progress.frames += 1

@@ -114,20 +114,26 @@ def test_a_wall_beyond_the_rigs_hit_range_is_free_space_up_to_it_and_no_hit():
     assert stereo.camera.max_range == pytest.approx(stereo.sensor.hit_range)  # view targets within it
 
 
-def test_a_frontier_robot_keeps_looking_from_its_own_cell_at_3d_frontier_columns():
-    # The frontier strategy's 3-D views are bounded by their count of looks per column (each
-    # from another cell), so a new one from where the robot stands is looked at, not avoided:
-    # avoiding it put every reachable cell of the lab out of bounds (a 1 m disc per spot).
+def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_done():
+    # Every voxel below 1 m known free, the air above unknown: no 2-D frontier, only 3-D
+    # frontier views. Given-up spots (1 m around each) cover all the floor, as four did in
+    # the lab: the frontier robot forgets them and looks on; the entropy robot is unchanged
+    # (it turns once more, keeping them).
     mission = load_mission(CONFIGS / "lab.yaml")
-    mission.rig.tilt_range_deg = 0.0
-    here = np.array([1.0, 1.0])
-    for strategy, kind, expected in (
-        ("frontier", "frontier3d", ["gaze", "gaze", "gaze", "gaze"]),
-        ("entropy", "view", ["gaze", "gaze", "choose", "gaze"]),  # unchanged: avoided after two
-    ):
+    spots = [np.array([x, y]) for x in (0.5, 1.5, 2.5, 3.5) for y in (0.5, 1.5)]
+    for strategy in ("frontier", "entropy"):
         explorer = Explorer(mission, "r1", strategy=strategy)
-        explorer.assigner = lambda k=kind: ExplorationTarget(here + 0.05, 0.3, 1.0, 5, k)
+        grid, cmap = explorer.grid, explorer.map
+        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
+        cmap.lam[low] = 400.0  # a sure, empty belief: mu = 0, sigma = 0.05
+        cmap.eta[low] = 0.0
+        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.failed = list(spots)
         explorer.state = "choose"
-        states = [explorer.decide(here[0], here[1], 0.3).state for _ in range(4)]
-        assert states == expected, strategy
-        assert len(explorer.failed) == (0 if strategy == "frontier" else 1)
+        decision = explorer.decide(1.05, 1.05, 0.0)
+        if strategy == "frontier":
+            assert explorer.target_kinds == {"frontier3d": 1}
+            assert explorer.failed == [] and decision.state in ("gaze", "drive")
+        else:
+            assert not explorer.target_kinds and len(explorer.failed) == len(spots)
+            assert decision.state == "look_around"
