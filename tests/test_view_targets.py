@@ -78,13 +78,14 @@ def test_unknown_air_out_of_range_gives_nothing():
     assert _choose("entropy", cmap, short) is None
 
 
-def _one_unknown_column(i: int = 20, j: int = 10, z_from: float = 1.0) -> CoverageMap:
-    """Every voxel known free but column (i, j) from ``z_from`` up: a single frontier column."""
+def _one_unknown_column(i: int = 20, j: int = 10, z_from: float = 1.0, more=()) -> CoverageMap:
+    """Every voxel known free but column (i, j) (and the columns ``more``) from ``z_from`` up."""
     cmap = _known_below(10.0)
     z = GRID.lo[2] + (np.arange(GRID.shape[2]) + 0.5) * GRID.voxel
     prior = CoverageMap(GRID)
-    cmap.lam.reshape(GRID.shape)[i, j, z >= z_from] = prior.lam[0]
-    cmap.eta.reshape(GRID.shape)[i, j, z >= z_from] = prior.eta[0]
+    for a, b in [(i, j), *more]:
+        cmap.lam.reshape(GRID.shape)[a, b, z >= z_from] = prior.lam[0]
+        cmap.eta.reshape(GRID.shape)[a, b, z >= z_from] = prior.eta[0]
     return cmap
 
 
@@ -133,3 +134,22 @@ def test_retried_views_reject_bad_arguments():
         _choose_frontier(cmap, camera, [], [], max_looks=0)
     with pytest.raises(ValueError, match="one stand per look"):
         _choose_frontier(cmap, camera, [np.array([2.05, 1.05])], [], max_looks=3)
+
+
+def test_never_looked_columns_come_before_second_looks_however_far():
+    # Column A (x 1.35) near the robot (x 0.5) was looked at once; column B (x 3.05) never
+    # and, with a 1.5 m range, seen only from 1.3 m of path or more: B first, though a second
+    # look at A from another cell (0.3 m away) would be nearer; then A again.
+    cmap = _one_unknown_column(13, 10, more=[(30, 10)])
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(35), 1.5)
+    a, b = np.array([1.35, 1.05]), np.array([3.05, 1.05])
+    pose = (0.55, 1.05, 0.0)
+    first = _choose_frontier(cmap, camera, [], [], max_looks=3, pose=pose)
+    assert np.unravel_index(first.voxel, GRID.shape)[:2] == (13, 10)  # the nearest, A
+    assert np.allclose(first.xy, pose[:2])  # from where the robot stands
+    second = _choose_frontier(cmap, camera, [a], [first.xy], max_looks=3, pose=pose)
+    assert np.unravel_index(second.voxel, GRID.shape)[:2] == (30, 10)  # B, never looked at
+    assert np.linalg.norm(second.xy - b) <= 1.5
+    third = _choose_frontier(cmap, camera, [a, b], [first.xy, second.xy], max_looks=3, pose=pose)
+    assert np.unravel_index(third.voxel, GRID.shape)[:2] == (13, 10)  # A again, from elsewhere
+    assert np.linalg.norm(third.xy - first.xy) > RESTAND_RADIUS

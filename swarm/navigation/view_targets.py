@@ -103,8 +103,6 @@ def view_target(
         raise ValueError(f"max_looks must be >= 1, got {max_looks}")
     if stands is not None and len(stands) != len(tried):
         raise ValueError(f"stands has {len(stands)} points, tried {len(tried)}: one stand per look")
-    grid = ctx.cmap.grid
-    e = grid.voxel
     front = frontier_voxels_3d(ctx)
     counts = front.sum(axis=2)
     cols = np.argwhere(counts > 0)
@@ -114,11 +112,34 @@ def view_target(
     looked = np.zeros((len(cols), len(tried)), dtype=bool)  # column n was looked at by look m
     for m, p in enumerate(tried):
         looked[:, m] = np.hypot(*(xy - np.asarray(p)[:2]).T) <= tried_radius
-    keep = looked.sum(axis=1) < max_looks
-    cols, xy, looked = cols[keep], xy[keep], looked[keep]
-    if cols.size == 0:
-        return None
     stood = None if stands is None else np.asarray(stands, dtype=np.float64).reshape(-1, 2)
+    looks = looked.sum(axis=1)
+    # never-looked columns first (the frontier proper); a column looked at n times only when
+    # no column looked at fewer times has a stand left
+    for n in range(max_looks):
+        sel = looks == n
+        if sel.any():
+            found = _nearest_view(ctx, camera, front, cols[sel], xy[sel], looked[sel], stood, kind)
+            if found is not None:
+                return found
+    return None
+
+
+def _nearest_view(
+    ctx: SearchContext,
+    camera: CameraReach,
+    front: np.ndarray,
+    cols: np.ndarray,
+    xy: np.ndarray,
+    looked: np.ndarray,
+    stood: np.ndarray | None,
+    kind: str,
+) -> ExplorationTarget | None:
+    """The view of least path cost among frontier columns ``cols`` (M, 2) at ``xy`` (M, 2);
+    ``looked`` (M, L) marks the earlier looks at each, whose stands ``stood`` (L, 2) it avoids."""
+    grid = ctx.cmap.grid
+    e = grid.voxel
+    counts = front.sum(axis=2)
     order = np.argsort(np.hypot(*(xy - ctx.position[:2]).T), kind="stable")[:MAX_COLUMNS]
     z_centres = grid.lo[2] + (np.arange(grid.shape[2]) + 0.5) * e
     h = float(ctx.position[2])
