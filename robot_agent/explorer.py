@@ -117,6 +117,7 @@ class Explorer:
         self.camera = CameraReach.of_rig(self.rig, self.sensor.reach, looks_up=self.rig.tilt_range_deg > 0)
         self.tried_views: list[np.ndarray] = []  # x-y of the columns a view target was chosen for
         self.view_stands: list[np.ndarray] = []  # x-y of the standing point of each of tried_views
+        self.looking_again = False  # frontier strategy: looking at columns a second/third time
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
@@ -250,13 +251,19 @@ class Explorer:
         exclude = self.failed[-FAILED_MEMORY:]
         target = self.assigner() if self.assigner is not None else None
         target = target or self._own_target(here, yaw, trav, cost, exclude)
-        if target is None and exclude and self.strategy == "frontier":
-            # The spots given up (1 m around each) can cover all the reachable floor of a
-            # small room while frontiers are still in view of it (the lab: 4 spots, 185
-            # viewable frontier columns left): forget them before concluding. Finite, as
-            # every 3-D view uses up one of a column's FRONTIER_LOOKS.
-            self.failed.clear()
-            target = self._own_target(here, yaw, trav, cost, [])
+        if target is None and (self.looked_before_done or self.looking_again) and self.strategy == "frontier":
+            # Where the robot would conclude (after its last turn), the frontier strategy
+            # first looks again at 3-D frontier columns one look left unknown, each from
+            # another cell, then forgets the spots it gave up: 1 m around each, they can
+            # cover all the reachable floor of a small room while frontiers are in view of
+            # it (the lab: 4 spots, 185 viewable frontier columns left). Finite, as every
+            # 3-D view uses up one of a column's FRONTIER_LOOKS. (After the first time, without
+            # a turn before each: new frontier still comes first.)
+            self.looking_again = True
+            target = self._own_target(here, yaw, trav, cost, exclude, FRONTIER_LOOKS)
+            if target is None and exclude:
+                self.failed.clear()
+                target = self._own_target(here, yaw, trav, cost, [], FRONTIER_LOOKS)
         if target is not None:
             self.target_kinds[target.kind] += 1
         if target is not None and target.kind in ("view", "frontier3d") and target.voxel is not None:
@@ -301,18 +308,17 @@ class Explorer:
         self.progress = _Progress(here.copy(), 0)
         return self._drive(here, yaw)
 
-    def _retry_views(self) -> dict:
-        """The frontier strategy looks at a 3-D frontier column up to FRONTIER_LOOKS times,
-        each from another cell (Yamauchi's robot goes on while a frontier it can observe is
-        left); the entropy strategy looks at each column once."""
-        if self.strategy != "frontier":
-            return {}
-        return {"stands": self.view_stands, "max_looks": FRONTIER_LOOKS}
-
     def _own_target(
-        self, here: np.ndarray, yaw: float, trav: TraversabilityGrid, cost: np.ndarray, exclude: list
+        self,
+        here: np.ndarray,
+        yaw: float,
+        trav: TraversabilityGrid,
+        cost: np.ndarray,
+        exclude: list,
+        max_looks: int = 1,
     ) -> ExplorationTarget | None:
-        """This robot's own choice of target by its strategy (``choose_target``)."""
+        """This robot's own choice of target by its strategy (``choose_target``); ``max_looks``:
+        looks per 3-D frontier column for the frontier strategy (see view_targets)."""
         return choose_target(
             self.strategy,
             self.map,
@@ -326,7 +332,8 @@ class Explorer:
             exclude=exclude,
             camera=self.camera,
             tried=self.tried_views,
-            **self._retry_views(),
+            stands=self.view_stands,
+            max_looks=max_looks,
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:

@@ -117,8 +117,8 @@ def test_a_wall_beyond_the_rigs_hit_range_is_free_space_up_to_it_and_no_hit():
 def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_done():
     # Every voxel below 1 m known free, the air above unknown: no 2-D frontier, only 3-D
     # frontier views. Given-up spots (1 m around each) cover all the floor, as four did in
-    # the lab: the frontier robot forgets them and looks on; the entropy robot is unchanged
-    # (it turns once more, keeping them).
+    # the lab, and the robot has made its last turn: the frontier robot forgets them and
+    # looks on; the entropy robot is unchanged (done, keeping them).
     mission = load_mission(CONFIGS / "lab.yaml")
     spots = [np.array([x, y]) for x in (0.5, 1.5, 2.5, 3.5) for y in (0.5, 1.5)]
     for strategy in ("frontier", "entropy"):
@@ -129,6 +129,7 @@ def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_d
         cmap.eta[low] = 0.0
         explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
         explorer.failed = list(spots)
+        explorer.looked_before_done = True
         explorer.state = "choose"
         decision = explorer.decide(1.05, 1.05, 0.0)
         if strategy == "frontier":
@@ -136,4 +137,4 @@ def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_d
             assert explorer.failed == [] and decision.state in ("gaze", "drive")
         else:
             assert not explorer.target_kinds and len(explorer.failed) == len(spots)
-            assert decision.state == "look_around"
+            assert decision.state == "done"
