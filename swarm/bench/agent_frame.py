@@ -62,9 +62,11 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     points = stereo()
     cmap = look_around_map(mission, rid)
     origin = np.asarray(pose.xyz)
-    per_ray = replace(cmap.sensor, discretize=False, weighted=False)
-    weighted = replace(cmap.sensor, discretize=True, weighted=True)
-    per_voxel = replace(cmap.sensor, discretize=True, weighted=False)
+    # the agent's sensor model at this size (information model and the rig's hit range), and the three models
+    default = mission.sensor.model(pixels=width * height, hit_range=rig.hit_range_m(mission.workspace.voxel))
+    per_ray = replace(default, discretize=False, weighted=False)
+    weighted = replace(default, discretize=True, weighted=True)
+    per_voxel = replace(default, discretize=True, weighted=False)
 
     def fuse(sensor, cloud: np.ndarray = points) -> None:
         cmap.apply(batch_information(cmap.grid, sensor, origin, cloud).delta)
@@ -77,8 +79,6 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
         reachable = np.argwhere(np.isfinite(cost))
         goal = trav.centre(reachable[np.argmax(cost[np.isfinite(cost)])])  # the farthest reachable cell
         planner.plan(trav.centre(np.array(cell)), goal)
-
-    default = mission.sensor.model(pixels=width * height)  # the agent's information model at this size
 
     def frame() -> None:
         fuse(default, stereo())

@@ -144,7 +144,7 @@ class RigConfig(_Section):
         Measured rays are longer than the optical-axis depth off the image centre; the
         range is applied to the ray length, which errs on the side of fewer hits.
         """
-        if self.hit_range is None or self.hit_range != "auto":
+        if self.hit_range != "auto":
             return self.hit_range
         if self.mode == "stereo":
             return math.sqrt(voxel * self.fx * self.baseline / self.disparity_sigma_px)

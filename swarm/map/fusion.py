@@ -97,9 +97,8 @@ def batch_information(
     of that length, and give no hit (as OctoMap's max range). Rays that leave the grid are
     treated alike at the grid's boundary (mean 0, the sensor model at their true range);
     but a point within the boundary margin (``BOUNDARY_MARGIN_FRACTION``) beyond the
-    boundary is skipped. One
-    measurement's lam is at most ``fusion_kernel.LAM_MAX``, so no finite input gives
-    non-finite information.
+    boundary is skipped. One measurement's lam is at most ``fusion_kernel.LAM_MAX``, so no
+    finite input gives non-finite information.
 
     ``hit_precedence`` (default ``sensor.hit_precedence``): a voxel holding a return of this
     batch gets no free-space update from its other rays. ``discretize`` (default
@@ -124,10 +123,11 @@ def batch_information(
     shape = np.asarray(grid.shape, dtype=np.int64)
     slots = _slots(grid)
     rays = len(ends)
-    weight = np.ones(rays)
     if discretize and rays:
         ends, d, returned, n_rays = ray_batch.discretize_rays(start, e, ends, d, returned, shape, slots)
         weight = n_rays if weighted else np.ones(len(ends))
+    else:
+        weight = np.ones(rays)
     if len(ends):
         ends, d, returned, weight = ray_batch.order_by_direction(
             start, ends, d, returned, weight, ray_batch.DIRECTION_BINS
