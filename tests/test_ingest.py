@@ -111,3 +111,23 @@ def test_errors_name_the_problem(tmp_path, capsys):
     np.save(cloud, np.zeros((4, 2)))
     assert main(["ingest", str(cloud), "--out", str(tmp_path / "m.npz")]) == 2
     assert "N x 3" in capsys.readouterr().err
+
+
+def test_repeated_ingest_returns_one_fusion_of_the_cloud_and_reports_its_times():
+    """With repeat the cloud is fused several times for timing; the map is one fusion's."""
+    from swarm.map.coverage_map import CoverageMap  # noqa: PLC0415
+    from swarm.map.grid import Grid  # noqa: PLC0415
+    from swarm.map.ingest import ingest_cloud  # noqa: PLC0415
+    from swarm.map.sensor_model import SensorModel  # noqa: PLC0415
+
+    sensor = SensorModel(max_range=20.0)
+    bounds = (np.array([-1.0, -2.0, -1.0]), np.array([3.0, 2.0, 1.0]))
+    cmap, report = ingest_cloud(wall_cloud(), np.zeros(3), sensor, 0.1, bounds, repeat=3)
+    once = CoverageMap(Grid.from_bounds(*bounds, 0.1), sensor)
+    once.integrate(np.zeros(3), wall_cloud())
+    np.testing.assert_array_equal(cmap.lam, once.lam)
+    np.testing.assert_array_equal(cmap.eta, once.eta)
+    assert report.fusion_repeats == 3
+    assert 0 < report.fusion_seconds <= report.first_fusion_seconds
+    with pytest.raises(ValueError, match="repeat"):
+        ingest_cloud(wall_cloud(), np.zeros(3), sensor, 0.1, bounds, repeat=0)
