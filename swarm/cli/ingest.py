@@ -64,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--repeat",
         type=int,
         default=1,
+        metavar="N",
         help="fuse the cloud N times, each into a fresh map, and report the best time as "
         "fusion_seconds, as 'swarm bench fusion --repeat N' does (default 1; the map is the same)",
     )
