@@ -10,7 +10,8 @@ voxel boundaries:
 - ``thick_hall``: 16 m x 12 m, an open hall with 0.35 m walls and four 0.6 m pillars, a long
   L-shaped corridor (1.2 m) to two store rooms with 0.9 m doors, and a diagonal partition.
 - ``narrow_rooms``: 14 m x 10 m, nine rooms in a 3 x 3 block linked by 0.7 m doors in 0.15 m
-  walls (a robot of radius 0.18 m clears them by 0.17 m), with boxes in the corners.
+  walls (a robot of radius 0.18 m clears them by 0.17 m), with boxes in the corners, never
+  within 0.6 m of a door.
 """
 
 from __future__ import annotations
@@ -129,27 +130,60 @@ def thick_hall() -> None:
 def narrow_rooms() -> None:
     d = Drawing(14.0, 10.0)
     t = 0.15
+    w, h = 14 / 3, 10 / 3  # a room, wall centre to wall centre
     d.hwall(t / 2, 0, 14, t)
     d.hwall(10 - t / 2, 0, 14, t)
     d.vwall(t / 2, 0, 10, t)
     d.vwall(14 - t / 2, 0, 10, t)
-    xs, ys = (14 / 3, 28 / 3), (10 / 3, 20 / 3)
-    for i, x in enumerate(xs):  # walls between columns of rooms, a 0.7 m door per room
+    doors = []  # (x0, y0, x1, y1) of each door's gap
+    for i, x in enumerate((w, 2 * w)):  # walls between columns of rooms, a 0.7 m door per room
         d.vwall(x, 0, 10, t)
         for k in range(3):
-            yc = (k + 0.5) * 10 / 3 + (0.7 if (i + k) % 2 else -0.7)
-            d.clear(x - t, yc - 0.35, x + t, yc + 0.35)
-    for j, y in enumerate(ys):
+            yc = (k + 0.5) * h + (0.7 if (i + k) % 2 else -0.7)
+            doors.append((x - t, yc - 0.35, x + t, yc + 0.35))
+    for j, y in enumerate((h, 2 * h)):
         d.hwall(y, 0, 14, t)
         for k in range(3):
-            xc = (k + 0.5) * 14 / 3 + (0.9 if (j + k) % 2 else -0.9)
-            d.clear(xc - 0.35, y - t, xc + 0.35, y + t)
-    for k in range(3):  # boxes in room corners
+            xc = (k + 0.5) * w + (0.9 if (j + k) % 2 else -0.9)
+            doors.append((xc - 0.35, y - t, xc + 0.35, y + t))
+    for door in doors:
+        d.clear(*door)
+    for k in range(3):  # two boxes per room, in corners whose doors they leave clear
         for j in range(3):
-            x0, y0 = k * 14 / 3, j * 10 / 3
-            d.box(x0 + 0.3, y0 + 0.3, x0 + 0.9, y0 + 0.8)
-            d.box(x0 + 14 / 3 - 1.1, y0 + 10 / 3 - 0.9, x0 + 14 / 3 - 0.35, y0 + 10 / 3 - 0.35)
+            for box in _corner_boxes(k * w, j * h, w, h, doors):
+                d.box(*box)
     d.save("narrow_rooms", origin=(0.04, 0.01))
+
+
+def _corner_boxes(x0: float, y0: float, w: float, h: float, doors: list) -> list[tuple]:
+    """A 0.6 x 0.5 m and a 0.75 x 0.55 m box in two corners of the room (x0, y0, w, h), each at
+    least 0.6 m from every door gap (a robot of radius 0.18 m passes with room to turn); the
+    first two such corners, lower-left and upper-right first."""
+    sizes = ((0.6, 0.5), (0.75, 0.55))
+    corners = ((0, 0), (1, 1), (0, 1), (1, 0))  # (right?, top?)
+    gap = 0.3  # from the wall's centre line
+
+    def place(size, corner):
+        bx = x0 + gap if corner[0] == 0 else x0 + w - gap - size[0]
+        by = y0 + gap if corner[1] == 0 else y0 + h - gap - size[1]
+        return (bx, by, bx + size[0], by + size[1])
+
+    def clear(box):
+        for a in doors:
+            dx = max(0.0, a[0] - box[2], box[0] - a[2])
+            dy = max(0.0, a[1] - box[3], box[1] - a[3])
+            if np.hypot(dx, dy) < 0.6:
+                return False
+        return True
+
+    out, free = [], list(corners)
+    for size in sizes:
+        for corner in free:
+            if clear(place(size, corner)):
+                out.append(place(size, corner))
+                free.remove(corner)
+                break
+    return out
 
 
 if __name__ == "__main__":
