@@ -63,7 +63,7 @@ def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     cmap = look_around_map(mission, rid)
     origin = np.asarray(pose.xyz)
     # the agent's sensor model at this size (information model and the rig's hit range), and the three models
-    default = mission.sensor.model(pixels=width * height, hit_range=rig.hit_range_m(mission.workspace.voxel))
+    default = mission.sensor_model_of(rig)
     per_ray = replace(default, discretize=False, weighted=False)
     weighted = replace(default, discretize=True, weighted=True)
     per_voxel = replace(default, discretize=True, weighted=False)

@@ -359,10 +359,13 @@ class Mission(_Section):
         return self._robot_rigs.get(robot_id, self.rig)
 
     def sensor_model_for(self, robot_id: str) -> SensorModel:
-        """The sensor model a robot fuses its frames with: its camera's size decides
-        ``discretize: auto``, its rig's hit range (``RigConfig.hit_range_m`` at the
-        workspace's voxel) cuts its far returns."""
-        rig = self.rig_for(robot_id)
+        """The sensor model a robot fuses its frames with (``sensor_model_of`` its rig)."""
+        return self.sensor_model_of(self.rig_for(robot_id))
+
+    def sensor_model_of(self, rig: RigConfig) -> SensorModel:
+        """The sensor model of frames from ``rig``: its camera's size decides
+        ``discretize: auto``, its hit range (``RigConfig.hit_range_m`` at the workspace's
+        voxel) cuts its far returns."""
         return self.sensor.model(
             pixels=rig.width * rig.height, hit_range=rig.hit_range_m(self.workspace.voxel)
         )

@@ -87,8 +87,9 @@ def ingest_cloud(
     for _ in range(repeat):
         cmap = None  # the previous repeat's map is freed before the next one is allocated
         cmap = CoverageMap(grid, sensor)
-        r, seconds = _timed_fusion(cmap, origin, points)
-        times.append(seconds)
+        t0 = time.perf_counter()
+        r = cmap.integrate(origin, points)
+        times.append(time.perf_counter() - t0)
 
     final = float(np.sum(default_table()(cmap.mean(), cmap.sigma()), dtype=np.float64))
     report = IngestReport(
@@ -111,12 +112,3 @@ def ingest_cloud(
         skipped_degenerate=r.skipped_degenerate,
     )
     return cmap, report
-
-
-def _timed_fusion(
-    cmap: CoverageMap, origin: np.ndarray, points: np.ndarray
-) -> tuple[fusion.BatchResult, float]:
-    """Fuse one batch into ``cmap``; the result and its wall time in seconds."""
-    t0 = time.perf_counter()
-    result = cmap.integrate(origin, points)
-    return result, time.perf_counter() - t0
