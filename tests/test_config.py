@@ -99,8 +99,8 @@ def test_information_model_by_camera_size_and_yaml_switches(tmp_path):
 
 def test_hit_range_auto_from_the_rig_a_number_or_off(tmp_path):
     """auto: where the depth error reaches one voxel edge; the agent's sensor model carries it."""
-    assert load_mission(write_mission(tmp_path, base())).sensor_model_for("r1").hit_range is None  # default
-    mission = load_mission(write_mission(tmp_path, base(rig={"hit_range": "auto"})))
+    mission = load_mission(write_mission(tmp_path, base()))  # auto is the default
+    assert mission.rig_for("r1").hit_range == "auto"
     rig = mission.rig_for("r1")
     fb = rig.fx * rig.baseline  # 12.47 px m
     auto = rig.hit_range_m(0.1)
@@ -209,6 +209,18 @@ def test_yaml_round_trip(tmp_path):
     again = mission_from_dict(yaml.safe_load(mission.to_yaml()), source=tmp_path / "copy.yaml")
     assert again.model_dump() == {**mission.model_dump(), "floor_plan": again.model_dump()["floor_plan"]}
     assert again.load_floor_plan().count == mission.load_floor_plan().count
+
+
+def test_yaml_round_trip_keeps_an_explicit_null_whose_default_is_not_null(tmp_path):
+    # A run folder's config.yaml is what the mission's processes load: rig.hit_range: null
+    # (no cut) must not come back as the default (auto), nor a set max_range as none.
+    data = base(rig={"hit_range": None, "max_range": 4.0}, stop={"entropy_threshold_bits": None})
+    mission = load_mission(write_mission(tmp_path, data))
+    again = mission_from_dict(yaml.safe_load(mission.to_yaml()), source=tmp_path / "copy.yaml")
+    assert mission.rig.hit_range is None
+    assert again.rig.hit_range is None
+    assert again.sensor_model_for("r1").hit_range is None
+    assert again.rig.max_range == 4.0
 
 
 def test_mission_from_ros_map_places_robots_in_free_space():
