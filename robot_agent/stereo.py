@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from robot_agent.disparity_kernels import depth_of_disparity, valid_disparity
+from swarm.config.models import DEFAULT_MIN_DEPTH
 from swarm.map.rotation import rotation_zyx
 
 SGBM_MODES = {
@@ -57,9 +58,9 @@ def texture_threshold(noise_std: float) -> float:
 
 def matcher_for_rig(rig: Any) -> StereoMatcher:
     """The matcher an agent uses for a mission rig (``swarm.config.RigConfig``): the disparity
-    range of its camera (``rig.camera()``), the texture filter above its image noise
-    (``texture_threshold(rig.noise_std)``), the other settings at their defaults."""
-    return StereoMatcher.for_rig(rig.camera(), min_texture=texture_threshold(rig.noise_std))
+    range of its camera (``rig.camera()``) down to its ``min_depth``, the texture filter above
+    its image noise (``texture_threshold(rig.noise_std)``), the other settings at their defaults."""
+    return StereoMatcher.for_rig(rig.camera(), rig.min_depth, min_texture=texture_threshold(rig.noise_std))
 
 
 class RectifiedRig(Protocol):
@@ -79,7 +80,7 @@ def _disparity_offset(calib: RectifiedRig) -> float:
 
 
 def disparity_range(
-    calib: RectifiedRig, min_depth: float = 0.3, max_depth: float = math.inf, scale: float = 1.0
+    calib: RectifiedRig, min_depth: float = DEFAULT_MIN_DEPTH, max_depth: float = math.inf, scale: float = 1.0
 ) -> tuple[int, int]:
     """(min_disparity, num_disparities) for SGBM covering depths [min_depth, max_depth] of a rig.
 
@@ -186,7 +187,11 @@ class StereoMatcher:
 
     @classmethod
     def for_rig(
-        cls, calib: RectifiedRig, min_depth: float = 0.3, max_depth: float = math.inf, **kwargs: Any
+        cls,
+        calib: RectifiedRig,
+        min_depth: float = DEFAULT_MIN_DEPTH,
+        max_depth: float = math.inf,
+        **kwargs: Any,
     ) -> StereoMatcher:
         """A matcher whose disparity range covers depths [min_depth, max_depth] of ``calib``."""
         scale = float(kwargs.get("scale", 1.0))

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from robot_agent.stereo import SGBM_MODES, StereoMatcher
+from swarm.config.models import DEFAULT_MIN_DEPTH
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.depth_picture import depth_picture
 from swarm.formats.stereo_calibration import CalibrationError
@@ -57,7 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         help="nearest depth to search for, in metres; sets the disparity range (default: the "
-        "calibration's ndisp when it states one, as Middlebury's calib.txt does, else 0.3)",
+        "calibration's ndisp when it states one, as Middlebury's calib.txt does, else "
+        f"{DEFAULT_MIN_DEPTH:g}, the agent's default rig.min_depth)",
     )
     parser.add_argument(
         "--max-depth",
@@ -128,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         if min_depth is None and calib.ndisp:
             # The file's disparity range: the nearest depth whose disparity is ndisp.
             min_depth = calib.fx * calib.baseline / (calib.ndisp + calib.disparity_offset)
-        matcher = StereoMatcher.for_rig(calib, min_depth or 0.3, args.max_depth, **options)
+        matcher = StereoMatcher.for_rig(calib, min_depth or DEFAULT_MIN_DEPTH, args.max_depth, **options)
         depth = matcher.depth(left, right, calib)
     except (CalibrationError, ValueError) as exc:
         return _fail(str(exc))

@@ -69,8 +69,8 @@ class ObservabilityModel:
 
         Elevation band: the mounting pitch (positive down) +- half the vertical field of
         view +- the tilt head's range. Range: the sensor model's ``max_range``, capped by a
-        depth camera's ``max_range``; stereo rigs return nothing nearer than 0.3 m (the
-        matcher's disparity range). Hit range: the rig's (``RigConfig.hit_range_m`` at the
+        depth camera's ``max_range``; stereo rigs return nothing nearer than their
+        ``min_depth`` (the matcher's disparity range). Hit range: the rig's (``RigConfig.hit_range_m`` at the
         workspace's voxel), at most its range; the widest over the robots.
         """
         rigs = [mission.rig_for(r) for r in mission.robot_ids]
@@ -87,7 +87,7 @@ class ObservabilityModel:
             far = max(far, reach)
             hit_range = rig.hit_range_m(mission.workspace.voxel)
             hit = max(hit, reach if hit_range is None else min(reach, hit_range))
-            near = min(near, 0.3 if rig.mode == "stereo" else 0.0)
+            near = min(near, rig.min_depth if rig.mode == "stereo" else 0.0)
         heights = {rig.camera_height for rig in rigs}
         if len(heights) != 1:
             raise ValueError(f"robots with different camera heights {sorted(heights)} are not supported")

@@ -119,6 +119,12 @@ def test_hit_range_auto_from_the_rig_a_number_or_off(tmp_path):
         path.write_text(path.read_text() + f"rig: {{hit_range: {text}}}\n")
         assert load_mission(path).sensor_model_for("r1").hit_range == pytest.approx(expected), text
     for bad in ("-1", "0", "sometimes"):
+        write_mission(tmp_path, base(), name="near.yaml")
+        (tmp_path / "near.yaml").write_text(
+            (tmp_path / "near.yaml").read_text() + f"rig: {{min_depth: {bad}}}\n"
+        )
+        with pytest.raises(ConfigError, match=r"near.yaml: rig\.min_depth"):
+            load_mission(tmp_path / "near.yaml")
         write_mission(tmp_path, base(), name="hit.yaml")
         path.write_text(path.read_text() + f"rig: {{hit_range: {bad}, disparity_sigma_px: 0.2}}\n")
         with pytest.raises(ConfigError, match=r"hit.yaml: rig\.hit_range"):

@@ -418,6 +418,13 @@ def test_the_agents_matcher_follows_its_rigs_camera_and_noise() -> None:
     noisy, clean = RigConfig(width=640, height=480, noise_std=2.0), RigConfig()
     assert matcher_for_rig(noisy).min_texture == 3.0 and matcher_for_rig(clean).min_texture == 0.5
     assert matcher_for_rig(noisy).num_disparities == StereoMatcher.for_rig(noisy.camera()).num_disparities
+    # rig.min_depth sets the disparity range: the nearest depth's disparity fx b / min_depth is
+    # searched (disparities 0 .. num - 1), and no more than one block of 16 beyond it.
+    for min_depth in (0.2, 0.35, 0.5, 1.0):
+        rig = RigConfig(width=640, height=480, min_depth=min_depth)
+        nearest = rig.fx * rig.baseline / min_depth
+        num = matcher_for_rig(rig).num_disparities
+        assert nearest <= num - 1 < nearest + 17, min_depth
 
 
 def test_points_from_depth_equals_a_per_pixel_computation() -> None:

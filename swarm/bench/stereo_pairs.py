@@ -10,7 +10,7 @@ one setting each, side by side. The matcher is sized from the file's ``ndisp``, 
 
 Time: best and median of ``--repeat`` runs of disparity + depth for a real EuRoC pair, rectified, at
 752x480 and resized to 640x480, for each SGBM mode and the default (3way), at scale 1 and 0.5,
-with the disparity range from ``--min-depth`` (0.3 m, as the agent).
+with the disparity range from ``--min-depth`` (0.35 m, the agent's default ``rig.min_depth``).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import numpy as np
 
 from robot_agent.stereo import StereoMatcher
 from swarm.bench import timed_seconds
+from swarm.config.models import DEFAULT_MIN_DEPTH
 from swarm.formats.calibration_formats import load_middlebury, load_stereo_calibration
 from swarm.formats.stereo_calibration import StereoCalibration
 
@@ -132,7 +133,7 @@ def score(pair: Pair, repeat: int = 1, **options) -> Score:
     calib = pair.calib
     doffs = calib.disparity_offset
     fb = calib.fx * calib.baseline
-    min_depth = fb / (calib.ndisp + doffs) if calib.ndisp else 0.3
+    min_depth = fb / (calib.ndisp + doffs) if calib.ndisp else DEFAULT_MIN_DEPTH
     matcher = StereoMatcher.for_rig(calib, min_depth, **options)
     best, depth = np.inf, None
     for _ in range(max(repeat, 1)):
@@ -215,7 +216,9 @@ def _describe(options: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in options.items())
 
 
-def timing(euroc: Path, repeat: int, min_depth: float = 0.3) -> list[tuple[str, str, float, float, float]]:
+def timing(
+    euroc: Path, repeat: int, min_depth: float = DEFAULT_MIN_DEPTH
+) -> list[tuple[str, str, float, float, float]]:
     """Rows (size, matcher, best ms, median ms, valid) of disparity + depth on a rectified EuRoC pair."""
     calib = load_stereo_calibration(euroc / "mav0/cam0/sensor.yaml", euroc / "mav0/cam1/sensor.yaml")
     name = sorted((euroc / "mav0/cam0/data").glob("*.png"))[20].name
@@ -266,8 +269,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--min-depth",
         type=float,
-        default=0.3,
-        help="nearest depth (m) the timing's disparity range reaches (default 0.3, as the agent's)",
+        default=DEFAULT_MIN_DEPTH,
+        help="nearest depth (m) the timing's disparity range reaches (default "
+        f"{DEFAULT_MIN_DEPTH:g}, the agent's default rig.min_depth)",
     )
     args = parser.parse_args(argv)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]

@@ -85,6 +85,11 @@ class Pose2D(_Section):
 #: 3.5 m and 0.16 m at 4.5 m, both sigma_d = sigma_Z fx b / Z^2 = 0.10 px.
 DISPARITY_SIGMA_PX = 0.1
 
+#: The stereo matcher's nearest depth (m) unless a rig sets ``min_depth``: SGBM's time is
+#: about proportional to the disparities searched, fx b / min_depth, and at 0.35 m a 640 x 480
+#: EuRoC pair (fx b = 42.9 px m) needs 128 of them against 144 at 0.3 m (docs/stereo.md).
+DEFAULT_MIN_DEPTH = 0.35
+
 
 class RigConfig(_Section):
     """A rectified stereo rig (or, in ``range`` mode, a depth camera) on a robot.
@@ -104,6 +109,11 @@ class RigConfig(_Section):
     surfaces, offices_corridor's surface accuracy fell from 0.93 to 0.85).
     ``disparity_sigma_px`` is the stereo matcher's disparity error (standard deviation, px)
     that ``auto`` assumes.
+
+    ``min_depth`` (m) is the nearest depth the stereo matcher searches for: SGBM's disparity
+    range is fx b / min_depth, and its time grows with it (docs/stereo.md, "Time per pair").
+    The default, 0.35 m, is 128 disparities on a 640 x 480 EuRoC camera; nearer surfaces get
+    no depth (or, rarely, a wrong one), and the simulator counts nothing nearer as observable.
     """
 
     width: int = Field(default=160, ge=8)
@@ -119,6 +129,7 @@ class RigConfig(_Section):
     max_range: FiniteFloat | None = Field(default=None, gt=0)
     hit_range: Literal["auto"] | FiniteFloat | None = "auto"
     disparity_sigma_px: FiniteFloat = Field(default=DISPARITY_SIGMA_PX, gt=0)
+    min_depth: FiniteFloat = Field(default=DEFAULT_MIN_DEPTH, gt=0)
 
     @field_validator("hit_range", mode="before")
     @classmethod
