@@ -159,7 +159,13 @@ class Agent:
         )
 
     def handle(self, payload: bytes) -> Cmd | None:
-        """Fuse one frame, share what is worth it, and answer with a command."""
+        """Fuse one frame, answer with a command, then share what is worth it.
+
+        The command goes out as soon as the decision is made: the simulator (or a robot's
+        driver) waits for it, so the work the decision does not need, sharing this frame's
+        delta and applying the team's merged deltas that arrived meanwhile, comes after it
+        and overlaps the next physics step instead of delaying it.
+        """
         try:
             frame = Frame.decode(payload)
         except WireError as exc:
@@ -178,9 +184,10 @@ class Agent:
         self.outbox.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
         decision = self.explorer.decide(x, y, frame.pose.ypr[0])
-        self._share(flush=decision.state == "done")
         cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega, decision.tilt)
         self._cmd_pub.put(cmd.encode())
+        self._share(flush=decision.state == "done")
+        self.apply_merged()
         if frame.seq % STATUS_EVERY == 0 or decision.state == "done":
             target = None if decision.target is None else (*decision.target, 0.0)
             status = Status(
