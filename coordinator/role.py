@@ -35,6 +35,7 @@ from coordinator.assignment import (
 )
 from coordinator.state import Answer, CoordinatorState
 from swarm.config import Mission
+from swarm.navigation import planner
 from swarm.protocol import bus, replies
 from swarm.protocol.wire import Snapshot, WireError
 
@@ -98,6 +99,9 @@ class Coordinator:
             bus.subscribe(s, bus.key_pattern(name, "robot", "*", "status"), self._on_status)
         )
         self._load_snapshot()
+        # Load the compiled navigation kernels (Numba's cache) now: on the first request they
+        # took over a second on a loaded machine, past the robots' answer timeout.
+        planner.warm_up()
         self._threads = [
             threading.Thread(target=self._work, name="coordinator-map", daemon=True),
             threading.Thread(target=self._answer_queries, name="coordinator-assign", daemon=True),
