@@ -104,3 +104,41 @@ def reference_graph(free: np.ndarray) -> csr_matrix:
 def reference_tree(free: np.ndarray, node: int) -> tuple[np.ndarray, np.ndarray]:
     """Dijkstra on ``reference_graph``: (distance in cells, predecessor) of every node from ``node``."""
     return dijkstra(reference_graph(free), directed=False, indices=node, return_predecessors=True)
+
+
+def reference_clear(opaque: np.ndarray, a: int, b: int, i: int, j: int) -> bool:
+    """``view_kernels.clear_line`` with numpy: no opaque cell on the segment (a, b) -> (i, j)."""
+    steps = max(abs(i - a), abs(j - b)) * 2 + 1
+    t = np.arange(1, steps) / steps
+    si = np.rint(a + t * (i - a)).astype(np.int64)
+    sj = np.rint(b + t * (j - b)).astype(np.int64)
+    blocked = opaque[si, sj] & ~((si == i) & (sj == j))
+    return not blocked.any()
+
+
+def reference_stand_for(
+    usable, avoid, cost, start, cx, cy, opaque, i, j, d_lo, d_hi, half_width
+) -> tuple[int, int] | None:
+    """``view_kernels.stand_for`` with numpy masks, a stable argsort and the 64 cheapest cells."""
+    nx, ny = usable.shape
+    i0, i1, j0, j1 = (
+        max(i - half_width, 0),
+        min(i + half_width + 1, nx),
+        max(j - half_width, 0),
+        min(j + half_width + 1, ny),
+    )
+    pool = usable[i0:i1, j0:j1] & ~avoid[i0:i1, j0:j1]
+    ii, jj = np.nonzero(pool)
+    if ii.size == 0:
+        return None
+    ii, jj = ii + i0, jj + j0
+    d = np.hypot(cx[ii] - cx[i], cy[jj] - cy[j])
+    ok = (d >= d_lo - 1e-9) & (d <= d_hi + 1e-9)
+    ii, jj = ii[ok], jj[ok]
+    if ii.size == 0:
+        return None
+    c = np.where((ii == start[0]) & (jj == start[1]), 0.0, cost[ii, jj])
+    for m in np.argsort(c, kind="stable")[:64]:
+        if reference_clear(opaque, int(ii[m]), int(jj[m]), i, j):
+            return int(ii[m]), int(jj[m])
+    return None

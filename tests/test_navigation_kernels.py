@@ -13,10 +13,13 @@ from swarm.navigation import grid_kernels as kernels
 from swarm.navigation.grid_kernels import CERTAIN_BOUND
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
+from swarm.navigation.view_kernels import clear_line, stand_for
 from tests.navigation_oracle import (
     reference_build_traversability,
+    reference_clear,
     reference_graph,
     reference_inflate,
+    reference_stand_for,
     reference_tree,
 )
 from tests.numba_cache import second_run_cache_statistics
@@ -194,3 +197,32 @@ def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> No
     assert len(stats) == 6
     for name, (hits, misses) in stats.items():
         assert hits >= 1 and misses == 0, (name, stats)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_compiled_stand_search_equals_its_numpy_oracle(seed):
+    # Random reachability, walls and path costs with many ties (integer costs), random
+    # windows and distance bands (some empty, some wider than the grid), every column of the
+    # grid, some cells to avoid: the same stand (or none) and the same line-of-sight verdicts.
+    rng = np.random.default_rng(seed)
+    nx, ny, voxel = 37, 23, 0.1
+    usable = rng.random((nx, ny)) < 0.6
+    opaque = rng.random((nx, ny)) < 0.08
+    cost = np.where(usable, rng.integers(0, 12, (nx, ny)).astype(np.float64), np.inf)
+    avoid = rng.random((nx, ny)) < 0.05 if seed % 2 else np.zeros((nx, ny), bool)
+    cx = -0.3 + (np.arange(nx) + 0.5) * voxel
+    cy = 0.7 + (np.arange(ny) + 0.5) * voxel
+    start = (int(rng.integers(nx)), int(rng.integers(ny)))
+    found = 0
+    for i in range(nx):
+        for j in range(ny):
+            d_lo = float(rng.uniform(0.0, 1.5))
+            d_hi = float(d_lo + rng.uniform(-0.2, 2.5))
+            half = int(np.ceil(max(d_hi, 0.0) / voxel)) + 1
+            expected = reference_stand_for(usable, avoid, cost, start, cx, cy, opaque, i, j, d_lo, d_hi, half)
+            a, b = stand_for(usable, avoid, cost, start[0], start[1], cx, cy, opaque, i, j, d_lo, d_hi, half)
+            assert (None if a < 0 else (a, b)) == expected, (i, j, d_lo, d_hi)
+            found += expected is not None
+            a, b = int(rng.integers(nx)), int(rng.integers(ny))
+            assert clear_line(opaque, a, b, i, j) == reference_clear(opaque, a, b, i, j)
+    assert 0 < found < nx * ny  # both outcomes were exercised

@@ -37,6 +37,7 @@ import numpy as np
 from swarm.map.entropy import expected_coverage
 from swarm.navigation.search_context import OPAQUE_COVERAGE, SearchContext
 from swarm.navigation.targets import ExplorationTarget
+from swarm.navigation.view_kernels import stand_for
 
 #: Frontier columns examined per call, nearest first (straight-line distance to the robot).
 MAX_COLUMNS = 400
@@ -145,6 +146,8 @@ def _nearest_view(
     h = float(ctx.position[2])
     best: tuple[float, int, tuple[int, int]] | None = None
     dist = np.hypot(*(xy - ctx.position[:2]).T)
+    usable = ctx.reach & ctx.allowed
+    nowhere = np.zeros_like(usable)
     for n in order:
         # a path to a stand is at least as long as the straight line: D - d_hi
         if best is not None and dist[n] - camera.max_range > best[0]:
@@ -155,8 +158,10 @@ def _nearest_view(
         d_lo, d_hi = _distance_window(dz, camera, e)
         if d_lo > d_hi or (best is not None and dist[n] - d_hi > best[0]):
             continue
-        avoid = None if stood is None or not looked[n].any() else _near(ctx, stood[looked[n]], RESTAND_RADIUS)
-        stand = _stand_for(ctx, i, j, d_lo, d_hi, avoid)
+        avoid = (
+            nowhere if stood is None or not looked[n].any() else _near(ctx, stood[looked[n]], RESTAND_RADIUS)
+        )
+        stand = _stand_for(ctx, usable, i, j, d_lo, d_hi, avoid)
         if stand is None:
             continue
         cost = 0.0 if stand == ctx.start else float(ctx.cost[stand])
@@ -206,38 +211,25 @@ def _near(ctx: SearchContext, points: np.ndarray, radius: float) -> np.ndarray:
 
 
 def _stand_for(
-    ctx: SearchContext, i: int, j: int, d_lo: float, d_hi: float, avoid: np.ndarray | None = None
+    ctx: SearchContext, usable: np.ndarray, i: int, j: int, d_lo: float, d_hi: float, avoid: np.ndarray
 ) -> tuple[int, int] | None:
-    """The reachable allowed cell (not in ``avoid``) of least path cost at horizontal distance
-    [d_lo, d_hi] from column (i, j) with a clear slab line of sight to it; None if none."""
-    e = ctx.voxel
-    n = int(math.ceil(d_hi / e)) + 1
-    nx, ny = ctx.reach.shape
-    i0, i1, j0, j1 = max(i - n, 0), min(i + n + 1, nx), max(j - n, 0), min(j + n + 1, ny)
-    pool = ctx.reach[i0:i1, j0:j1] & ctx.allowed[i0:i1, j0:j1]
-    if avoid is not None:
-        pool &= ~avoid[i0:i1, j0:j1]
-    ii, jj = np.nonzero(pool)
-    if ii.size == 0:
-        return None
-    ii, jj = ii + i0, jj + j0
-    d = np.hypot(ctx.cx[ii] - ctx.cx[i], ctx.cy[jj] - ctx.cy[j])
-    ok = (d >= d_lo - 1e-9) & (d <= d_hi + 1e-9)
-    ii, jj = ii[ok], jj[ok]
-    if ii.size == 0:
-        return None
-    cost = np.where((ii == ctx.start[0]) & (jj == ctx.start[1]), 0.0, ctx.cost[ii, jj])
-    for m in np.argsort(cost, kind="stable")[:64]:
-        if _clear(ctx, int(ii[m]), int(jj[m]), i, j):
-            return int(ii[m]), int(jj[m])
-    return None
-
-
-def _clear(ctx: SearchContext, a: int, b: int, i: int, j: int) -> bool:
-    """No opaque slab voxel on the segment from cell (a, b) to column (i, j), that column excepted."""
-    steps = max(abs(i - a), abs(j - b)) * 2 + 1
-    t = np.arange(1, steps) / steps
-    si = np.rint(a + t * (i - a)).astype(np.int64)
-    sj = np.rint(b + t * (j - b)).astype(np.int64)
-    blocked = ctx.opaque[si, sj] & ~((si == i) & (sj == j))
-    return not blocked.any()
+    """The reachable allowed cell (``usable``, not in ``avoid``) of least path cost at horizontal
+    distance [d_lo, d_hi] from column (i, j) with a clear slab line of sight to it; None if
+    none (``view_kernels.stand_for``)."""
+    half_width = int(math.ceil(d_hi / ctx.voxel)) + 1
+    a, b = stand_for(
+        usable,
+        avoid,
+        ctx.cost,
+        ctx.start[0],
+        ctx.start[1],
+        ctx.cx,
+        ctx.cy,
+        ctx.opaque,
+        i,
+        j,
+        d_lo,
+        d_hi,
+        half_width,
+    )
+    return None if a < 0 else (int(a), int(b))
