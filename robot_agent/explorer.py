@@ -10,6 +10,10 @@ A robot whose camera sits on a tilt head (``rig.tilt_range_deg`` > 0) also looks
 arrival, one frame with the head raised to its limit after the gaze, and makes its last
 turn before giving up with the head raised: a level camera low on a robot sees the upper
 part of a room only from afar, and eq. 30 chooses targets in the sensor's slab alone.
+
+The entropy strategy drives through unknown or ambiguous floor only towards a probe (a room
+whose floor it has not seen, behind a door; ``swarm.navigation.probing``), planning and
+replanning it on the optimistic grid; every other target is reached on known free floor.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from swarm.navigation import planner
 from swarm.navigation.exploration import ExplorationTarget, choose_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.probing import open_swept, optimistic_traversability
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability
 from swarm.navigation.view_targets import CameraReach
 from swarm.protocol.wire import Frame
@@ -110,6 +115,7 @@ class Explorer:
         self.progress = _Progress()
         self.frames = 0
         self.trav: TraversabilityGrid | None = None
+        self.optimistic: TraversabilityGrid | None = None  # probes' grid (entropy strategy)
         self.failures_in_a_row = 0
         self.looked_before_done = False
         self.looks_in_place = 0  # targets in a row at the robot's own cell
@@ -216,12 +222,14 @@ class Explorer:
         return Decision(0.0, omega, "gaze", self._target_xy())
 
     def _refresh_traversability(self) -> TraversabilityGrid:
-        self.trav = build_traversability(
-            self.map,
-            robot_height=self.robot_height,
-            robot_radius=self.mission.robot.radius,
-            swept=np.asarray(self.swept),
+        swept = np.asarray(self.swept)
+        trav = build_traversability(
+            self.map, robot_height=self.robot_height, robot_radius=self.mission.robot.radius, swept=swept
         )
+        if self.strategy == "entropy":  # probes, and the way back through their doors
+            self.optimistic = optimistic_traversability(self.map, trav, self.robot_height)
+            trav = open_swept(trav, self.optimistic, swept)
+        self.trav = trav
         return self.trav
 
     def _choose(self, here: np.ndarray, yaw: float) -> Decision:
@@ -250,7 +258,7 @@ class Explorer:
                 cost = planner.cost_map(cell)
         exclude = self.failed[-FAILED_MEMORY:]
         target = self.assigner() if self.assigner is not None else None
-        target = target or self._own_target(here, yaw, trav, cost, exclude)
+        target = target or self._own_target(here, yaw, trav, cost, exclude, optimistic=self.optimistic)
         if target is None and (self.looked_before_done or self.looking_again) and self.strategy == "frontier":
             # Where the robot would conclude (after its last turn), the frontier strategy
             # first looks again at 3-D frontier columns one look left unknown, each from
@@ -291,6 +299,8 @@ class Explorer:
             self.looks_in_place = 0
             self.failed.append(np.asarray(target.xy))
             return Decision(0.0, 0.0, "choose")
+        if target.kind == "probe":
+            planner = GridPlanner(self.optimistic)
         path = planner.plan(start, target.xy)
         if start is not here and path is not None and len(path) < 2:
             path = np.vstack([here, start])  # the target is where the robot leaves from
@@ -316,9 +326,11 @@ class Explorer:
         cost: np.ndarray,
         exclude: list,
         max_looks: int = 1,
+        optimistic: TraversabilityGrid | None = None,
     ) -> ExplorationTarget | None:
         """This robot's own choice of target by its strategy (``choose_target``); ``max_looks``:
-        looks per 3-D frontier column for the frontier strategy (see view_targets)."""
+        looks per 3-D frontier column for the frontier strategy (see view_targets);
+        ``optimistic``: the grid probes into unknown floor are planned on (entropy strategy)."""
         return choose_target(
             self.strategy,
             self.map,
@@ -334,6 +346,7 @@ class Explorer:
             tried=self.tried_views,
             stands=self.view_stands,
             max_looks=max_looks,
+            optimistic=optimistic,
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
@@ -344,6 +357,8 @@ class Explorer:
             return self._give_up()
         if self.frames % REPLAN_EVERY == 0:
             trav = self._refresh_traversability()
+            if self.target.kind == "probe":
+                trav = self.optimistic
             if needs_replan(self.follower.remaining_path(), trav):
                 path = GridPlanner(trav).plan(here, self.target.xy)
                 if path is None or len(path) < 2:

@@ -8,10 +8,12 @@ map (docs/design.md section 3, "Exploration", paper eq. 27-36); no I/O, no state
   robot can *view* from reachable space; gaze along grad H_G(l_s) (eq. 34). The robot
   stands back from l_s, on the side the gradient comes from, so that l_s and the higher
   entropy beyond it are in its field of view. When nothing within xi is conclusive the
-  radius is doubled up to the whole map (our extension, so that missions finish); then,
-  given the camera's reach, the robot looks at the nearest 3-D frontier voxel above or
-  below the slab (:mod:`swarm.navigation.view_targets`); then it wanders while unknown
-  voxels bordering known free space remain in view of reachable space; otherwise there is
+  radius is doubled up to the whole map (our extension, so that missions finish); then it
+  probes the largest unknown floor region that only unknown or ambiguous columns close
+  off (a room behind a door; :mod:`swarm.navigation.probing`); then, given the camera's
+  reach, the robot looks at the nearest 3-D frontier voxel above or below the slab
+  (:mod:`swarm.navigation.view_targets`); then it wanders while unknown voxels bordering
+  known free space remain in view of reachable space; otherwise there is
   no reachable informative target (None, a mission stop condition).
 - ``"frontier"`` (Yamauchi 1997): the nearest reachable frontier cell by path cost; when the
   2-D frontier is empty, the nearest 3-D frontier view (given the camera's reach).
@@ -44,6 +46,7 @@ import numpy as np
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_plane, robot_axes, target_scores
 from swarm.navigation.baselines import frontier_cells, frontier_target, random_cell_target, random_target
+from swarm.navigation.probing import probe_target
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
@@ -126,6 +129,7 @@ def choose_target(
     tried: Sequence[np.ndarray] = (),
     stands: Sequence[np.ndarray] | None = None,
     max_looks: int = 1,
+    optimistic: TraversabilityGrid | None = None,
 ) -> ExplorationTarget | None:
     """The next target of ``strategy`` ("entropy", "frontier" or "random"), or None when done.
 
@@ -147,10 +151,16 @@ def choose_target(
     ``stands`` (where the robot stood for each of ``tried``) and ``max_looks`` let a column be
     looked at again from elsewhere, up to ``max_looks`` times (see
     :mod:`swarm.navigation.view_targets`); the entropy strategy looks at each column once.
+
+    ``optimistic``: the grid of :func:`swarm.navigation.probing.optimistic_traversability`.
+    When given, the entropy strategy with no eq. 35 target first probes the largest unknown
+    floor region it opens (kind ``"probe"``, :func:`swarm.navigation.probing.probe_target`:
+    a room behind a door whose floor is unknown), before the 3-D views; plan to a probe on
+    ``optimistic``.
     """
     ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     if strategy == "entropy":
-        return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen, camera, tried)
+        return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen, camera, tried, optimistic)
     if strategy == "frontier":
         found = frontier_target(ctx, view.far)
         if found is None and camera is not None:
@@ -250,12 +260,18 @@ def _entropy_target(
     widen: bool = True,
     camera: CameraReach | None = None,
     tried: Sequence[np.ndarray] = (),
+    optimistic: TraversabilityGrid | None = None,
 ) -> ExplorationTarget | None:
-    """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else a 3-D
-    frontier view (with ``camera``); else wander/None."""
+    """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else a probe
+    into unknown floor (with ``optimistic``); else a 3-D frontier view (with ``camera``); else
+    wander/None."""
     best = next(_entropy_candidates(ctx, entropy, radius, min_score, view, widen), None)
     if best is not None:
         return best.as_target()
+    if optimistic is not None:
+        probe = probe_target(ctx, optimistic)
+        if probe is not None:
+            return probe
     if camera is not None:
         seen = view_target(ctx, camera, tried)
         if seen is not None:
