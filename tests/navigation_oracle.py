@@ -142,3 +142,17 @@ def reference_stand_for(
         if reference_clear(opaque, int(ii[m]), int(jj[m]), i, j):
             return int(ii[m]), int(jj[m])
     return None
+
+
+def reference_surely_occupied(
+    cmap: CoverageMap, floor_clearance: float, robot_height: float, sure: float
+) -> np.ndarray:
+    """Columns (nx, ny) with a known band voxel at E[C] >= ``sure``, with numpy over every
+    band voxel: the oracle of ``probing.optimistic_traversability``'s ``occupied`` mask."""
+    nx, ny, nz = cmap.grid.shape
+    layers = band_layers(cmap, floor_clearance, robot_height)
+    idx = (np.arange(nx * ny, dtype=np.int64)[:, None] * nz + layers[None, :]).ravel()
+    known = cmap.lam[idx] > cmap.known_threshold()
+    cov = np.zeros(idx.size)
+    cov[known] = expected_coverage(cmap.mean(idx[known]), cmap.sigma(idx[known]))
+    return (cov.reshape(nx * ny, layers.size) >= sure).any(axis=1).reshape(nx, ny)

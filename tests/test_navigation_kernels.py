@@ -12,6 +12,7 @@ from swarm.map.sensor_model import SensorModel
 from swarm.navigation import grid_kernels as kernels
 from swarm.navigation.grid_kernels import CERTAIN_BOUND
 from swarm.navigation.planner import GridPlanner
+from swarm.navigation.probing import optimistic_traversability
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 from swarm.navigation.view_kernels import clear_line, stand_for
 from tests.navigation_oracle import (
@@ -20,6 +21,7 @@ from tests.navigation_oracle import (
     reference_graph,
     reference_inflate,
     reference_stand_for,
+    reference_surely_occupied,
     reference_tree,
 )
 from tests.numba_cache import second_run_cache_statistics
@@ -226,3 +228,15 @@ def test_the_compiled_stand_search_equals_its_numpy_oracle(seed):
             a, b = int(rng.integers(nx)), int(rng.integers(ny))
             assert clear_line(opaque, a, b, i, j) == reference_clear(opaque, a, b, i, j)
     assert 0 < found < nx * ny  # both outcomes were exercised
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("sure", [0.2, 0.5, 0.9])
+def test_the_optimistic_grids_surely_occupied_columns_equal_the_numpy_oracle(seed, sure):
+    cmap = random_map(np.random.default_rng(seed))
+    trav = build_traversability(cmap, robot_height=0.5, robot_radius=0.18)
+    optimistic = optimistic_traversability(cmap, trav, 0.5, sure=sure)
+    expected = reference_surely_occupied(cmap, 0.1, 0.5, sure)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(optimistic.occupied, expected)
+    np.testing.assert_array_equal(optimistic.free, inflate(expected, cmap.grid.voxel, 0.18) | trav.free)

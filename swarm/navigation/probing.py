@@ -37,7 +37,7 @@ import numpy as np
 from scipy import ndimage
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import expected_coverage
+from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.navigation import grid_kernels as kernels
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.search_context import SearchContext
@@ -73,15 +73,24 @@ def optimistic_traversability(
     Shapes (nx, ny) as ``trav``; raises ValueError when ``trav`` is not the map's x-y grid.
     """
     grid = cmap.grid
-    nx, ny, nz = grid.shape
+    nx, ny, _nz = grid.shape
     if trav.shape != (nx, ny):
         raise ValueError(f"traversability grid has shape {trav.shape}, the map's columns {(nx, ny)}")
     layers = band_layers(cmap, floor_clearance, robot_height)
-    idx = (np.arange(nx * ny, dtype=np.int64)[:, None] * nz + layers[None, :]).ravel()
-    known = cmap.lam[idx] > cmap.known_threshold()
-    cov = np.zeros(idx.size)
-    cov[known] = expected_coverage(cmap.mean(idx[known]), cmap.sigma(idx[known]))
-    surely = (cov.reshape(nx * ny, layers.size) >= sure).any(axis=1).reshape(nx, ny)
+    # the traversability grid's compiled band test, at the "surely occupied" level
+    _unknown, surely, mu, sigma, column = kernels.band_occupancy(
+        cmap.lam,
+        cmap.eta,
+        grid.shape,
+        int(layers[0]),
+        int(layers[-1]) + 1,
+        cmap.known_threshold(),
+        float(sure),
+        SIGMA_MIN,
+        SIGMA_MAX,
+    )
+    surely[column[expected_coverage(mu, sigma) >= sure]] = True
+    surely = surely.reshape(nx, ny)
     free = inflate(surely, grid.voxel, trav.robot_radius) | trav.free
     return TraversabilityGrid(
         free, surely, trav.unknown & ~surely, trav.origin, trav.resolution, trav.robot_radius
