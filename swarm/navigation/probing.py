@@ -37,12 +37,11 @@ import numpy as np
 from scipy import ndimage
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.navigation import grid_kernels as kernels
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.targets import ExplorationTarget
-from swarm.navigation.traversability import TraversabilityGrid, band_layers, inflate
+from swarm.navigation.traversability import TraversabilityGrid, band_columns, inflate
 
 #: Band voxels at least this E[C] are surely occupied (a wall seen well is above 0.8; the
 #: smeared returns at a door's jambs stay below).
@@ -76,21 +75,8 @@ def optimistic_traversability(
     nx, ny, _nz = grid.shape
     if trav.shape != (nx, ny):
         raise ValueError(f"traversability grid has shape {trav.shape}, the map's columns {(nx, ny)}")
-    layers = band_layers(cmap, floor_clearance, robot_height)
-    # the traversability grid's compiled band test, at the "surely occupied" level
-    _unknown, surely, mu, sigma, column = kernels.band_occupancy(
-        cmap.lam,
-        cmap.eta,
-        grid.shape,
-        int(layers[0]),
-        int(layers[-1]) + 1,
-        cmap.known_threshold(),
-        float(sure),
-        SIGMA_MIN,
-        SIGMA_MAX,
-    )
-    surely[column[expected_coverage(mu, sigma) >= sure]] = True
-    surely = surely.reshape(nx, ny)
+    # the traversability grid's band test, at the "surely occupied" level
+    surely, _unknown = band_columns(cmap, floor_clearance, robot_height, sure)
     free = inflate(surely, grid.voxel, trav.robot_radius) | trav.free
     return TraversabilityGrid(
         free, surely, trav.unknown & ~surely, trav.origin, trav.resolution, trav.robot_radius

@@ -162,6 +162,32 @@ def band_layers(cmap: CoverageMap, floor_clearance: float, robot_height: float) 
     return layers
 
 
+def band_columns(
+    cmap: CoverageMap, floor_clearance: float, robot_height: float, threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(occupied, unknown), bool (nx, ny): columns with a known band voxel (``band_layers``)
+    at E[C] >= ``threshold``, and columns with an unknown band voxel (none occupied).
+
+    E[C] is computed only where a bound on it leaves the answer open (most known voxels
+    have a small sigma and a mean far from the threshold): ``grid_kernels.band_occupancy``.
+    """
+    nx, ny, _nz = cmap.grid.shape
+    layers = band_layers(cmap, floor_clearance, robot_height)  # contiguous: z grows with k
+    unknown, occupied, mu, sigma, column = kernels.band_occupancy(
+        cmap.lam,
+        cmap.eta,
+        cmap.grid.shape,
+        int(layers[0]),
+        int(layers[-1]) + 1,
+        cmap.known_threshold(),
+        float(threshold),
+        SIGMA_MIN,
+        SIGMA_MAX,
+    )
+    occupied[column[expected_coverage(mu, sigma) >= threshold]] = True
+    return occupied.reshape(nx, ny), unknown.reshape(nx, ny)
+
+
 def build_traversability(
     cmap: CoverageMap,
     floor_clearance: float = 0.1,
@@ -180,24 +206,8 @@ def build_traversability(
     if not robot_height > floor_clearance:
         raise ValueError(f"robot_height {robot_height} must exceed floor_clearance {floor_clearance}")
     grid = cmap.grid
-    nx, ny, nz = grid.shape
-    layers = band_layers(cmap, floor_clearance, robot_height)  # contiguous: z grows with k
-    # E[C] is computed only where a bound on it leaves the answer open (most known voxels
-    # have a small sigma and a mean far from the threshold).
-    unknown, occupied, mu, sigma, column = kernels.band_occupancy(
-        cmap.lam,
-        cmap.eta,
-        grid.shape,
-        int(layers[0]),
-        int(layers[-1]) + 1,
-        cmap.known_threshold(),
-        float(free_threshold),
-        SIGMA_MIN,
-        SIGMA_MAX,
-    )
-    occupied[column[expected_coverage(mu, sigma) >= free_threshold]] = True
-    occupied = occupied.reshape(nx, ny)
-    unknown = unknown.reshape(nx, ny)
+    nx, ny, _nz = grid.shape
+    occupied, unknown = band_columns(cmap, floor_clearance, robot_height, free_threshold)
     origin = (float(grid.lo[0]), float(grid.lo[1]))
     if swept is not None and len(swept):
         xy = np.ascontiguousarray(np.asarray(swept, dtype=np.float64)[:, :2])
