@@ -73,8 +73,12 @@ class Agent:
         self.session = session
         self.explorer = Explorer(mission, robot_id, strategy, seed)
         self.epoch = time.time_ns()
+        sharing = mission.sharing
         self.outbox = DeltaOutbox(
-            self.explorer.grid.size, mission.sharing.share_min_bits, self.explorer.table
+            self.explorer.grid.size,
+            sharing.share_min_bits,
+            self.explorer.table,
+            max_held_bits=math.inf if sharing.max_held_bits is None else sharing.max_held_bits,
         )
         name = mission.mission
         self._cmd_pub = bus.reliable_publisher(session, bus.key(name, "robot", robot_id, "cmd"))
@@ -145,14 +149,15 @@ class Agent:
             return
         stats = self.outbox.stats
         log.info(
-            "%s: %d frames fused (%.1f/s), %d deltas sent, %d acked by the map server, %d resent; "
-            "map entropy %s bits; merged from the team %d; coordinator %s",
+            "%s: %d frames fused (%.1f/s), %d deltas sent, %d acked by the map server, %d resent, "
+            "%s bits held back; map entropy %s bits; merged from the team %d; coordinator %s",
             self.robot_id,
             self.frames_fused,
             frames / max(seconds, 1e-9),
             stats.deltas_sent,
             self.acked,
             stats.resent,
+            f"{self.outbox.held_bits:,.0f}",
             f"{self.explorer.map_entropy:,.0f}",
             self.merged_counts["applied"],
             dict(self.coordinator_counts) or "not asked yet",

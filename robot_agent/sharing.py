@@ -2,13 +2,19 @@
 
 Information gathered locally accumulates per voxel as a pending delta. A voxel is sent once
 its pending information is worth at least ``share_min_bits``: the entropy the team belief
-loses when that information is added to it. Sent deltas are numbered (epoch, seq 1, 2, ...)
+loses when that information is added to it. What the filter holds back is bounded as a whole:
+when the voxels it holds are worth more than ``max_held_bits`` together, the most valuable of
+them go out too, until what is held is worth at most half of that. Faint readings (a glance
+through a door, the far end of a beam) are each under ``share_min_bits``, but a robot gathers
+them by the hundred thousand; held back without a bound, they hide from the team map, and
+from the teammates, entropy this robot has already removed. Sent deltas are numbered (epoch, seq 1, 2, ...)
 and kept until the map server acknowledges them, so they can be sent again after a
 reconnect or a server restart; the store is bounded and counts what it drops.
 """
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -25,16 +31,25 @@ class OutboxStats:
     bytes_sent: int = 0
     resent: int = 0
     dropped_unacked: int = 0
+    released_held: int = 0  # voxels sent under share_min_bits because too much was held
 
 
 class DeltaOutbox:
     """Pending per-voxel information, the utility filter, and the unacked store of one agent."""
 
     def __init__(
-        self, size: int, share_min_bits: float, table: EntropyTable, max_unacked: int = 2000
+        self,
+        size: int,
+        share_min_bits: float,
+        table: EntropyTable,
+        max_unacked: int = 2000,
+        max_held_bits: float = math.inf,
     ) -> None:
+        if not max_held_bits > 0:
+            raise ValueError(f"max_held_bits must be > 0 (inf: no bound), got {max_held_bits}")
         self.size = size
         self.share_min_bits = float(share_min_bits)
+        self.max_held_bits = float(max_held_bits)
         self.table = table
         self.max_unacked = max_unacked
         self.pending_lam = np.zeros(size, np.float32)
@@ -46,6 +61,8 @@ class DeltaOutbox:
         self._judged_lam = np.full(size, np.nan, np.float32)
         self._judged_eta = np.full(size, np.nan, np.float32)
         self._pending_changed = np.zeros(size, bool)
+        # what each held voxel's pending information is worth (bits), as last judged
+        self._held_bits = np.zeros(size, np.float32)
         self.seq = 0
         self.unacked: OrderedDict[int, Delta] = OrderedDict()
         self.stats = OutboxStats()
@@ -65,7 +82,7 @@ class DeltaOutbox:
         team is taken to know the map minus the pending part. A voxel goes out when adding its
         pending information lowers the entropy by ``share_min_bits`` or more (all with ``flush``).
         """
-        idx = np.flatnonzero(self._touched)
+        idx = touched = np.flatnonzero(self._touched)
         if len(idx) == 0:
             return None
         if not flush and self.share_min_bits > 0:
@@ -81,12 +98,16 @@ class DeltaOutbox:
             lam_team = np.maximum(lam_now - dlam, np.float32(1e-12))
             h_team = self.table((eta_now - deta) / lam_team, 1.0 / np.sqrt(lam_team))
             h_now = self.table(eta_now / lam_now, 1.0 / np.sqrt(lam_now))
-            useful = (h_team - h_now) >= self.share_min_bits
+            gain = (h_team - h_now).astype(np.float32)
+            useful = gain >= self.share_min_bits
             kept = idx[~useful]
             self._judged_lam[kept] = lam_now[~useful]
             self._judged_eta[kept] = eta_now[~useful]
             self._pending_changed[kept] = False
-            idx, dlam, deta = idx[useful], dlam[useful], deta[useful]
+            self._held_bits[kept] = gain[~useful]
+            self._held_bits[idx[useful]] = 0
+            idx = np.union1d(idx[useful], self._released_held(touched))
+            dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
             if len(idx) == 0:
                 return None
         else:
@@ -95,6 +116,7 @@ class DeltaOutbox:
         self.pending_lam[idx] = 0
         self.pending_eta[idx] = 0
         self._touched[idx] = False
+        self._held_bits[idx] = 0
         self.seq += 1
         self.unacked[self.seq] = delta
         while len(self.unacked) > self.max_unacked:
@@ -103,6 +125,29 @@ class DeltaOutbox:
         self.stats.deltas_sent += 1
         self.stats.voxels_sent += len(delta)
         return self.seq, delta
+
+    @property
+    def held_bits(self) -> float:
+        """What the voxels the filter holds back are worth together (bits), as last judged."""
+        return float(self._held_bits[self._touched].sum(dtype=np.float64))
+
+    def _released_held(self, touched: np.ndarray) -> np.ndarray:
+        """Held voxels (among ``touched``, the pending ones) to send although each is under
+        ``share_min_bits``: none while what is held is worth at most ``max_held_bits``; else
+        the most valuable, until what stays held is worth at most half of it. Sorted indices."""
+        if not math.isfinite(self.max_held_bits):
+            return np.empty(0, np.int64)
+        held = touched[self._held_bits[touched] > 0]
+        bits = self._held_bits[held].astype(np.float64)
+        total = bits.sum()
+        if total <= self.max_held_bits:
+            return np.empty(0, np.int64)
+        order = np.argsort(bits)[::-1]  # most valuable first
+        left = total - np.cumsum(bits[order])
+        count = int(np.searchsorted(-left, -0.5 * self.max_held_bits)) + 1
+        released = np.sort(held[order[:count]])
+        self.stats.released_held += len(released)
+        return released
 
     def acknowledge(self, last_contiguous_seq: int) -> None:
         """Forget every delta up to the server's contiguous ack."""

@@ -1,6 +1,7 @@
 """The agent's delta outbox: utility filter, numbering, acks, bounded unacked store."""
 
 import numpy as np
+import pytest
 
 from robot_agent.sharing import DeltaOutbox
 from swarm.map.coverage_map import CoverageMap
@@ -115,3 +116,40 @@ def test_skipping_unchanged_voxels_sends_what_judging_all_of_them_would():
                 taken[1].deta, pending[1][got]
             )
     assert sent_any >= 10
+
+
+def test_what_is_held_back_is_bounded_and_the_most_valuable_goes_first():
+    """max_held_bits: faint readings, each under share_min_bits, are held until together they
+    are worth more than the bound; then the most valuable go out until at most half is held."""
+    table = default_table()
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=table, max_held_bits=4.0)
+    # faint readings of different strength on 40 voxels: each worth well under 0.5 bit
+    idx = np.arange(40)
+    d = Delta(idx.astype(np.uint32), np.linspace(1.0, 7.0, 40).astype(np.float32), np.zeros(40, np.float32))
+    fused(cmap, outbox, d)
+    lam0 = cmap.lam - outbox.pending_lam
+    worth = table(np.full(40, 0.5), 1 / np.sqrt(lam0[idx])) - table(cmap.mean(idx), cmap.sigma(idx))
+    assert worth.max() < 0.5 and worth.sum() > 4.0  # the premise, computed independently
+    seq, sent = outbox.take(cmap.lam, cmap.eta)
+    # the sent voxels are the most valuable ones, and what stays held is worth at most half the bound
+    held = np.setdiff1d(idx, sent.idx)
+    assert worth[held].max() <= worth[sent.idx].min()
+    assert worth[held].sum() <= 2.0 + 1e-4 < worth[held].sum() + worth[sent.idx].min()
+    assert outbox.held_bits == pytest.approx(worth[held].sum(), rel=1e-4)
+    assert outbox.stats.released_held == len(sent)
+    assert outbox.take(cmap.lam, cmap.eta) is None  # under the bound now: nothing more goes
+
+
+def test_without_a_bound_faint_readings_wait_for_the_flush():
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=default_table())
+    fused(cmap, outbox, delta(np.arange(40), 5.0))  # about 0.26 bit each
+    assert outbox.take(cmap.lam, cmap.eta) is None and outbox.held_bits > 1.0
+    _seq, sent = outbox.take(cmap.lam, cmap.eta, flush=True)
+    assert len(sent) == 40 and outbox.held_bits == 0
+
+
+def test_a_bound_that_is_not_positive_is_refused():
+    with pytest.raises(ValueError, match="max_held_bits"):
+        DeltaOutbox(GRID.size, share_min_bits=0.5, table=default_table(), max_held_bits=0.0)

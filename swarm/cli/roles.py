@@ -85,7 +85,8 @@ def _run_agent(args: argparse.Namespace) -> int:
             stats = agent.outbox.stats
             print(
                 f"{args.robot_id}: final, after the shutdown flush: {agent.frames_fused} frames fused, "
-                f"{stats.deltas_sent} deltas ({stats.voxels_sent} voxels, {stats.bytes_sent} bytes) sent, "
+                f"{stats.deltas_sent} deltas ({stats.voxels_sent} voxels, {stats.bytes_sent} bytes) sent "
+                f"({stats.released_held} voxels of them under share_min_bits, past max_held_bits), "
                 f"{agent.acked} acked, {stats.resent} resent; merged {dict(agent.merged_counts)}; "
                 f"coordinator {dict(agent.coordinator_counts)}; targets {dict(agent.explorer.target_kinds)}; "
                 f"map entropy {agent.explorer.map_entropy:,.0f} bits",

@@ -254,7 +254,12 @@ class ExplorationConfig(BaseModel):
 
 
 class SharingConfig(_Section):
+    """The agent's utility filter (docs/design.md section 3): a voxel goes out once its pending
+    information is worth ``share_min_bits``; the voxels held back are worth at most
+    ``max_held_bits`` together (null: no bound), beyond which the most valuable go out too."""
+
     share_min_bits: FiniteFloat = Field(default=0.5, ge=0)
+    max_held_bits: FiniteFloat | None = Field(default=2000.0, gt=0)
 
 
 class CoordinationConfig(_Section):
