@@ -120,6 +120,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
     metrics["stop_reason"] = facts["reason"]
     metrics["share_min_bits"] = mission.sharing.share_min_bits
+    metrics["max_held_bits"] = mission.sharing.max_held_bits
     coordinator_stats = facts.get("coordinator_stats")
     metrics["coordinator_answer_ms"] = (
         None if coordinator_stats is None else coordinator_stats.get("answer_ms")
