@@ -1,15 +1,22 @@
 """Sharing only what is useful: the agent's delta outbox (docs/design.md sections 3 and 5).
 
 Information gathered locally accumulates per voxel as a pending delta. A voxel is sent once
-its pending information is worth at least ``share_min_bits``: the entropy the team belief
-loses when that information is added to it. What the filter holds back is bounded as a whole:
-when the voxels it holds are worth more than ``max_held_bits`` together, the most valuable of
-them go out too, until what is held is worth at most half of that. Faint readings (a glance
-through a door, the far end of a beam) are each under ``share_min_bits``, but a robot gathers
-them by the hundred thousand; held back without a bound, they hide from the team map, and
-from the teammates, entropy this robot has already removed. Sent deltas are numbered (epoch, seq 1, 2, ...)
-and kept until the map server acknowledges them, so they can be sent again after a
-reconnect or a server restart; the store is bounded and counts what it drops.
+its pending information is worth at least ``share_min_bits``: by how much the entropy of the
+team's belief changes when that information is added to it, either way. Most information
+lowers it; information that contradicts the team's belief (a voxel the team holds free seen
+occupied, or the reverse) raises it, and matters as much: held back, it would leave the
+team map surer, and its entropy lower, than the evidence says.
+
+What the filter holds back is bounded as a whole: when the voxels it holds are worth more
+than ``max_held_bits`` together, the most valuable of them go out too, until what is held is
+worth at most half of that. Faint readings (a glance through a door, the far end of a beam)
+are each under ``share_min_bits``, but a robot gathers them by the hundred thousand; held
+back without a bound, they hide from the team map, and from the teammates, entropy this
+robot has already removed.
+
+Sent deltas are numbered (epoch, seq 1, 2, ...) and kept until the map server acknowledges
+them, so they can be sent again after a reconnect or a server restart; the store is bounded
+and counts what it drops.
 """
 
 from __future__ import annotations
@@ -80,7 +87,8 @@ class DeltaOutbox:
 
         ``lam``/``eta`` are the agent's map, which already holds the pending information; the
         team is taken to know the map minus the pending part. A voxel goes out when adding its
-        pending information lowers the entropy by ``share_min_bits`` or more (all with ``flush``).
+        pending information changes the entropy by ``share_min_bits`` or more, either way (all
+        with ``flush``), or when the held voxels are worth more than ``max_held_bits`` together.
         """
         idx = touched = np.flatnonzero(self._touched)
         if len(idx) == 0:
@@ -98,7 +106,7 @@ class DeltaOutbox:
             lam_team = np.maximum(lam_now - dlam, np.float32(1e-12))
             h_team = self.table((eta_now - deta) / lam_team, 1.0 / np.sqrt(lam_team))
             h_now = self.table(eta_now / lam_now, 1.0 / np.sqrt(lam_now))
-            gain = (h_team - h_now).astype(np.float32)
+            gain = np.abs(h_team - h_now).astype(np.float32)
             useful = gain >= self.share_min_bits
             kept = idx[~useful]
             self._judged_lam[kept] = lam_now[~useful]

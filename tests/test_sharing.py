@@ -79,7 +79,7 @@ def reference_useful(table, lam, eta, pending_lam, pending_eta, touched, share_m
     lam_team = np.maximum(lam_now - dlam, np.float32(1e-12))
     h_team = table((eta_now - deta) / lam_team, 1.0 / np.sqrt(lam_team))
     h_now = table(eta_now / lam_now, 1.0 / np.sqrt(lam_now))
-    return idx[(h_team - h_now) >= share_min_bits]
+    return idx[np.abs(h_team - h_now) >= share_min_bits]
 
 
 def test_skipping_unchanged_voxels_sends_what_judging_all_of_them_would():
@@ -153,3 +153,19 @@ def test_without_a_bound_faint_readings_wait_for_the_flush():
 def test_a_bound_that_is_not_positive_is_refused():
     with pytest.raises(ValueError, match="max_held_bits"):
         DeltaOutbox(GRID.size, share_min_bits=0.5, table=default_table(), max_held_bits=0.0)
+
+
+def test_information_that_contradicts_the_team_belief_is_shared_too():
+    """Worth is the change of the team's entropy either way: a voxel the team holds surely
+    free, seen occupied, raises it; held back, the team map would be surer than the evidence."""
+    table = default_table()
+    cmap = CoverageMap(GRID)
+    cmap.apply(delta([5, 6], 400.0, 0.0))  # the team: surely free (sigma 0.05 at 0)
+    team = CoverageMap(GRID, cmap.sensor, cmap.lam.copy(), cmap.eta.copy())
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=table)
+    fused(cmap, outbox, delta([5], 100.0, 1.0))  # this robot: occupied
+    fused(cmap, outbox, delta([6], 100.0, 0.0))  # this robot agrees on 6: worth little
+    change = table(cmap.mean([5, 6]), cmap.sigma([5, 6])) - table(team.mean([5, 6]), team.sigma([5, 6]))
+    assert change[0] >= 0.5 and abs(change[1]) < 0.5  # the premise, computed independently
+    _seq, sent = outbox.take(cmap.lam, cmap.eta)
+    assert sent.idx.tolist() == [5]
