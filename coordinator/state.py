@@ -30,6 +30,7 @@ from swarm.navigation.exploration import (
 )
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability
+from swarm.protocol.coord_messages import MAX_VIEWS
 from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError
 
 log = logging.getLogger("coordinator")
@@ -99,6 +100,8 @@ class CoordinatorState:
         self._answer_lock = threading.Lock()
         self._swept: list[tuple[float, float]] = []
         self._last_xy: dict[str, np.ndarray] = {}
+        # the map columns each robot went to look at by itself (statuses' view), in order
+        self._views: dict[str, list[tuple[float, float]]] = {}
         self._rng = np.random.default_rng(mission.sim.seed)
 
     # -- inputs ---------------------------------------------------------------------------
@@ -111,6 +114,22 @@ class CoordinatorState:
             if len(self._swept) > MAX_SWEPT:
                 del self._swept[: len(self._swept) - MAX_SWEPT]
 
+    def _viewed(self, robot: str, view) -> None:
+        if view is None:
+            return
+        views = self._views.setdefault(robot, [])
+        xy = (float(view[0]), float(view[1]))
+        if not views or np.hypot(xy[0] - views[-1][0], xy[1] - views[-1][1]) > 1e-6:
+            views.append(xy)
+            del views[: max(0, len(views) - MAX_VIEWS)]
+
+    def views_of_others(self, robot: str) -> tuple[tuple[float, float], ...]:
+        """The columns (x, y) the robots other than ``robot`` went to look at by themselves,
+        at most MAX_VIEWS, the most recent last (robots in name order)."""
+        with self._book_lock:
+            views = [xy for r in sorted(self._views) if r != robot for xy in self._views[r]]
+        return tuple(views[-MAX_VIEWS:])
+
     def on_status(self, payload: bytes, now: float) -> list[tuple[str, str]]:
         """A ``robot/<rid>/status`` payload; returns released (robot, reason). WireError if malformed."""
         try:
@@ -120,6 +139,7 @@ class CoordinatorState:
             raise
         with self._book_lock:
             self._moved(status.robot, status.pose.xyz)
+            self._viewed(status.robot, status.view)
             released = self.book.note_status(
                 status.robot, now, status.pose.xyz, status.state, status.target
             ) + self.book.expire(now)
@@ -231,7 +251,9 @@ class CoordinatorState:
         z = request.pose.xyz[2]
         if chosen is None and wander is None:
             self.counts["nothing_left"] += 1
-            return Answer(request.robot, AssignReply(None, None, 0.0), None, len(found), len(held))
+            # the robot chooses by itself now: not the columns its teammates went to look at
+            reply = AssignReply(None, None, 0.0, views=self.views_of_others(request.robot))
+            return Answer(request.robot, reply, None, len(found), len(held))
         self.counts["assigned" if chosen is not None else "wander"] += 1
         xy, yaw = (chosen.xy, chosen.gaze_yaw) if chosen is not None else (wander.xy, wander.gaze_yaw)
         # flush on demand: the robot gets back a target it had, so the team map may lack what

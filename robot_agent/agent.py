@@ -96,6 +96,7 @@ class Agent:
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
         self._coordinator_quiet_until = 0.0
+        self._told_target: tuple[float, float] | None = None  # the target of the last status
         self._pose: Pose | None = None
         if self.coordination:
             self.explorer.assigner = self._ask_coordinator
@@ -193,10 +194,18 @@ class Agent:
         self._cmd_pub.put(cmd.encode())
         self._share(flush=decision.state == "done")
         self.apply_merged()
-        if frame.seq % STATUS_EVERY == 0 or decision.state == "done":
+        # every STATUS_EVERY frames, and at once when the robot takes up a new target
+        if frame.seq % STATUS_EVERY == 0 or decision.state == "done" or decision.target != self._told_target:
+            self._told_target = decision.target
             target = None if decision.target is None else (*decision.target, 0.0)
             status = Status(
-                self.robot_id, frame.t, frame.pose, target, decision.state, self.outbox.stats.bytes_sent
+                self.robot_id,
+                frame.t,
+                frame.pose,
+                target,
+                decision.state,
+                self.outbox.stats.bytes_sent,
+                self.explorer.view_point(),
             )
             self._status_pub.put(status.encode())
         return cmd
@@ -286,6 +295,8 @@ class Agent:
             return None
         if reply.target is None:
             self.coordinator_counts["nothing_left"] += 1
+            # choosing alone now: not the columns the teammates went to look at
+            self.explorer.team_views = [np.array(v, dtype=np.float64) for v in reply.views]
             return None
         self.coordinator_counts["assigned"] += 1
         if reply.flush:  # flush on demand: the coordinator lacks what this robot saw there

@@ -123,6 +123,8 @@ class Explorer:
         self.camera = CameraReach.of_rig(self.rig, self.sensor.reach, looks_up=self.rig.tilt_range_deg > 0)
         self.tried_views: list[np.ndarray] = []  # x-y of the columns a view target was chosen for
         self.view_stands: list[np.ndarray] = []  # x-y of the standing point of each of tried_views
+        #: x-y of the columns teammates went to look at (from the coordinator; entropy strategy)
+        self.team_views: list[np.ndarray] = []
         self.looking_again = False  # frontier strategy: looking at columns a second/third time
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
@@ -343,7 +345,7 @@ class Explorer:
             self.rng,
             exclude=exclude,
             camera=self.camera,
-            tried=self.tried_views,
+            tried=self.tried_views + self.team_views if self.strategy == "entropy" else self.tried_views,
             stands=self.view_stands,
             max_looks=max_looks,
             optimistic=optimistic,
@@ -384,6 +386,16 @@ class Explorer:
         self.turned = 0.0
         self.last_yaw = yaw
         return Decision(0.0, self.mission.robot.max_turn_rate * 0.8, "look_around")
+
+    def view_point(self) -> tuple[float, float, float] | None:
+        """The point (x, y, z; m) the current target goes to look at, when it is a 3-D view the
+        robot chose itself (the centre of the column's first frontier voxel); else None."""
+        t = self.target
+        if t is None or t.voxel is None or t.kind not in ("view", "frontier3d") or self.state == "done":
+            return None
+        ijk = np.array(np.unravel_index(t.voxel, self.grid.shape), dtype=np.float64)
+        x, y, z = self.grid.lo + (ijk + 0.5) * self.grid.voxel
+        return float(x), float(y), float(z)
 
     def _target_xy(self) -> tuple[float, float] | None:
         return None if self.target is None else (float(self.target.xy[0]), float(self.target.xy[1]))

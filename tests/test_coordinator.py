@@ -477,3 +477,25 @@ def test_a_robot_given_back_its_own_old_target_is_asked_to_flush():
     assert AssignReply.decode(again.reply.encode()).flush
     old = msgpack.packb({"v": 1, "target": None, "gaze": None, "utility": 0.0})
     assert not AssignReply.decode(old).flush
+
+
+def test_a_nothing_left_answer_names_the_columns_teammates_went_to_look_at():
+    """Status.view and AssignReply.views (additions to protocol v1): with no eq. 35 target left,
+    a robot chooses its own 3-D views; the coordinator tells it which columns the others
+    went to look at (in their statuses), its own excluded, so no column is looked at twice."""
+    m = mission()
+    state = CoordinatorState(m)
+    for msg in deltas_of(m, known_everywhere(m), "r9", 1, 2):
+        state.team.apply_payload(msg.encode())
+    looks = {"r2": [(3.05, 1.15, 1.85), (3.05, 1.15, 1.85), (5.25, 2.95, 1.65)], "r1": [(0.55, 0.55, 1.2)]}
+    for robot, views in looks.items():
+        for n, view in enumerate(views):
+            status = Status(robot, float(n), pose(robot), (1.0, 2.0, 0.0), "drive", 0, view)
+            state.on_status(status.encode(), now=float(n))
+    state.on_status(Status("r3", 0.0, pose("r3"), None, "choose", 0).encode(), now=3.0)  # no view
+    answer = state.answer(AssignRequest("r1", pose("r1")), now=4.0)
+    assert answer.reply.target is None
+    # r2's two columns, once each and in order; not r1's own
+    assert answer.reply.views == ((3.05, 1.15), (5.25, 2.95))
+    assert AssignReply.decode(answer.reply.encode()).views == answer.reply.views
+    assert state.answer(AssignRequest("r2", pose("r2")), now=5.0).reply.views == ((0.55, 0.55),)

@@ -138,3 +138,28 @@ def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_d
         else:
             assert not explorer.target_kinds and len(explorer.failed) == len(spots)
             assert decision.state == "done"
+
+
+def test_an_entropy_robot_does_not_choose_a_column_its_teammates_went_to_look_at():
+    # Every voxel below 1 m known free, the air above unknown: only 3-D frontier views are
+    # left. A robot alone chooses a column; told (by the coordinator) that a teammate went to
+    # look at that column, an identical robot chooses another one.
+    mission = load_mission(CONFIGS / "lab.yaml")
+
+    def chosen(team_views):
+        explorer = Explorer(mission, "r1", strategy="entropy")
+        grid, cmap = explorer.grid, explorer.map
+        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
+        cmap.lam[low] = 400.0  # a sure, empty belief: mu = 0, sigma = 0.05
+        cmap.eta[low] = 0.0
+        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.team_views = [np.asarray(v) for v in team_views]
+        explorer.state = "choose"
+        explorer.decide(1.05, 1.05, 0.0)
+        assert explorer.target_kinds == {"view": 1}
+        return explorer.view_point()
+
+    alone = chosen([])
+    assert alone is not None and 1.0 <= alone[2] < 1.1  # the first unknown layer above the known air
+    told = chosen([alone[:2]])
+    assert told is not None and math.dist(told[:2], alone[:2]) > 0.25

@@ -128,6 +128,30 @@ def test_cmd_status_truth_assign_round_trip():
     assert AssignReply.decode(AssignReply(None, None, 0.0).encode()).target is None
 
 
+def test_the_view_additions_travel_and_are_optional():
+    """Status.view and AssignReply.views, additions to protocol v1: absent means none."""
+    looking = Status("r1", 3.5, POSE, (1.0, 2.0, 0.0), "drive", 10, view=(3.05, 1.15, 1.85))
+    assert Status.decode(looking.encode()) == looking
+    older = msgpack.unpackb(looking.encode())
+    del older["view"]
+    assert Status.decode(msgpack.packb(older)).view is None
+    reply = AssignReply(None, None, 0.0, views=((3.05, 1.15), (5.25, 2.95)))
+    assert AssignReply.decode(reply.encode()) == reply
+    oldest = msgpack.packb({"v": 1, "target": None, "gaze": None, "utility": 0.0})
+    assert AssignReply.decode(oldest).views == ()
+    bad = {
+        "'views' must be a list": 3,
+        r"views\[1\] must be \[x, y\]": [[1.0, 2.0], [1.0]],
+        r"views\[0\] must be finite": [[math.nan, 2.0]],
+        "at most 4096": [[0.0, 0.0]] * 4097,
+    }
+    for reason, views in bad.items():
+        with pytest.raises(WireError, match=reason):
+            AssignReply.decode(tamper(reply.encode(), views=views))
+    with pytest.raises(WireError, match="view"):
+        Status.decode(tamper(looking.encode(), view=[1.0, math.inf, 0.0]))
+
+
 def test_delta_round_trip_and_checks():
     grid = Grid((0.0, 0.0, 0.0), 0.1, (4, 3, 2))
     delta = DeltaMessage(

@@ -10,6 +10,7 @@ from swarm.protocol.codec import (
     number,
     pack,
     require,
+    short,
     text,
     unpack,
     vec3,
@@ -47,12 +48,18 @@ class AssignReply:
     ``flush`` (an addition to protocol v1, optional on the wire, False when absent): the
     target is one this robot was given before, so what it saw there may still sit in its
     outbox; the robot should share all its pending deltas now ("flush on demand").
+
+    ``views`` (also an addition, optional, empty when absent; sent with "nothing left"):
+    the x-y points (m) of the map columns the other robots have gone to look at by
+    themselves (their statuses' ``view``), at most MAX_VIEWS, most recent last; the robot
+    does not choose a 3-D view of those columns itself.
     """
 
     target: tuple[float, float, float] | None
     gaze: tuple[float, float, float] | None
     utility: float
     flush: bool = False
+    views: tuple[tuple[float, float], ...] = ()
 
     KIND = "assign reply"
 
@@ -67,6 +74,7 @@ class AssignReply:
                 "gaze": vec(self.gaze),
                 "utility": float(self.utility),
                 "flush": bool(self.flush),
+                "views": [[float(x), float(y)] for x, y in self.views],
             },
         )
 
@@ -83,4 +91,23 @@ class AssignReply:
             gaze=None if gaze is None else vec3(gaze, "gaze", kind),
             utility=number(require(msg, "utility", kind), "utility", kind),
             flush=flush,
+            views=_views(msg.get("views", []), kind),
         )
+
+
+#: The most column points a reply's ``views`` may hold.
+MAX_VIEWS = 4096
+
+
+def _views(value: Any, kind: str) -> tuple[tuple[float, float], ...]:
+    """The ``views`` field: a list of at most MAX_VIEWS finite [x, y] pairs."""
+    if not isinstance(value, list):
+        raise WireError(f"{kind}: field 'views' must be a list of [x, y], got {type(value).__name__}")
+    if len(value) > MAX_VIEWS:
+        raise WireError(f"{kind}: field 'views' holds {len(value)} points, at most {MAX_VIEWS}")
+    out = []
+    for n, point in enumerate(value):
+        if not (isinstance(point, list) and len(point) == 2):
+            raise WireError(f"{kind}: views[{n}] must be [x, y], got {short(point)}")
+        out.append((number(point[0], f"views[{n}]", kind), number(point[1], f"views[{n}]", kind)))
+    return tuple(out)

@@ -258,7 +258,13 @@ class Cmd:
 
 @dataclass(frozen=True)
 class Status:
-    """An agent's state for monitors: pose, current target (or None), state name, bytes sent."""
+    """An agent's state for monitors: pose, current target (or None), state name, bytes sent.
+
+    ``view`` (an addition to protocol v1, optional on the wire, None when absent): when the
+    robot's current target is a 3-D view it chose itself, the point it goes to look at (x, y
+    of the map column, z of its first unknown voxel; m), so the coordinator can keep
+    teammates from looking at the same column.
+    """
 
     robot: str
     t: float
@@ -266,6 +272,7 @@ class Status:
     target: tuple[float, float, float] | None
     state: str
     bytes_sent: int
+    view: tuple[float, float, float] | None = None
 
     KIND = "status"
 
@@ -279,6 +286,7 @@ class Status:
                 "target": None if self.target is None else [float(v) for v in self.target],
                 "state": self.state,
                 "bytes_sent": int(self.bytes_sent),
+                "view": None if self.view is None else [float(v) for v in self.view],
             },
         )
 
@@ -287,6 +295,7 @@ class Status:
         kind = cls.KIND
         msg = unpack(payload, kind)
         target = require(msg, "target", kind)
+        view = msg.get("view")
         return cls(
             robot=text(require(msg, "robot", kind), "robot", kind),
             t=number(require(msg, "t", kind), "t", kind),
@@ -294,6 +303,7 @@ class Status:
             target=None if target is None else vec3(target, "target", kind),
             state=text(require(msg, "state", kind), "state", kind),
             bytes_sent=integer(require(msg, "bytes_sent", kind), "bytes_sent", kind),
+            view=None if view is None else vec3(view, "view", kind),
         )
 
 
