@@ -141,11 +141,12 @@ def _step(n, sg, se, sgg, sge, see, min_gradient_var, min_significance):
     det = sgg * n - sg * sg
     if not (n > 2.0 and det > min_gradient_var * n * n):
         return np.inf
-    delta = -(sge * n - sg * se) / det
-    offset = (se * sgg - sg * sge) / det
+    scale = 1.0 / det
+    delta = -(sge * n - sg * se) * scale
+    offset = (se * sgg - sg * sge) * scale
     rss = max(see + delta * sge - offset * se, 0.0)
-    variance = rss / (n - 2.0) * n / det
-    if delta * delta <= min_significance * min_significance * variance:
+    # delta^2 > k^2 var(delta), var(delta) = rss / (n - 2) * n / det, without a division
+    if delta * delta * (n - 2.0) * det <= min_significance * min_significance * rss * n:
         return np.inf
     return delta
 
