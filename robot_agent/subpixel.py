@@ -81,7 +81,7 @@ def _refine(left, right, disp, radius, max_step, min_gradient_var, min_significa
     # vertical window sums of every column (float64: e^2 sums reach 1e7). A row leaving the
     # window and the row entering it share a ring slot.
     rows = 2 * radius + 1
-    ring = np.zeros((rows, w * _TERMS))
+    ring = np.zeros((rows, w * _TERMS), np.float32)
     column = np.zeros(w * _TERMS)
     for v in range(min(radius, h)):
         _row_terms(left, right, disp, v, ring[v % rows])
@@ -153,26 +153,27 @@ def _step(n, sg, se, sgg, sge, see, min_gradient_var, min_significance):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _row_terms(left, right, disp, v, terms):
-    """Write row ``v``'s per-pixel terms into ``terms`` (W * _TERMS float64); zero where d is
+    """Write row ``v``'s per-pixel terms into ``terms`` (W * _TERMS float32); zero where d is
     invalid or its match lacks a neighbour on each side (the gradient needs both)."""
     w = disp.shape[1]
     terms[:] = 0.0
+    half = np.float32(0.5)
     for u in range(1, w - 1):
         d = disp[v, u]
         if not np.isfinite(d):
             continue
-        x = np.float64(u) - d
+        x = np.float32(u) - d
         x0 = int(np.floor(x))
         if x0 < 1 or x0 + 2 > w - 1:
             continue
-        a = x - x0
-        r0 = np.float64(right[v, x0])
-        r1 = np.float64(right[v, x0 + 1])
-        g0 = 0.5 * (r1 - np.float64(right[v, x0 - 1]))
-        g1 = 0.5 * (np.float64(right[v, x0 + 2]) - r0)
-        grad_left = 0.5 * (np.float64(left[v, u + 1]) - np.float64(left[v, u - 1]))
-        g = 0.5 * ((g0 + a * (g1 - g0)) + grad_left)
-        e = np.float64(left[v, u]) - (r0 + a * (r1 - r0))
+        a = x - np.float32(x0)
+        r0 = np.float32(right[v, x0])
+        r1 = np.float32(right[v, x0 + 1])
+        g0 = half * (r1 - np.float32(right[v, x0 - 1]))
+        g1 = half * (np.float32(right[v, x0 + 2]) - r0)
+        grad_left = half * (np.float32(left[v, u + 1]) - np.float32(left[v, u - 1]))
+        g = half * ((g0 + a * (g1 - g0)) + grad_left)
+        e = np.float32(left[v, u]) - (r0 + a * (r1 - r0))
         j = u * _TERMS
         terms[j] = 1.0
         terms[j + 1] = g
