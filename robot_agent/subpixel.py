@@ -69,11 +69,14 @@ def refine_disparity(
     )
 
 
+#: Fast-math flags that keep NaN and inf semantics (the kernel tests for NaN disparities).
+_FAST = {"contract", "arcp", "reassoc", "nsz"}
+
 #: Per-pixel terms of the normal equations: count, G, e, G^2, G e, e^2.
 _TERMS = 6
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _refine(left, right, disp, radius, max_step, min_gradient_var, min_significance):
     h, w = disp.shape
     out = disp.copy()
@@ -131,7 +134,7 @@ def _refine(left, right, disp, radius, max_step, min_gradient_var, min_significa
     return out
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _step(n, sg, se, sgg, sge, see, min_gradient_var, min_significance):
     """The least-squares correction of a window's sums, or inf where it is not trusted.
 
@@ -151,7 +154,7 @@ def _step(n, sg, se, sgg, sge, see, min_gradient_var, min_significance):
     return delta
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _row_terms(left, right, disp, v, terms):
     """Write row ``v``'s per-pixel terms into ``terms`` (W * _TERMS float32); zero where d is
     invalid or its match lacks a neighbour on each side (the gradient needs both)."""
