@@ -10,16 +10,17 @@ pixel, the right image is sampled at ``u - d`` (linear interpolation) and the re
     L(u) - R(u - d - delta) ~ e + G delta,     minimise  sum over the window of (e + G delta - b)^2
 
 where ``G`` is the x-gradient, averaged between the left image at ``u`` and the right image at
-``u - d`` (the symmetric form halves the bias of the one-sided gradient). The two normal
-equations are solved per pixel from five box sums (running sums: the cost does not grow with
-the window). Each neighbour enters with its *own* disparity, so a slanted surface or a
-neighbour across an edge still contributes a residual at its own match. The correction is kept
-only where it is below ``max_step`` pixels and the window has x-texture (gradient variance
-above ``min_gradient_var``); elsewhere SGBM's value stays. This is the classic
-Lucas-Kanade (1981) image registration step restricted to the epipolar line.
+``u - d``. The two normal equations are solved per pixel from six window sums (count, G, e, G^2,
+G e, e^2; running sums, so the cost does not grow with the window). Each neighbour enters with
+its *own* disparity, so a slanted surface or a neighbour across an edge still contributes a
+residual at its own match. The correction is kept only where it is below ``max_step`` pixels,
+the window has x-texture (gradient variance above ``min_gradient_var``) and ``delta`` is at
+least ``min_significance`` standard errors from 0 (the standard error from the window's
+residual sum of squares); elsewhere SGBM's value stays, and a pixel without a disparity gets
+none. This is the Lucas-Kanade (1981) registration step restricted to the epipolar line.
 
-``tests/stereo_oracle.py`` keeps a numpy form (``cv2.remap`` + ``cv2.boxFilter``) that the
-tests compare this kernel with.
+``tests/stereo_oracle.py`` keeps a pixel-by-pixel form (each window solved with
+``np.linalg.lstsq``) that the tests compare this kernel with.
 """
 
 from __future__ import annotations
