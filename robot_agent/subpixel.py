@@ -162,22 +162,26 @@ def _row_terms(left, right, disp, v, terms):
     w = disp.shape[1]
     terms[:] = 0.0
     half = np.float32(0.5)
+    # The right row and its central x-differences, once per row (columns 1 .. w - 2 are used).
+    row = right[v].astype(np.float32)
+    grad = np.zeros(w, np.float32)
+    for x in range(1, w - 1):
+        grad[x] = half * (row[x + 1] - row[x - 1])
     for u in range(1, w - 1):
         d = disp[v, u]
         if not np.isfinite(d):
             continue
         x = np.float32(u) - d
-        x0 = int(np.floor(x))
-        if x0 < 1 or x0 + 2 > w - 1:
-            continue
+        if not (x >= 1.0 and x < w - 2):
+            continue  # both samples need a neighbour on each side
+        x0 = int(x)
         a = x - np.float32(x0)
-        r0 = np.float32(right[v, x0])
-        r1 = np.float32(right[v, x0 + 1])
-        g0 = half * (r1 - np.float32(right[v, x0 - 1]))
-        g1 = half * (np.float32(right[v, x0 + 2]) - r0)
-        grad_left = half * (np.float32(left[v, u + 1]) - np.float32(left[v, u - 1]))
-        g = half * ((g0 + a * (g1 - g0)) + grad_left)
-        e = np.float32(left[v, u]) - (r0 + a * (r1 - r0))
+        r0 = row[x0]
+        g = half * (
+            (grad[x0] + a * (grad[x0 + 1] - grad[x0]))
+            + half * (np.float32(left[v, u + 1]) - np.float32(left[v, u - 1]))
+        )
+        e = np.float32(left[v, u]) - (r0 + a * (row[x0 + 1] - r0))
         j = u * _TERMS
         terms[j] = 1.0
         terms[j + 1] = g
