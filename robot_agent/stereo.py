@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from robot_agent.disparity_kernels import depth_of_disparity, valid_disparity
+from robot_agent.subpixel import refine_disparity
 from swarm.config.models import DEFAULT_MIN_DEPTH
 from swarm.map.rotation import rotation_zyx
 
@@ -134,6 +135,10 @@ class StereoMatcher:
     Middlebury pairs 1.0 also blanked smooth wood and paper that SGBM matches right.
     ``scale`` < 1 matches a downsized pair (about 1/scale^3 faster) and brings the disparity
     back to full size (docs/stereo.md gives the accuracy cost).
+    ``refine_subpixel`` adds one Lucas-Kanade step on the images to SGBM's disparity
+    (``robot_agent.subpixel``): it halves the sub-pixel error on known fractional shifts but is
+    off by default, as on real pairs whose ground truth is whole pixels it scores worse
+    (docs/stereo.md).
     """
 
     def __init__(
@@ -150,6 +155,7 @@ class StereoMatcher:
         pad_border: bool = True,
         min_texture: float = DEFAULT_MIN_TEXTURE,
         scale: float = 1.0,
+        refine_subpixel: bool = False,
     ) -> None:
         if num_disparities < 16 or num_disparities % 16:
             raise ValueError(f"num_disparities must be a positive multiple of 16, got {num_disparities}")
@@ -167,6 +173,7 @@ class StereoMatcher:
         if not min_texture >= 0:
             raise ValueError(f"min_texture must be >= 0, got {min_texture}")
         self.min_texture = float(min_texture)
+        self.refine_subpixel = bool(refine_subpixel)
         self._sgbm = cv2.StereoSGBM_create(
             minDisparity=self.min_disparity,
             numDisparities=self.num_disparities,
@@ -235,7 +242,10 @@ class StereoMatcher:
         if self.min_texture > 0:
             texture = texture_variance(gl, self.block_size)
         # A match that lands in the padding is outside the right image: not a measurement.
-        return valid_disparity(raw, pl, w, self.min_disparity, texture, np.float32(self.min_texture**2))
+        disp = valid_disparity(raw, pl, w, self.min_disparity, texture, np.float32(self.min_texture**2))
+        if self.refine_subpixel:
+            disp = refine_disparity(gl, gr, disp)
+        return disp
 
     def depth(self, left: np.ndarray, right: np.ndarray, calib: RectifiedRig) -> np.ndarray:
         """Depth (m, NaN unknown) of a pair, rectifying it first when ``calib`` carries maps."""
@@ -333,3 +343,5 @@ def warm_up() -> None:
     points_from_depth(np.ones((1, 1), np.float32), 1.0, 1.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     raw = np.zeros((1, 1), np.int16)
     depth_of_disparity(valid_disparity(raw, 0, 1, 0, _NO_TEXTURE, np.float32(0.0)), 1.0, 0.0)
+    pixels = np.zeros((1, 1), np.uint8)
+    refine_disparity(pixels, pixels, np.zeros((1, 1), np.float32))

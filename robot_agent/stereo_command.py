@@ -80,6 +80,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1.0,
         help="match at this fraction of the image size (0.5: about 6x faster, fewer edge pixels right)",
     )
+    parser.add_argument(
+        "--refine-subpixel",
+        action="store_true",
+        help="refine SGBM's sub-pixel disparity with one Lucas-Kanade step on the images (halves the "
+        "sub-pixel error on textured surfaces; a few ms at 640x480; see docs/stereo.md)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -125,7 +131,12 @@ def run(args: argparse.Namespace) -> int:
         )
     try:
         calib.check_image_size(wl, hl, f"left image {args.left}")
-        options = {"block_size": args.block_size, "mode": args.mode, "scale": args.scale}
+        options = {
+            "block_size": args.block_size,
+            "mode": args.mode,
+            "scale": args.scale,
+            "refine_subpixel": args.refine_subpixel,
+        }
         min_depth = args.min_depth
         if min_depth is None and calib.ndisp:
             # The file's disparity range: the nearest depth whose disparity is ndisp.

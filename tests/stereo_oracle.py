@@ -27,3 +27,46 @@ def reference_depth(disp, fb, offset):
     with np.errstate(divide="ignore", invalid="ignore"):
         depth = np.where(denom > 0, np.float32(fb) / denom, np.float32(np.nan))
     return depth.astype(np.float32, copy=False)
+
+
+def reference_refine_disparity(left, right, disp, window, max_step, min_gradient_var, min_significance):
+    """``subpixel.refine_disparity`` pixel by pixel: each window's terms gathered and solved with
+    ``np.linalg.lstsq`` (e = -G delta + b), delta's standard error from the residuals."""
+    left = left.astype(np.float64)
+    right = right.astype(np.float64)
+    h, w = disp.shape
+    grad, resid = np.zeros((h, w)), np.zeros((h, w))
+    used = np.zeros((h, w), bool)
+    for v in range(h):
+        grad_right = np.gradient(right[v])  # central differences inside the row
+        grad_left = np.gradient(left[v])
+        for u in range(1, w - 1):
+            if not np.isfinite(disp[v, u]):
+                continue
+            x = u - float(disp[v, u])
+            x0 = int(np.floor(x))
+            if x0 < 1 or x0 + 2 > w - 1:
+                continue  # both samples need a neighbour on each side
+            a = x - x0
+            grad[v, u] = 0.5 * ((1 - a) * grad_right[x0] + a * grad_right[x0 + 1] + grad_left[u])
+            resid[v, u] = left[v, u] - ((1 - a) * right[v, x0] + a * right[v, x0 + 1])
+            used[v, u] = True
+    out = disp.astype(np.float32).copy()
+    r = window // 2
+    for v in range(h):
+        for u in range(w):
+            if not used[v, u]:
+                continue
+            box = (slice(max(v - r, 0), v + r + 1), slice(max(u - r, 0), u + r + 1))
+            g, e = grad[box][used[box]], resid[box][used[box]]
+            n = g.size
+            design = np.stack([-g, np.ones(n)], axis=1)
+            if n <= 2 or np.linalg.det(design.T @ design) <= min_gradient_var * n * n:
+                continue
+            solution = np.linalg.lstsq(design, e, rcond=None)[0]
+            rss = float(np.sum((design @ solution - e) ** 2))
+            variance = rss / (n - 2) * np.linalg.inv(design.T @ design)[0, 0]
+            delta = solution[0]
+            if delta**2 > min_significance**2 * variance and abs(delta) < max_step:
+                out[v, u] = disp[v, u] + np.float32(delta)
+    return out

@@ -341,6 +341,12 @@ def test_cli_writes_depth_and_png(pair_files, capsys) -> None:
     assert png.shape == (H * factor, W * factor + BAR_WIDTH, 3)
     assert np.all(png[: H * factor : factor, : W * factor : factor][np.isnan(depth)] == 0)
     assert "wrote" in capsys.readouterr().out
+    rc = cli([str(d / "left.png"), str(d / "right.png"), "--calib", str(d / "calib.yaml"),
+              "--out", str(d / "refined.npy"), "--refine-subpixel"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    refined = np.load(d / "refined.npy")
+    np.testing.assert_array_equal(np.isnan(refined), np.isnan(depth))  # the refinement fills nothing
+    assert relative_error(refined, truth)[0] < 0.03 and not np.array_equal(refined, depth, equal_nan=True)
 
 
 def test_cli_errors_name_the_file(pair_files, capsys) -> None:
