@@ -205,7 +205,7 @@ def test_a_second_process_loads_the_kernels_from_numbas_cache():
         "g = Grid((0, 0, 0), 0.1, (10, 10, 10))\n"
         "s = SensorModel(discretize=True, weighted=True)\n"
         "batch_information(g, s, np.full(3, 0.05), np.full((3, 3), 0.5))",
-        "(rb.prepare_rays, rb.discretize_rays, rb.order_by_direction, k.entries_bound, k.fuse_rays)",
+        "(rb.prepare_rays, rb.discretize_rays, rb.order_by_direction, k.blocks_bound, k.fuse_rays)",
     )
     assert len(stats) == 5
     for name, (hits, misses) in stats.items():

@@ -6,12 +6,22 @@
 oracle), the sensor model of eq. 14 per voxel, and the sums of lam and eta per voxel, with
 hit precedence.
 
-- Per-voxel sums live in compact arrays in first-touch order; the brick-ordered slot map
-  of ``swarm.map.ray_batch`` finds a voxel's entry and is restored to -1 before returning,
-  so one map serves every batch on the same grid. Nothing allocates per (ray, voxel).
-- A voxel's distance r to the sensor and its damping factor exp(-2 r / tau) are computed
-  once, when the batch first touches it: in front of a ray's end eq. 14's lam is the ray's
-  factor times the voxel's, so a voxel update costs no square root and no exp.
+- Per-voxel sums live in a pool of blocks, one block of 8 x 8 x 8 voxels per brick of the
+  grid that the batch touches, found through a small brick table (``block_table_size``
+  entries, int32, -1 = no block). A voxel's entry is its block's base plus its place in the
+  brick: no per-voxel slot lookup, and the voxels a ray crosses next sit in the same block.
+  The table is restored to -1 and the pool to zeros before returning, so the same scratch
+  space serves every batch. Nothing allocates per (ray, voxel).
+- In front of a ray's end eq. 14's lam is the ray's gain exp(2 (d - e/2) / tau) / sigma_s^2
+  times the voxel's damping exp(-2 r / tau), r the distance from the sensor to the voxel's
+  centre. The voxels surely in front (every point nearer than d - e/2 minus the voxel's
+  half diagonal) add only the ray's gain to an 8-byte sum; the damping multiplies that sum
+  once per voxel at the end. The few voxels near the end and the one behind it get eq. 14
+  in full into two other sums. An update in front costs no square root, no exp and no
+  distance.
+- A voxel holding a return of the batch (hit precedence) is marked by a negative gain sum.
+- The output is written in C order by walking the table's blocks row by row, so the pool
+  is read once, in order.
 - Only the axis that steps gets its next plane parameter (one division per step).
 
 Compiled with ``cache=True``: a second process loads the machine code from Numba's cache.
@@ -25,82 +35,96 @@ import numpy as np
 from numba import njit
 
 from swarm.map.ray_batch import BRICK_BITS
-from swarm.map.ray_batch import brick_index as _brick
 
 #: Upper bound of one measurement's information lam = 1/sigma^2 on one voxel (sigma >= 1e-12).
 #: Eq. 14's damping makes lam grow as exp(2 (d - d_l) / tau), which overflows float32 for rays
 #: longer than about 85 m (tau = 2 m); the bound keeps any finite input finite.
 LAM_MAX = 1e24
 
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _slot(b, i, j, k, geometry, store, n_touched):
-    """The compact entry of voxel (i, j, k) at slot-map position ``b``, created if new.
-
-    ``geometry`` = (ny, nz, voxel, centre_offset, 2 / tau); ``store`` = (slots, touched,
-    rec, is_hit). A new entry holds zero sums, the distance r from the sensor to the voxel's
-    centre (float32, as eq. 14 is evaluated) and its damping factor exp(-2 r / tau) (0 when
-    it would underflow). Returns (slot, new count).
-    """
-    ny, nz, voxel, centre_offset, two_over_tau = geometry
-    slots, touched, rec, is_hit = store
-    s = slots[b]
-    if s < 0:
-        s = n_touched
-        slots[b] = s
-        touched[s] = (i * ny + j) * nz + k
-        ox = i * voxel + centre_offset[0]
-        oy = j * voxel + centre_offset[1]
-        oz = k * voxel + centre_offset[2]
-        r = np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz)))
-        rec[s, 0] = 0.0
-        rec[s, 1] = 0.0
-        rec[s, 2] = r
-        arg = two_over_tau * np.float64(r)
-        rec[s, 3] = math.exp(-arg) if arg < EXP_LIMIT else 0.0
-        is_hit[s] = False
-        n_touched += 1
-    return s, n_touched
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def entries_bound(start, ends, shape):
-    """At most how many voxels ``fuse_rays`` touches: each ray's voxels (its L1 length in voxel
-    steps, plus one) and the voxel behind its end, and never more than the grid's size."""
-    i0 = int(math.floor(start[0]))
-    j0 = int(math.floor(start[1]))
-    k0 = int(math.floor(start[2]))
-    bound = 0
-    for r in range(ends.shape[0]):
-        bound += 2
-        bound += abs(int(math.floor(ends[r, 0])) - i0)
-        bound += abs(int(math.floor(ends[r, 1])) - j0)
-        bound += abs(int(math.floor(ends[r, 2])) - k0)
-    return min(bound, shape[0] * shape[1] * shape[2])
-
-
 #: exp() arguments up to this stay far from float64's overflow and underflow.
 EXP_LIMIT = 600.0
 
+BLOCK = 1 << (3 * BRICK_BITS)  # voxels per block (one brick)
+HALF_DIAGONAL = 0.5 * math.sqrt(3.0)  # of a voxel, in edges
+
+
+def block_table_size(shape: tuple[int, int, int]) -> int:
+    """Entries of the brick table of a grid of ``shape``: one per 8 x 8 x 8 brick."""
+    b = 1 << BRICK_BITS
+    bricks = 1
+    for n in shape:
+        bricks *= -(-int(n) // b)
+    return bricks
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def blocks_bound(start, ends, shape):
+    """At most how many blocks ``fuse_rays`` allocates: per ray the bricks its voxels cross (its
+    L1 length in brick steps, plus one) and the brick behind its end, and never more than
+    the grid's bricks."""
+    b = BRICK_BITS
+    i0 = int(math.floor(start[0])) >> b
+    j0 = int(math.floor(start[1])) >> b
+    k0 = int(math.floor(start[2])) >> b
+    bound = 0
+    for r in range(ends.shape[0]):
+        bound += 2
+        bound += abs((int(math.floor(ends[r, 0])) >> b) - i0)
+        bound += abs((int(math.floor(ends[r, 1])) >> b) - j0)
+        bound += abs((int(math.floor(ends[r, 2])) >> b) - k0)
+    bricks = ((shape[0] + 7) >> b) * ((shape[1] + 7) >> b) * ((shape[2] + 7) >> b)
+    return min(bound, bricks)
+
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _information(diff, half32, two_over_tau32, inv_s2, gain, w):
-    """Eq. 14's lam of one voxel at float32 offset ``diff`` = r - d from the ray's end.
+def _entry(i, j, k, nbj, nbk, table, n_blocks):
+    """Pool entry of voxel (i, j, k): its brick's block (the next free one if the brick has none
+    yet), then the voxel's place in the brick. Returns (entry, new block count)."""
+    b = BRICK_BITS
+    m = (1 << b) - 1
+    brick = ((i >> b) * nbj + (j >> b)) * nbk + (k >> b)
+    block = table[brick]
+    if block < 0:
+        block = n_blocks
+        table[brick] = block
+        n_blocks += 1
+    return (block << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m), n_blocks
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _centre_distance(i, j, k, voxel, centre_offset):
+    """Distance r (float32, metres) from the sensor to the centre of voxel (i, j, k)."""
+    ox = i * voxel + centre_offset[0]
+    oy = j * voxel + centre_offset[1]
+    oz = k * voxel + centre_offset[2]
+    return np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain):
+    """Eq. 14's lam of one voxel at distance ``r32`` and float32 offset ``diff`` = r - d from the ray's end.
 
     Inside the end voxel's half width lam = 1 / sigma_s^2; in front of it
-    lam = exp(2 (d - e/2 - r) / tau) / sigma_s^2, computed as ``gain * w`` with the ray's
-    gain = exp(2 (d - e/2) / tau) / sigma_s^2 and the voxel's w = exp(-2 r / tau) when both
-    are finite and non-zero (one exp per voxel and per ray, not per update); otherwise, and
-    behind the end, from eq. 14 directly. Bounded by LAM_MAX.
+    lam = exp(2 (d - e/2 - r) / tau) / sigma_s^2, computed as the ray's gain =
+    exp(2 (d - e/2) / tau) / sigma_s^2 times the voxel's exp(-2 r / tau) when both are finite
+    and non-zero; otherwise, and behind the end, from eq. 14 directly. Bounded by LAM_MAX.
     """
     ad = abs(diff)
     if ad <= half32:
-        lam = inv_s2
-    elif diff < 0 and gain > 0.0 and w > 0.0:
-        lam = gain * w
-    else:
-        lam = np.float64(math.exp((ad - half32) * two_over_tau32)) * inv_s2
-    return min(lam, LAM_MAX)
+        return min(inv_s2, LAM_MAX)
+    if diff < 0 and gain > 0.0:
+        arg = two_over_tau * np.float64(r32)
+        if arg < EXP_LIMIT:
+            w = math.exp(-arg)
+            if w > 0.0:
+                return min(gain * w, LAM_MAX)
+    return min(np.float64(math.exp((ad - half32) * two_over_tau32)) * inv_s2, LAM_MAX)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _mean(diff, inv_voxel):
+    """Eq. 14's mean mu of a voxel at float32 offset ``diff`` = r - d from a return (0 in front, 1 behind)."""
+    return min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -117,7 +141,6 @@ def fuse_rays(
     zeta,
     tau,
     precedence,
-    slots,
     buffers,
 ):
     """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
@@ -129,33 +152,33 @@ def fuse_rays(
     of rays a weighted discretize measurement stands for), bounded by ``LAM_MAX``. ``centre_offset``
     (3,) = grid lo - sensor + voxel / 2 (metres). With ``precedence`` a voxel holding a
     return of the batch gets no update from the batch's other rays except as their
-    behind voxel. ``slots`` (grid size, int32, all -1) is restored before returning.
-    ``buffers`` = (touched int64, records (n, 4) float64, is_hit bool), each of at least
-    ``entries_bound`` entries: scratch space, kept between batches by the caller.
+    behind voxel. ``buffers`` = (table int32 (``block_table_size``, all -1), gains float64
+    (n), sums float64 (n, 2), all zero) with n at least 512 x ``blocks_bound``: scratch
+    space kept between batches by the caller, restored before returning.
     """
     m = ends.shape[0]
     nx, ny, nz = shape[0], shape[1], shape[2]
-    size = nx * ny * nz
-    nbj = (ny + 7) >> BRICK_BITS
-    nbk = (nz + 7) >> BRICK_BITS
+    bb = BRICK_BITS
+    bm = (1 << bb) - 1
+    nbj = (ny + bm) >> bb
+    nbk = (nz + bm) >> bb
     i0 = int(math.floor(start[0]))
     j0 = int(math.floor(start[1]))
     k0 = int(math.floor(start[2]))
-    touched, rec, is_hit = buffers
-    # One record per entry (32 bytes, so one cache line at most): sums of lam and eta, the
-    # distance r from the sensor to the voxel centre, and exp(-2 r / tau).
-    n_touched = 0
+    # table: brick -> block; gains: per voxel the sum of the gains of the rays that pass it
+    # surely in front of their end (< 0: the voxel holds a return, hit precedence); sums: per
+    # voxel lam and eta of every other update.
+    table, gains, sums = buffers
+    n_blocks = 0
     two_over_tau = 2.0 / tau
-    geometry = (ny, nz, voxel, centre_offset, two_over_tau)
-    store = (slots, touched, rec, is_hit)
     if precedence:
         for r in range(m):
             if returned[r]:
                 i = int(math.floor(ends[r, 0]))
                 j = int(math.floor(ends[r, 1]))
                 k = int(math.floor(ends[r, 2]))
-                s, n_touched = _slot(_brick(i, j, k, nbj, nbk), i, j, k, geometry, store, n_touched)
-                is_hit[s] = True
+                q, n_blocks = _entry(i, j, k, nbj, nbk, table, n_blocks)
+                gains[q] = -1.0
 
     # Per voxel, float32 is enough (as the numpy oracle's float32 path): eq. 14 in float32, sums in float64.
     two_over_tau32 = np.float32(two_over_tau)
@@ -189,26 +212,43 @@ def fuse_rays(
         ti = (pi - start[0]) / dx if ni > 0 else np.inf
         tj = (pj - start[1]) / dy if nj > 0 else np.inf
         tk = (pk - start[2]) / dz if nk > 0 else np.inf
+        # Surely in front: the voxels the ray leaves before t_front, where its points are nearer
+        # than d - e/2 - (a voxel's half diagonal), less a margin for float32 rounding; then
+        # every point of the voxel, its centre included, is nearer than d - e/2. Only when the
+        # gain is usable as is (finite, non-zero, at most LAM_MAX, and exp(-2 r / tau) > 0).
+        t_front = -1.0
+        if gain > 0.0 and gain <= LAM_MAX and two_over_tau * dr < EXP_LIMIT - 2.0:
+            length = voxel * math.sqrt(dx * dx + dy * dy + dz * dz)
+            t_front = (dr - (0.5 + HALF_DIAGONAL + 1e-3) * voxel - 1e-5 * dr) / length
         i, j, k = i0, j0, k0
+        last = False
         while True:
-            last = ni == 0 and nj == 0 and nk == 0
-            b = _brick(i, j, k, nbj, nbk)
-            s = slots[b]
-            if s < 0:
-                s, n_touched = _slot(b, i, j, k, geometry, store, n_touched)
-            if not (precedence and is_hit[s] and not (hit and last)):
-                diff = np.float32(rec[s, 2]) - dr32
-                lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
-                rec[s, 0] += lam
-                if hit:
-                    mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
-                    rec[s, 1] += mu * lam
-                updates += 1
+            t = min(ti, tj, tk)  # where the ray leaves voxel (i, j, k); inf in its end voxel
+            last = t == np.inf
+            if t < t_front:
+                q, n_blocks = _entry(i, j, k, nbj, nbk, table, n_blocks)
+                g = gains[q]
+                if g >= 0.0:
+                    gains[q] = g + gain
+                    updates += 1
+            else:
+                q, n_blocks = _entry(i, j, k, nbj, nbk, table, n_blocks)
+                marked = gains[q] < 0.0
+                if not (marked and not (hit and last)):
+                    r32 = _centre_distance(i, j, k, voxel, centre_offset)
+                    diff = r32 - dr32
+                    if diff < -half32 and t_front > 0.0 and not marked:
+                        gains[q] += gain
+                    else:
+                        lam = _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
+                        sums[q, 0] += lam
+                        if hit:
+                            sums[q, 1] += _mean(diff, inv_voxel) * lam
+                    updates += 1
             if last:
                 break
             # Step every axis whose next plane comes first (two or three at an edge or corner);
             # only a stepped axis's next plane parameter is recomputed, exactly as t = (p - s) / d.
-            t = min(ti, tj, tk)
             if ti == t:
                 i += si
                 ni -= 1
@@ -239,42 +279,71 @@ def fuse_rays(
         bk = k1 + (sk if (dz != 0 and te_k == t) else 0)
         if bi < 0 or bj < 0 or bk < 0 or bi >= nx or bj >= ny or bk >= nz:
             continue
-        s, n_touched = _slot(_brick(bi, bj, bk, nbj, nbk), bi, bj, bk, geometry, store, n_touched)
-        diff = np.float32(rec[s, 2]) - dr32
-        lam = _information(diff, half32, two_over_tau32, inv_s2, gain, rec[s, 3])
-        mu = min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
-        rec[s, 0] += lam
-        rec[s, 1] += mu * lam
+        q, n_blocks = _entry(bi, bj, bk, nbj, nbk, table, n_blocks)
+        r32 = _centre_distance(bi, bj, bk, voxel, centre_offset)
+        diff = r32 - dr32
+        lam = _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
+        sums[q, 0] += lam
+        sums[q, 1] += _mean(diff, inv_voxel) * lam
         updates += 1
+    return _collect(table, gains, sums, n_blocks, shape, voxel, centre_offset, two_over_tau) + (updates,)
 
-    # Sorted output: scan the grid when the batch touched much of it, else sort.
-    idx = np.empty(n_touched, np.uint32)
-    lam_out = np.empty(n_touched, np.float32)
-    eta_out = np.empty(n_touched, np.float32)
-    if n_touched * 16 > size:
-        n = 0
-        for i in range(nx):
-            for j in range(ny):
-                for k in range(nz):
-                    b = _brick(i, j, k, nbj, nbk)
-                    s = slots[b]
-                    if s >= 0:
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _collect(table, gains, sums, n_blocks, shape, voxel, centre_offset, two_over_tau):
+    """The touched voxels in C order: (idx uint32, lam, eta float32); restores table and pool.
+
+    A voxel's lam is its gain sum times its damping exp(-2 r / tau), plus its other sums.
+    Walks the grid's rows (i, j) through the bricks that hold a block, skipping (brick i,
+    brick j) columns that hold none, so each block is read once, in order.
+    """
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    bb = BRICK_BITS
+    bm = (1 << bb) - 1
+    nbi = (nx + bm) >> bb
+    nbj = (ny + bm) >> bb
+    nbk = (nz + bm) >> bb
+    columns = np.zeros(nbi * nbj, np.bool_)
+    for brick in range(table.shape[0]):
+        if table[brick] >= 0:
+            columns[brick // nbk] = True
+    cap = n_blocks << (3 * bb)
+    idx = np.empty(cap, np.uint32)
+    lam = np.empty(cap, np.float32)
+    eta = np.empty(cap, np.float32)
+    n = 0
+    for i in range(nx):
+        for cj in range(nbj):
+            column = (i >> bb) * nbj + cj
+            if not columns[column]:
+                continue
+            for j in range(cj << bb, min(ny, (cj + 1) << bb)):
+                for ck in range(nbk):
+                    block = table[column * nbk + ck]
+                    if block < 0:
+                        continue
+                    base = (block << (3 * bb)) | ((i & bm) << (2 * bb)) | ((j & bm) << bb)
+                    for kk in range(min(1 << bb, nz - (ck << bb))):
+                        q = base + kk
+                        g = gains[q]
+                        other = sums[q, 0]
+                        if g == 0.0 and other == 0.0:
+                            continue
+                        # Every touched voxel has a positive sum (a marked one, its own return's).
+                        k = (ck << bb) + kk
+                        total = other
+                        if g > 0.0:
+                            r32 = _centre_distance(i, j, k, voxel, centre_offset)
+                            total += g * math.exp(-two_over_tau * np.float64(r32))
                         idx[n] = (i * ny + j) * nz + k
-                        lam_out[n] = rec[s, 0]
-                        eta_out[n] = rec[s, 1]
-                        slots[b] = -1
+                        lam[n] = total
+                        eta[n] = sums[q, 1]
                         n += 1
-    else:
-        order = np.sort(touched[:n_touched])
-        for n in range(n_touched):
-            v = order[n]
-            k = v % nz
-            j = (v // nz) % ny
-            i = v // (ny * nz)
-            b = _brick(i, j, k, nbj, nbk)
-            s = slots[b]
-            idx[n] = v
-            lam_out[n] = rec[s, 0]
-            eta_out[n] = rec[s, 1]
-            slots[b] = -1
-    return idx, lam_out, eta_out, updates
+                        gains[q] = 0.0
+                        sums[q, 0] = 0.0
+                        sums[q, 1] = 0.0
+    for brick in range(table.shape[0]):
+        table[brick] = -1
+    if 2 * n < cap:
+        return idx[:n].copy(), lam[:n].copy(), eta[:n].copy()
+    return idx[:n], lam[:n], eta[:n]
