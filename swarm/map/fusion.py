@@ -48,9 +48,12 @@ class BatchResult:
 _local = threading.local()
 
 
-def reserve(grid: Grid) -> None:
-    """Allocate this thread's brick table for ``grid`` now (it is kept between batches on one grid)."""
+def reserve(grid: Grid, discretize: bool = True) -> None:
+    """Allocate this thread's brick table for ``grid`` now, and with ``discretize`` its slot map
+    (both are kept between batches on one grid)."""
     _table(grid)
+    if discretize:
+        _slots(grid)
 
 
 def _pool(blocks: int) -> tuple[np.ndarray, np.ndarray]:
