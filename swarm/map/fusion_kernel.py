@@ -77,17 +77,24 @@ def blocks_bound(start, ends, shape):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _entry(i, j, k, nbj, nbk, table, n_blocks):
-    """Pool entry of voxel (i, j, k): its brick's block (the next free one if the brick has none
-    yet), then the voxel's place in the brick. Returns (entry, new block count)."""
-    b = BRICK_BITS
-    m = (1 << b) - 1
-    brick = ((i >> b) * nbj + (j >> b)) * nbk + (k >> b)
+def _block(brick, table, n_blocks):
+    """The pool block of ``brick``: its table entry, or the next free block if it has none yet.
+    Returns (block, new block count)."""
     block = table[brick]
     if block < 0:
         block = n_blocks
         table[brick] = block
         n_blocks += 1
+    return block, n_blocks
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _entry(i, j, k, nbj, nbk, table, n_blocks):
+    """Pool entry of voxel (i, j, k): its brick's block's start plus the voxel's place in the
+    brick. Returns (entry, new block count)."""
+    b = BRICK_BITS
+    m = (1 << b) - 1
+    block, n_blocks = _block(((i >> b) * nbj + (j >> b)) * nbk + (k >> b), table, n_blocks)
     return (block << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m), n_blocks
 
 
@@ -221,18 +228,23 @@ def fuse_rays(
             length = voxel * math.sqrt(dx * dx + dy * dy + dz * dz)
             t_front = (dr - (0.5 + HALF_DIAGONAL + 1e-3) * voxel - 1e-5 * dr) / length
         i, j, k = i0, j0, k0
-        last = False
+        brick = -1  # the brick of the ray's current block, looked up once per brick it enters
+        base = 0
         while True:
             t = min(ti, tj, tk)  # where the ray leaves voxel (i, j, k); inf in its end voxel
             last = t == np.inf
+            here = ((i >> bb) * nbj + (j >> bb)) * nbk + (k >> bb)
+            if here != brick:
+                brick = here
+                block, n_blocks = _block(brick, table, n_blocks)
+                base = block << (3 * bb)
+            q = base | ((i & bm) << (2 * bb)) | ((j & bm) << bb) | (k & bm)
             if t < t_front:
-                q, n_blocks = _entry(i, j, k, nbj, nbk, table, n_blocks)
                 g = gains[q]
                 if g >= 0.0:
                     gains[q] = g + gain
                     updates += 1
             else:
-                q, n_blocks = _entry(i, j, k, nbj, nbk, table, n_blocks)
                 marked = gains[q] < 0.0
                 if not (marked and not (hit and last)):
                     r32 = _centre_distance(i, j, k, voxel, centre_offset)
