@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from swarm.map import ray_batch
+from swarm.map import fusion, ray_batch
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import entropy_exact
 from swarm.map.fusion import batch_information
@@ -168,6 +168,23 @@ def test_a_mix_of_near_and_far_points_fuses_the_near_and_counts_the_far():
     )
     assert set(alone.delta.idx.tolist()) <= set(mixed.delta.idx.tolist())
     assert mixed.voxel_updates > alone.voxel_updates
+
+
+def test_the_kernel_restores_its_scratch_space_and_a_second_batch_equals_the_oracle():
+    """The brick table is all -1 and the block pool all zero after a batch (with hit marks and
+    far rays among it), so the next batch on the same thread starts clean."""
+    rng = np.random.default_rng(5)
+    sensor = SensorModel(max_range=5.0)
+    origin = np.array([0.11, -0.07, 0.02])
+    direction = rng.normal(size=(600, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    points = origin + direction * rng.uniform(0.05, 3.5, (600, 1))
+    points[:3] = origin + direction[:3] * 1e9
+    batch_information(GRID, sensor, origin, points, hit_precedence=True)
+    table, (gains, sums) = fusion._local.table, fusion._local.pool
+    assert np.all(table == -1)
+    assert not np.any(gains) and not np.any(sums)
+    assert_same(GRID, sensor, origin[::-1], points[::-1] * 0.5, True, False)
 
 
 def test_rays_ordered_by_direction_are_a_stable_permutation_grouped_by_cell():
