@@ -9,7 +9,8 @@ hit precedence.
 - Per-voxel sums live in a pool of blocks, one block of 8 x 8 x 8 voxels per brick of the
   grid that the batch touches, found through a small brick table (``block_table_size``
   entries, int32, -1 = no block). A voxel's entry is its block's base plus its place in the
-  brick: no per-voxel slot lookup, and the voxels a ray crosses next sit in the same block.
+  brick: a ray looks a block up once per brick it enters, not once per voxel, and the
+  voxels it crosses next sit in the same block.
   The table is restored to -1 and the pool to zeros before returning, so the same scratch
   space serves every batch. Nothing allocates per (ray, voxel).
 - In front of a ray's end eq. 14's lam is the ray's gain exp(2 (d - e/2) / tau) / sigma_s^2

@@ -7,10 +7,10 @@
 - ``order_by_direction``: the measurements grouped by direction, so that consecutive rays
   traverse nearby voxels (on the real scan's whole beam, 10 % off the fusion time).
 
-Both, and ``swarm.map.fusion_kernel``, find a voxel's per-batch entry through a grid-sized
-slot map (int32, -1 = untouched) laid out in 8 x 8 x 8 bricks (``slot_map_size``,
-``brick_index``), so that a ray's next voxel is usually in a cache line already read (in C
-order a step along x jumps ny * nz entries). Compiled with ``cache=True``.
+``discretize_rays`` finds an end voxel's group through a grid-sized slot map (int32, -1 =
+untouched) laid out in 8 x 8 x 8 bricks (``slot_map_size``, ``brick_index``);
+``swarm.map.fusion_kernel`` keeps its sums in blocks of the same bricks (``BRICK_BITS``).
+Compiled with ``cache=True``.
 """
 
 from __future__ import annotations
