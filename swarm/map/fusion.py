@@ -73,24 +73,24 @@ def _pool(blocks: int) -> tuple[np.ndarray, np.ndarray]:
     return pool
 
 
+def _kept_index(name: str, size: int) -> np.ndarray:
+    """This thread's int32 index array ``name`` of ``size`` entries, all -1 between batches
+    (its users restore them), kept while the size stays the same."""
+    index = getattr(_local, name, None)
+    if index is None or len(index) != size:
+        index = np.full(size, -1, dtype=np.int32)
+        setattr(_local, name, index)
+    return index
+
+
 def _table(grid: Grid) -> np.ndarray:
     """This thread's brick table for ``grid`` (int32, all -1), kept between batches."""
-    size = kernel.block_table_size(grid.shape)
-    table = getattr(_local, "table", None)
-    if table is None or len(table) != size:
-        table = np.full(size, -1, dtype=np.int32)
-        _local.table = table
-    return table
+    return _kept_index("table", kernel.block_table_size(grid.shape))
 
 
 def _slots(grid: Grid) -> np.ndarray:
     """This thread's slot map for ``grid`` (int32, all -1) for ``discretize_rays``, kept between batches."""
-    size = ray_batch.slot_map_size(grid.shape)
-    slots = getattr(_local, "slots", None)
-    if slots is None or len(slots) != size:
-        slots = np.full(size, -1, dtype=np.int32)
-        _local.slots = slots
-    return slots
+    return _kept_index("slots", ray_batch.slot_map_size(grid.shape))
 
 
 def batch_information(
