@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import njit
 
-from swarm.map.ray_batch import BRICK_BITS
+from swarm.map.ray_batch import BRICK_BITS, brick_count
 
 #: Upper bound of one measurement's information lam = 1/sigma^2 on one voxel (sigma >= 1e-12).
 #: Eq. 14's damping makes lam grow as exp(2 (d - d_l) / tau), which overflows float32 for rays
@@ -51,11 +51,7 @@ HALF_DIAGONAL = 0.5 * math.sqrt(3.0)  # of a voxel, in edges
 
 def block_table_size(shape: tuple[int, int, int]) -> int:
     """Entries of the brick table of a grid of ``shape``: one per 8 x 8 x 8 brick."""
-    b = 1 << BRICK_BITS
-    bricks = 1
-    for n in shape:
-        bricks *= -(-int(n) // b)
-    return bricks
+    return brick_count(shape)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

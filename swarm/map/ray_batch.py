@@ -23,13 +23,18 @@ from numba import njit
 BRICK_BITS = 3  # bricks of 8 x 8 x 8 voxels in the slot map
 
 
-def slot_map_size(shape: tuple[int, int, int]) -> int:
-    """Entries of the brick-ordered slot map of a grid of ``shape`` (padded to whole bricks)."""
+def brick_count(shape: tuple[int, int, int]) -> int:
+    """8 x 8 x 8 bricks of a grid of ``shape`` (padded to whole bricks)."""
     b = 1 << BRICK_BITS
     bricks = 1
     for n in shape:
         bricks *= -(-int(n) // b)
-    return bricks * b**3
+    return bricks
+
+
+def slot_map_size(shape: tuple[int, int, int]) -> int:
+    """Entries of the brick-ordered slot map of a grid of ``shape`` (padded to whole bricks)."""
+    return brick_count(shape) << (3 * BRICK_BITS)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
