@@ -174,6 +174,9 @@ class StereoMatcher:
             raise ValueError(f"min_texture must be >= 0, got {min_texture}")
         self.min_texture = float(min_texture)
         self.refine_subpixel = bool(refine_subpixel)
+        if self.refine_subpixel:  # load (or compile) its kernel now, not on the first pair
+            pixels = np.zeros((1, 1), np.uint8)
+            refine_disparity(pixels, pixels, np.zeros((1, 1), np.float32))
         self._sgbm = cv2.StereoSGBM_create(
             minDisparity=self.min_disparity,
             numDisparities=self.num_disparities,
@@ -343,5 +346,3 @@ def warm_up() -> None:
     points_from_depth(np.ones((1, 1), np.float32), 1.0, 1.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     raw = np.zeros((1, 1), np.int16)
     depth_of_disparity(valid_disparity(raw, 0, 1, 0, _NO_TEXTURE, np.float32(0.0)), 1.0, 0.0)
-    pixels = np.zeros((1, 1), np.uint8)
-    refine_disparity(pixels, pixels, np.zeros((1, 1), np.float32))
