@@ -241,7 +241,8 @@ def timing(
             valid = float(np.isfinite(m.disparity(img_l, img_r)).mean())
             label = f"{mode} scale {scale:g} ({m.num_disparities} disp.)" + (" refine" if refine else "")
             rows.append((f"{w}x{h}", label, best * 1e3, median * 1e3, valid))
-            if refine:  # the refinement's own share, apart from SGBM's varying time
+            if refine:  # the refinement's own share, apart from SGBM's varying time, on SGBM's disparity
+                m.refine_subpixel = False
                 gl, gr, disp = to_gray(img_l), to_gray(img_r), m.disparity(img_l, img_r)
                 best, median = timed_seconds(lambda a=gl, b=gr, d=disp: refine_disparity(a, b, d), repeat)
                 rows.append((f"{w}x{h}", "  of which the refinement", best * 1e3, median * 1e3, valid))
