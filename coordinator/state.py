@@ -30,7 +30,7 @@ from swarm.navigation.exploration import (
 )
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability
-from swarm.protocol.coord_messages import MAX_VIEWS
+from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
 from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError
 
 log = logging.getLogger("coordinator")
@@ -251,8 +251,10 @@ class CoordinatorState:
         z = request.pose.xyz[2]
         if chosen is None and wander is None:
             self.counts["nothing_left"] += 1
-            # the robot chooses by itself now: not the columns its teammates went to look at
-            reply = AssignReply(None, None, 0.0, views=self.views_of_others(request.robot))
+            # the robot chooses by itself now: not the columns its teammates went to look at,
+            # and away from where they are heading
+            goals = tuple((float(x), float(y)) for x, y in held[:MAX_GOALS])
+            reply = AssignReply(None, None, 0.0, views=self.views_of_others(request.robot), goals=goals)
             return Answer(request.robot, reply, None, len(found), len(held))
         self.counts["assigned" if chosen is not None else "wander"] += 1
         xy, yaw = (chosen.xy, chosen.gaze_yaw) if chosen is not None else (wander.xy, wander.gaze_yaw)

@@ -289,6 +289,7 @@ class Agent:
         reply = ask_for_target(
             self.session, self.mission.mission, self.robot_id, self._pose, COORDINATOR_TIMEOUT_S
         )
+        self.explorer.team_goals = []  # only a "nothing left" reply says where the others head
         if reply is None:
             self.coordinator_counts["silent"] += 1
             self._coordinator_quiet_until = now + COORDINATOR_RETRY_S
@@ -297,6 +298,7 @@ class Agent:
             self.coordinator_counts["nothing_left"] += 1
             # choosing alone now: not the columns the teammates went to look at
             self.explorer.team_views = [np.array(v, dtype=np.float64) for v in reply.views]
+            self.explorer.team_goals = [np.array(g, dtype=np.float64) for g in reply.goals]
             return None
         self.coordinator_counts["assigned"] += 1
         if reply.flush:  # flush on demand: the coordinator lacks what this robot saw there

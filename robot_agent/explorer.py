@@ -47,12 +47,17 @@ from swarm.protocol.wire import Frame
 STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)
 REPLAN_EVERY = 4  # frames between traversability refreshes while driving
-STUCK_FRAMES = 16  # frames without 5 cm of progress before a target is given up
+STUCK_FRAMES = 16  # frames without 5 cm of motion before a target is given up
+# frames without getting 5 cm nearer the target (along the path) before it is given up: a
+# robot that rocks to and fro (pushing against a teammate in a narrow corridor) moves but
+# never arrives
+NO_PROGRESS_FRAMES = 48
 FAILED_MEMORY = 12  # how many given-up targets to avoid
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
 MAX_LOOKS_IN_PLACE = 2  # targets in a row at the robot's own cell before it is avoided
 BOXED_IN_CELLS = 30  # fewer reachable cells than this: step blind to free floor beyond
 FRONTIER_LOOKS = 3  # frontier strategy: looks at a 3-D frontier column, each from another cell
+TEAM_SPREAD_RADIUS = 2.0  # m: a robot choosing alone first keeps this far from teammates' goals
 
 
 @dataclass
@@ -68,8 +73,14 @@ class Decision:
 
 @dataclass
 class _Progress:
+    """How a drive goes: where the robot was STUCK_FRAMES ago at most (``position``,
+    ``frames`` since), and the least way left to the target so far (``best``, m;
+    ``since_best`` frames since it last shrank by 5 cm)."""
+
     position: np.ndarray = field(default_factory=lambda: np.zeros(2))
     frames: int = 0
+    best: float = math.inf
+    since_best: int = 0
 
 
 def load_kernels() -> None:
@@ -125,8 +136,11 @@ class Explorer:
         self.view_stands: list[np.ndarray] = []  # x-y of the standing point of each of tried_views
         #: x-y of the columns teammates went to look at (from the coordinator; entropy strategy)
         self.team_views: list[np.ndarray] = []
+        #: x-y of where the teammates are heading (from the coordinator's "nothing left")
+        self.team_goals: list[np.ndarray] = []
         self.looking_again = False  # frontier strategy: looking at columns a second/third time
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
+        self.give_ups: Counter[str] = Counter()  # drives given up, by reason (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
         self.head = 0.0  # the tilt this robot asks for now
@@ -260,6 +274,9 @@ class Explorer:
                 cost = planner.cost_map(cell)
         exclude = self.failed[-FAILED_MEMORY:]
         target = self.assigner() if self.assigner is not None else None
+        if target is None and self.team_goals:
+            # choosing alone in a team: first away from where the teammates are heading
+            target = self._own_target(here, yaw, trav, cost, exclude, optimistic=self.optimistic, team=True)
         target = target or self._own_target(here, yaw, trav, cost, exclude, optimistic=self.optimistic)
         if target is None and (self.looked_before_done or self.looking_again) and self.strategy == "frontier":
             # Where the robot would conclude (after its last turn), the frontier strategy
@@ -329,10 +346,12 @@ class Explorer:
         exclude: list,
         max_looks: int = 1,
         optimistic: TraversabilityGrid | None = None,
+        team: bool = False,
     ) -> ExplorationTarget | None:
         """This robot's own choice of target by its strategy (``choose_target``); ``max_looks``:
         looks per 3-D frontier column for the frontier strategy (see view_targets);
-        ``optimistic``: the grid probes into unknown floor are planned on (entropy strategy)."""
+        ``optimistic``: the grid probes into unknown floor are planned on (entropy strategy);
+        ``team``: stay TEAM_SPREAD_RADIUS from where the teammates are heading."""
         return choose_target(
             self.strategy,
             self.map,
@@ -349,13 +368,21 @@ class Explorer:
             stands=self.view_stands,
             max_looks=max_looks,
             optimistic=optimistic,
+            keep_away=self.team_goals if team else (),
+            keep_away_radius=TEAM_SPREAD_RADIUS,
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
-        self.progress.frames += 1
-        if np.hypot(*(here - self.progress.position)) > 0.05:
-            self.progress = _Progress(here.copy(), 0)
-        if self.progress.frames > STUCK_FRAMES:
+        progress = self.progress
+        progress.frames += 1
+        progress.since_best += 1
+        if np.hypot(*(here - progress.position)) > 0.05:
+            progress.position, progress.frames = here.copy(), 0
+        to_go = _way_left(here, self.follower.remaining_path())
+        if to_go < progress.best - 0.05:
+            progress.best, progress.since_best = to_go, 0
+        if progress.frames > STUCK_FRAMES or progress.since_best > NO_PROGRESS_FRAMES:
+            self.give_ups["stuck" if progress.frames > STUCK_FRAMES else "no progress"] += 1
             return self._give_up()
         if self.frames % REPLAN_EVERY == 0:
             trav = self._refresh_traversability()
@@ -409,3 +436,13 @@ def _large_free_areas(free: np.ndarray, min_cells: int) -> np.ndarray:
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     return sizes[labels] >= min_cells
+
+
+def _way_left(here: np.ndarray, remaining: np.ndarray) -> float:
+    """Length (m) of the way from ``here`` to the goal along ``remaining`` (K, 2), the
+    follower's waypoints from the start of its current segment: to the segment's end, then on."""
+    ahead = remaining[1:] if len(remaining) > 1 else remaining
+    if len(ahead) == 0:
+        return 0.0
+    legs = np.diff(ahead, axis=0)
+    return float(np.hypot(*(ahead[0] - here)) + np.hypot(legs[:, 0], legs[:, 1]).sum())

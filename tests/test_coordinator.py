@@ -499,3 +499,26 @@ def test_a_nothing_left_answer_names_the_columns_teammates_went_to_look_at():
     assert answer.reply.views == ((3.05, 1.15), (5.25, 2.95))
     assert AssignReply.decode(answer.reply.encode()).views == answer.reply.views
     assert state.answer(AssignRequest("r2", pose("r2")), now=5.0).reply.views == ((0.55, 0.55),)
+
+
+def test_a_nothing_left_answer_says_where_the_others_are_heading():
+    """AssignReply.goals (an addition to protocol v1): the targets the coordinator holds for
+    the other live robots (their statuses' own choices included), never the asker's own, so
+    a robot choosing alone can keep away from them."""
+    m = mission()
+    state = CoordinatorState(m)
+    for msg in deltas_of(m, known_everywhere(m), "r9", 1, 2):
+        state.team.apply_payload(msg.encode())
+    heading = {"r1": (0.5, 0.5, 0.0), "r2": (3.0, 1.5, 0.0)}
+    for robot, target in heading.items():
+        state.on_status(Status(robot, 0.0, pose(robot), target, "drive", 0).encode(), now=0.0)
+    state.on_status(Status("r3", 0.0, pose("r3"), None, "choose", 0).encode(), now=0.0)
+    answer = state.answer(AssignRequest("r1", pose("r1")), now=1.0)
+    assert answer.reply.target is None
+    assert answer.reply.goals == ((3.0, 1.5),)
+    assert AssignReply.decode(answer.reply.encode()).goals == answer.reply.goals
+    # r1 asked, so it holds nothing now; r2 still heads to its target
+    assert state.answer(AssignRequest("r3", pose("r3")), now=2.0).reply.goals == ((3.0, 1.5),)
+    # a robot silent past the timeout holds nothing
+    later = 2.0 + state.params.robot_timeout_s + 1.0
+    assert state.answer(AssignRequest("r3", pose("r3")), now=later).reply.goals == ()

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_agent.explorer import Explorer
+from robot_agent.explorer import NO_PROGRESS_FRAMES, TEAM_SPREAD_RADIUS, Explorer
 from swarm.config import load_mission, mission_from_dict
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.protocol.wire import Frame, Pose
@@ -163,3 +163,60 @@ def test_an_entropy_robot_does_not_choose_a_column_its_teammates_went_to_look_at
     assert alone is not None and 1.0 <= alone[2] < 1.1  # the first unknown layer above the known air
     told = chosen([alone[:2]])
     assert told is not None and math.dist(told[:2], alone[:2]) > 0.25
+
+
+def test_a_robot_choosing_alone_keeps_away_from_where_its_teammates_head():
+    # Only 3-D frontier views are left (as above). Told that a teammate heads to the spot a
+    # robot alone would stand on, an identical robot stands TEAM_SPREAD_RADIUS away from it;
+    # told that teammates head everywhere, it still chooses a view rather than stopping.
+    mission = load_mission(CONFIGS / "lab.yaml")
+
+    def stand(team_goals):
+        explorer = Explorer(mission, "r1", strategy="entropy")
+        grid, cmap = explorer.grid, explorer.map
+        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
+        cmap.lam[low] = 400.0
+        cmap.eta[low] = 0.0
+        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.team_goals = [np.asarray(g, dtype=np.float64) for g in team_goals]
+        explorer.state = "choose"
+        explorer.decide(1.05, 1.05, 0.0)
+        assert explorer.target_kinds == {"view": 1}
+        return np.asarray(explorer.target.xy)
+
+    alone = stand([])
+    told = stand([alone])
+    assert np.hypot(*(told - alone)) > TEAM_SPREAD_RADIUS
+    lo, hi = mission.workspace.grid().lo, mission.workspace.grid().hi
+    everywhere = [(x, y) for x in np.arange(lo[0], hi[0], 0.5) for y in np.arange(lo[1], hi[1], 0.5)]
+    assert np.allclose(stand(everywhere), alone)
+
+
+def test_a_robot_that_rocks_to_and_fro_gives_its_target_up():
+    # Driving to a target 2 m ahead on known free floor: a robot that advances keeps it; one
+    # that moves back and forth (pushing against a teammate in a narrow corridor) moves more
+    # than 5 cm every few frames, so it is never "stuck", yet never gets nearer: after
+    # NO_PROGRESS_FRAMES it gives the target up.
+    mission = load_mission(CONFIGS / "lab.yaml")
+
+    def driving() -> Explorer:
+        explorer = Explorer(mission, "r1", strategy="entropy")
+        grid, cmap = explorer.grid, explorer.map
+        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
+        cmap.lam[low] = 400.0
+        cmap.eta[low] = 0.0
+        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.target = ExplorationTarget(np.array([3.05, 1.05]), 0.0, 1.0, None, "entropy")
+        explorer.follower.set_path(np.array([[1.05, 1.05], [2.05, 1.05], [3.05, 1.05]]))
+        explorer.state = "drive"
+        return explorer
+
+    steady = driving()
+    for n in range(18):
+        assert steady.decide(1.05 + 0.1 * n, 1.05, 0.0).state == "drive"
+    assert not steady.give_ups
+    rocking = driving()
+    states = [rocking.decide(1.05 + 0.04 * (n % 4), 1.05, 0.0).state for n in range(NO_PROGRESS_FRAMES + 6)]
+    assert "choose" in states and states.index("choose") <= NO_PROGRESS_FRAMES + 4
+    assert rocking.give_ups == {"no progress": 1}
+    assert len(rocking.failed) == 1 and np.allclose(rocking.failed[0], [3.05, 1.05])

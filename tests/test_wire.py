@@ -129,7 +129,7 @@ def test_cmd_status_truth_assign_round_trip():
 
 
 def test_the_view_additions_travel_and_are_optional():
-    """Status.view and AssignReply.views, additions to protocol v1: absent means none."""
+    """Status.view, AssignReply.views and .goals, additions to protocol v1: absent means none."""
     looking = Status("r1", 3.5, POSE, (1.0, 2.0, 0.0), "drive", 10, view=(3.05, 1.15, 1.85))
     assert Status.decode(looking.encode()) == looking
     older = msgpack.unpackb(looking.encode())
@@ -148,6 +148,19 @@ def test_the_view_additions_travel_and_are_optional():
     for reason, views in bad.items():
         with pytest.raises(WireError, match=reason):
             AssignReply.decode(tamper(reply.encode(), views=views))
+    # goals: where the other robots are heading, the same form, at most 256 points
+    reply = AssignReply(None, None, 0.0, views=((3.05, 1.15),), goals=((1.0, 2.0), (6.5, 3.25)))
+    assert AssignReply.decode(reply.encode()) == reply
+    assert AssignReply.decode(oldest).goals == ()
+    bad = {
+        "'goals' must be a list": {"x": 1},
+        r"goals\[0\] must be \[x, y\]": [[1.0, 2.0, 3.0]],
+        r"goals\[1\] must be finite": [[1.0, 2.0], [math.inf, 0.0]],
+        "at most 256": [[0.0, 0.0]] * 257,
+    }
+    for reason, goals in bad.items():
+        with pytest.raises(WireError, match=reason):
+            AssignReply.decode(tamper(reply.encode(), goals=goals))
     with pytest.raises(WireError, match="view"):
         Status.decode(tamper(looking.encode(), view=[1.0, math.inf, 0.0]))
 

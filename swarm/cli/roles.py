@@ -89,6 +89,7 @@ def _run_agent(args: argparse.Namespace) -> int:
                 f"({stats.released_held} voxels of them under share_min_bits, past max_held_bits), "
                 f"{agent.acked} acked, {stats.resent} resent; merged {dict(agent.merged_counts)}; "
                 f"coordinator {dict(agent.coordinator_counts)}; targets {dict(agent.explorer.target_kinds)}; "
+                f"drives given up {dict(agent.explorer.give_ups)}; "
                 f"map entropy {agent.explorer.map_entropy:,.0f} bits",
                 flush=True,
             )

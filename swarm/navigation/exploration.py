@@ -130,6 +130,8 @@ def choose_target(
     stands: Sequence[np.ndarray] | None = None,
     max_looks: int = 1,
     optimistic: TraversabilityGrid | None = None,
+    keep_away: Sequence[np.ndarray] = (),
+    keep_away_radius: float = 0.0,
 ) -> ExplorationTarget | None:
     """The next target of ``strategy`` ("entropy", "frontier" or "random"), or None when done.
 
@@ -157,8 +159,13 @@ def choose_target(
     floor region it opens (kind ``"probe"``, :func:`swarm.navigation.probing.probe_target`:
     a room behind a door whose floor is unknown), before the 3-D views; plan to a probe on
     ``optimistic``.
+
+    ``keep_away``: x-y points (where teammates are heading) that targets and standing points
+    stay farther than ``keep_away_radius`` (m) from, as from ``exclude``.
     """
-    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    ctx = SearchContext.build(
+        cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius, keep_away, keep_away_radius
+    )
     if strategy == "entropy":
         return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen, camera, tried, optimistic)
     if strategy == "frontier":

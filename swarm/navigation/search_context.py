@@ -35,7 +35,7 @@ class SearchContext:
     start: tuple[int, int]  # the robot's cell
     cx: np.ndarray  # column centre x (nx,)
     cy: np.ndarray  # column centre y (ny,)
-    allowed: np.ndarray  # columns farther than exclude_radius from every excluded point
+    allowed: np.ndarray  # columns farther than the radii from every excluded / kept-away point
     slab_known: np.ndarray
     slab_cov: np.ndarray  # E[C] of slab voxels (unknown: prior mean)
     opaque: np.ndarray  # known slab voxels with E[C] >= OPAQUE_COVERAGE
@@ -50,6 +50,8 @@ class SearchContext:
         planner_cost: np.ndarray,
         exclude: Sequence[np.ndarray],
         exclude_radius: float,
+        keep_away: Sequence[np.ndarray] = (),
+        keep_away_radius: float = 0.0,
     ) -> SearchContext:
         grid = cmap.grid
         nx, ny, nz = grid.shape
@@ -68,9 +70,10 @@ class SearchContext:
         cx = grid.lo[0] + (np.arange(nx) + 0.5) * e
         cy = grid.lo[1] + (np.arange(ny) + 0.5) * e
         allowed = np.ones((nx, ny), dtype=bool)
-        for p in exclude:
-            p = np.asarray(p, dtype=np.float64)
-            allowed &= (cx[:, None] - p[0]) ** 2 + (cy[None, :] - p[1]) ** 2 > exclude_radius**2
+        for points, r in ((exclude, exclude_radius), (keep_away, keep_away_radius)):
+            for p in points:
+                p = np.asarray(p, dtype=np.float64)
+                allowed &= (cx[:, None] - p[0]) ** 2 + (cy[None, :] - p[1]) ** 2 > r**2
         # reachable: free cells the planner reaches, and the cell the robot stands on
         reach = trav.free & np.isfinite(cost)
         own = trav.cell_of(np.array([x, y]))

@@ -53,6 +53,11 @@ class AssignReply:
     the x-y points (m) of the map columns the other robots have gone to look at by
     themselves (their statuses' ``view``), at most MAX_VIEWS, most recent last; the robot
     does not choose a 3-D view of those columns itself.
+
+    ``goals`` (also an addition, optional, empty when absent; sent with "nothing left"):
+    the x-y points (m) the other live robots are heading to now (the targets the
+    coordinator holds for them, their own choices included), at most MAX_GOALS; the robot
+    choosing alone keeps its own target away from them while it finds one that is.
     """
 
     target: tuple[float, float, float] | None
@@ -60,6 +65,7 @@ class AssignReply:
     utility: float
     flush: bool = False
     views: tuple[tuple[float, float], ...] = ()
+    goals: tuple[tuple[float, float], ...] = ()
 
     KIND = "assign reply"
 
@@ -75,6 +81,7 @@ class AssignReply:
                 "utility": float(self.utility),
                 "flush": bool(self.flush),
                 "views": [[float(x), float(y)] for x, y in self.views],
+                "goals": [[float(x), float(y)] for x, y in self.goals],
             },
         )
 
@@ -91,23 +98,27 @@ class AssignReply:
             gaze=None if gaze is None else vec3(gaze, "gaze", kind),
             utility=number(require(msg, "utility", kind), "utility", kind),
             flush=flush,
-            views=_views(msg.get("views", []), kind),
+            views=_points(msg.get("views", []), "views", MAX_VIEWS, kind),
+            goals=_points(msg.get("goals", []), "goals", MAX_GOALS, kind),
         )
 
 
 #: The most column points a reply's ``views`` may hold.
 MAX_VIEWS = 4096
+#: The most points a reply's ``goals`` may hold (one per other robot).
+MAX_GOALS = 256
 
 
-def _views(value: Any, kind: str) -> tuple[tuple[float, float], ...]:
-    """The ``views`` field: a list of at most MAX_VIEWS finite [x, y] pairs."""
+def _points(value: Any, field: str, limit: int, kind: str) -> tuple[tuple[float, float], ...]:
+    """A list field of at most ``limit`` finite [x, y] pairs (``views``, ``goals``)."""
     if not isinstance(value, list):
-        raise WireError(f"{kind}: field 'views' must be a list of [x, y], got {type(value).__name__}")
-    if len(value) > MAX_VIEWS:
-        raise WireError(f"{kind}: field 'views' holds {len(value)} points, at most {MAX_VIEWS}")
+        raise WireError(f"{kind}: field '{field}' must be a list of [x, y], got {type(value).__name__}")
+    if len(value) > limit:
+        raise WireError(f"{kind}: field '{field}' holds {len(value)} points, at most {limit}")
     out = []
     for n, point in enumerate(value):
+        name = f"{field}[{n}]"
         if not (isinstance(point, list) and len(point) == 2):
-            raise WireError(f"{kind}: views[{n}] must be [x, y], got {short(point)}")
-        out.append((number(point[0], f"views[{n}]", kind), number(point[1], f"views[{n}]", kind)))
+            raise WireError(f"{kind}: {name} must be [x, y], got {short(point)}")
+        out.append((number(point[0], name, kind), number(point[1], name, kind)))
     return tuple(out)
