@@ -16,6 +16,17 @@ from swarm.protocol.wire import Frame, Pose
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
+def known_below_1m(explorer: Explorer) -> Explorer:
+    """Every voxel below 1 m known free (a sure, empty belief: mu = 0, sigma = 0.05), the air
+    above unknown: only 3-D frontier views are left to choose."""
+    cmap = explorer.map
+    low = explorer.grid.centres().reshape(-1, 3)[:, 2] < 1.0
+    cmap.lam[low] = 400.0
+    cmap.eta[low] = 0.0
+    explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+    return explorer
+
+
 def gazing_explorer(tilt_range_deg: float) -> Explorer:
     mission = load_mission(CONFIGS / "lab.yaml")
     mission.rig.tilt_range_deg = tilt_range_deg
@@ -122,12 +133,7 @@ def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_d
     mission = load_mission(CONFIGS / "lab.yaml")
     spots = [np.array([x, y]) for x in (0.5, 1.5, 2.5, 3.5) for y in (0.5, 1.5)]
     for strategy in ("frontier", "entropy"):
-        explorer = Explorer(mission, "r1", strategy=strategy)
-        grid, cmap = explorer.grid, explorer.map
-        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
-        cmap.lam[low] = 400.0  # a sure, empty belief: mu = 0, sigma = 0.05
-        cmap.eta[low] = 0.0
-        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer = known_below_1m(Explorer(mission, "r1", strategy=strategy))
         explorer.failed = list(spots)
         explorer.looked_before_done = True
         explorer.state = "choose"
@@ -147,12 +153,7 @@ def test_an_entropy_robot_does_not_choose_a_column_its_teammates_went_to_look_at
     mission = load_mission(CONFIGS / "lab.yaml")
 
     def chosen(team_views):
-        explorer = Explorer(mission, "r1", strategy="entropy")
-        grid, cmap = explorer.grid, explorer.map
-        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
-        cmap.lam[low] = 400.0  # a sure, empty belief: mu = 0, sigma = 0.05
-        cmap.eta[low] = 0.0
-        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer = known_below_1m(Explorer(mission, "r1", strategy="entropy"))
         explorer.team_views = [np.asarray(v) for v in team_views]
         explorer.state = "choose"
         explorer.decide(1.05, 1.05, 0.0)
@@ -172,12 +173,7 @@ def test_a_robot_choosing_alone_keeps_away_from_where_its_teammates_head():
     mission = load_mission(CONFIGS / "lab.yaml")
 
     def stand(team_goals):
-        explorer = Explorer(mission, "r1", strategy="entropy")
-        grid, cmap = explorer.grid, explorer.map
-        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
-        cmap.lam[low] = 400.0
-        cmap.eta[low] = 0.0
-        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer = known_below_1m(Explorer(mission, "r1", strategy="entropy"))
         explorer.team_goals = [np.asarray(g, dtype=np.float64) for g in team_goals]
         explorer.state = "choose"
         explorer.decide(1.05, 1.05, 0.0)
@@ -200,12 +196,7 @@ def test_a_robot_that_rocks_to_and_fro_gives_its_target_up():
     mission = load_mission(CONFIGS / "lab.yaml")
 
     def driving() -> Explorer:
-        explorer = Explorer(mission, "r1", strategy="entropy")
-        grid, cmap = explorer.grid, explorer.map
-        low = grid.centres().reshape(-1, 3)[:, 2] < 1.0
-        cmap.lam[low] = 400.0
-        cmap.eta[low] = 0.0
-        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer = known_below_1m(Explorer(mission, "r1", strategy="entropy"))
         explorer.target = ExplorationTarget(np.array([3.05, 1.05]), 0.0, 1.0, None, "entropy")
         explorer.follower.set_path(np.array([[1.05, 1.05], [2.05, 1.05], [3.05, 1.05]]))
         explorer.state = "drive"
