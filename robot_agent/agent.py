@@ -284,12 +284,12 @@ class Agent:
     def _ask_coordinator(self) -> ExplorationTarget | None:
         """The coordinator's target for this robot, or None to choose alone (eq. 35)."""
         now = time.monotonic()
+        self.explorer.team_goals = []  # only a "nothing left" reply says where the others head
         if self._pose is None or now < self._coordinator_quiet_until:
             return None
         reply = ask_for_target(
             self.session, self.mission.mission, self.robot_id, self._pose, COORDINATOR_TIMEOUT_S
         )
-        self.explorer.team_goals = []  # only a "nothing left" reply says where the others head
         if reply is None:
             self.coordinator_counts["silent"] += 1
             self._coordinator_quiet_until = now + COORDINATOR_RETRY_S
