@@ -29,14 +29,14 @@ from scipy import ndimage
 from robot_agent import stereo
 from robot_agent.stereo import matcher_for_rig, points_from_depth
 from swarm.config import Mission
-from swarm.map.coverage_map import CoverageMap
+from swarm.map.coverage_map import CoverageMap, prior_information
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.map.fusion import warm_up
 from swarm.map.grid import Grid
 from swarm.navigation import planner
-from swarm.navigation.exploration import ExplorationTarget, choose_target
+from swarm.navigation.exploration import ExplorationTarget, choose_target, last_look_target
 from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.probing import open_swept, optimistic_traversability
@@ -58,6 +58,10 @@ MAX_LOOKS_IN_PLACE = 2  # targets in a row at the robot's own cell before it is 
 BOXED_IN_CELLS = 30  # fewer reachable cells than this: step blind to free floor beyond
 FRONTIER_LOOKS = 3  # frontier strategy: looks at a 3-D frontier column, each from another cell
 TEAM_SPREAD_RADIUS = 2.0  # m: a robot choosing alone first keeps this far from teammates' goals
+# entropy strategy, where it would stop: voxels with more than this share of the prior's
+# entropy left that a reachable cell can see are looked at first, each column once
+LAST_LOOK_SHARE = 0.5
+VIEW_KINDS = ("view", "frontier3d", "last look")  # targets that look at a map column chosen here
 
 
 @dataclass
@@ -139,6 +143,10 @@ class Explorer:
         #: x-y of where the teammates are heading (from the coordinator's "nothing left")
         self.team_goals: list[np.ndarray] = []
         self.looking_again = False  # frontier strategy: looking at columns a second/third time
+        self.looking_last = False  # entropy strategy: last looks at uncertain voxels before stopping
+        lam0, eta0 = prior_information(self.sensor)
+        prior_bits = EntropyCache.from_information(np.array([lam0]), np.array([eta0]), table=self.table).total
+        self.last_look_bits = LAST_LOOK_SHARE * float(prior_bits)
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.give_ups: Counter[str] = Counter()  # drives given up, by reason (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
@@ -291,9 +299,14 @@ class Explorer:
             if target is None and exclude:
                 self.failed.clear()
                 target = self._own_target(here, yaw, trav, cost, [], FRONTIER_LOOKS)
+        if target is None and (self.looked_before_done or self.looking_last) and self.strategy == "entropy":
+            # Where the robot would conclude (after its last turn): first look at what is
+            # still uncertain in view of a reachable cell (known voxels too), each column once.
+            self.looking_last = True
+            target = self._last_look(here, yaw, trav, cost, exclude)
         if target is not None:
             self.target_kinds[target.kind] += 1
-        if target is not None and target.kind in ("view", "frontier3d") and target.voxel is not None:
+        if target is not None and target.kind in VIEW_KINDS and target.voxel is not None:
             i, j, _k = np.unravel_index(target.voxel, self.grid.shape)
             self.tried_views.append(self.grid.lo[:2] + (np.array([i, j]) + 0.5) * self.grid.voxel)
             self.view_stands.append(np.asarray(target.xy, dtype=np.float64))
@@ -372,13 +385,30 @@ class Explorer:
             keep_away_radius=TEAM_SPREAD_RADIUS,
         )
 
+    def _last_look(
+        self, here: np.ndarray, yaw: float, trav: TraversabilityGrid, cost: np.ndarray, exclude: list
+    ) -> ExplorationTarget | None:
+        """A view of a voxel with ``last_look_bits`` or more left (``last_look_target``), or None."""
+        return last_look_target(
+            self.map,
+            self.entropy.values,
+            (here[0], here[1], yaw),
+            self.rig.camera_height,
+            trav,
+            cost,
+            self.camera,
+            self.last_look_bits,
+            tried=self.tried_views + self.team_views,
+            exclude=exclude,
+        )
+
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
         progress = self.progress
         progress.frames += 1
         progress.since_best += 1
         if np.hypot(*(here - progress.position)) > 0.05:
             progress.position, progress.frames = here.copy(), 0
-        to_go = _way_left(here, self.follower.remaining_path())
+        to_go = self.follower.way_left(here[0], here[1])
         if to_go < progress.best - 0.05:
             progress.best, progress.since_best = to_go, 0
         if progress.frames > STUCK_FRAMES or progress.since_best > NO_PROGRESS_FRAMES:
@@ -418,7 +448,7 @@ class Explorer:
         """The point (x, y, z; m) the current target goes to look at, when it is a 3-D view the
         robot chose itself (the centre of the column's first frontier voxel); else None."""
         t = self.target
-        if t is None or t.voxel is None or t.kind not in ("view", "frontier3d") or self.state == "done":
+        if t is None or t.voxel is None or t.kind not in VIEW_KINDS or self.state == "done":
             return None
         ijk = np.array(np.unravel_index(t.voxel, self.grid.shape), dtype=np.float64)
         x, y, z = self.grid.lo + (ijk + 0.5) * self.grid.voxel
@@ -436,13 +466,3 @@ def _large_free_areas(free: np.ndarray, min_cells: int) -> np.ndarray:
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     return sizes[labels] >= min_cells
-
-
-def _way_left(here: np.ndarray, remaining: np.ndarray) -> float:
-    """Length (m) of the way from ``here`` to the goal along ``remaining`` (K, 2), the
-    follower's waypoints from the start of its current segment: to the segment's end, then on."""
-    ahead = remaining[1:] if len(remaining) > 1 else remaining
-    if len(ahead) == 0:
-        return 0.0
-    legs = np.diff(ahead, axis=0)
-    return float(np.hypot(*(ahead[0] - here)) + np.hypot(legs[:, 0], legs[:, 1]).sum())

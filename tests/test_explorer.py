@@ -211,3 +211,33 @@ def test_a_robot_that_rocks_to_and_fro_gives_its_target_up():
     assert "choose" in states and states.index("choose") <= NO_PROGRESS_FRAMES + 4
     assert rocking.give_ups == {"no progress": 1}
     assert len(rocking.failed) == 1 and np.allclose(rocking.failed[0], [3.05, 1.05])
+
+
+def test_an_entropy_robot_looks_at_what_is_still_uncertain_before_it_stops():
+    # Everything known: below 1 m surely free (sigma 0.02), above seen faintly once. No eq. 35
+    # target, probe or 3-D frontier is left. Where it used to stop (after its last turn), the
+    # robot first goes to look at an uncertain column in view, and stops only when nothing
+    # holds more than half the prior's entropy.
+    mission = load_mission(CONFIGS / "lab.yaml")
+
+    def after_last_turn(faint: bool) -> Explorer:
+        explorer = Explorer(mission, "r1", strategy="entropy")
+        cmap = explorer.map
+        low = explorer.grid.centres().reshape(-1, 3)[:, 2] < 1.0
+        cmap.lam[:] = 1.0 / 0.02**2
+        cmap.eta[:] = 0.0
+        if faint:
+            cmap.lam[~low] = 4.0
+            cmap.eta[~low] = 2.0
+        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.looked_before_done = True
+        explorer.state = "choose"
+        explorer.decide(1.05, 1.05, 0.0)
+        return explorer
+
+    looking = after_last_turn(faint=True)
+    assert looking.target_kinds == {"last look": 1} and looking.state in ("gaze", "drive")
+    assert looking.view_point() is not None and looking.view_point()[2] >= 1.0
+    assert looking.entropy.values[looking.target.voxel] > looking.last_look_bits
+    settled = after_last_turn(faint=False)
+    assert not settled.target_kinds and settled.state == "done"

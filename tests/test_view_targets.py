@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 
 from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy_cache import EntropyCache
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import choose_target
+from swarm.navigation.exploration import choose_target, last_look_target
 from swarm.navigation.planner import GridPlanner
+from swarm.navigation.search_context import SearchContext
 from swarm.navigation.traversability import build_traversability
-from swarm.navigation.view_targets import RESTAND_RADIUS, CameraReach
+from swarm.navigation.view_targets import RESTAND_RADIUS, CameraReach, uncertain_voxels, view_target
 
 GRID = Grid((0.0, 0.0, 0.0), 0.1, (40, 20, 16))  # 4 m x 2 m x 1.6 m
 HALF_V = math.atan(0.5 * 120 / (0.5 * 160 / math.tan(math.radians(30))))  # the default rig's
@@ -153,3 +155,39 @@ def test_never_looked_columns_come_before_second_looks_however_far():
     third = _choose_frontier(cmap, camera, [a, b], [first.xy, second.xy], max_looks=3, pose=pose)
     assert np.unravel_index(third.voxel, GRID.shape)[:2] == (13, 10)  # A again, from elsewhere
     assert np.linalg.norm(third.xy - first.xy) > RESTAND_RADIUS
+
+
+def test_last_looks_go_to_uncertain_known_voxels_and_only_to_those_with_bits_left():
+    # Everything known: below 1 m surely free, above it seen once, faintly (sigma 0.5 around
+    # E[C] 0.5). No 3-D frontier is left, so the strategies stop; the last look goes to the
+    # nearest uncertain column in view, and to none when min_bits is above what they hold.
+    # (Entropies in bits over the discretised coverage: the prior about 7, sigma 0.02 2.4.)
+    cmap = _known_below(1.0)
+    lam = cmap.lam.reshape(GRID.shape)
+    eta = cmap.eta.reshape(GRID.shape)
+    lam[:, :, 10:] = 4.0
+    eta[:, :, 10:] = 2.0
+    entropy = EntropyCache.from_information(cmap.lam, cmap.eta).values
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(35), 5.0)
+    assert _choose("entropy", cmap, camera) is None
+    pose = (1.0, 1.0, 0.0)
+    trav = build_traversability(cmap, robot_height=0.5, robot_radius=0.18)
+    cost = GridPlanner(trav).cost_map(tuple(int(c) for c in trav.cell_of(np.array(pose[:2]))))
+    faint = float(entropy.reshape(GRID.shape)[0, 0, 10])
+    sure = float(entropy.reshape(GRID.shape)[0, 0, 0])
+    assert sure < 3.5 < faint
+    target = last_look_target(cmap, entropy, pose, 0.4, trav, cost, camera, min_bits=3.5)
+    assert target is not None and target.kind == "last look"
+    i, j, k = np.unravel_index(target.voxel, GRID.shape)
+    assert k == 10  # the lowest uncertain voxel of its column, on the free air below
+    assert np.linalg.norm(target.xy - np.array(pose[:2])) < 0.6
+    # the same column is not looked at twice; nothing holds more than ``faint`` bits
+    column = GRID.lo[:2] + (np.array([i, j]) + 0.5) * GRID.voxel
+    again = last_look_target(cmap, entropy, pose, 0.4, trav, cost, camera, 3.5, tried=[column])
+    assert again is not None and again.voxel != target.voxel
+    assert last_look_target(cmap, entropy, pose, 0.4, trav, cost, camera, min_bits=faint + 0.1) is None
+    ctx = SearchContext.build(cmap, pose, 0.4, trav, cost, (), 1.0)
+    voxels = uncertain_voxels(ctx, entropy, 3.5)
+    assert voxels[:, :, 10].all() and not voxels[:, :, :10].any()
+    with pytest.raises(ValueError, match="shape"):
+        view_target(ctx, camera, voxels=voxels[:, :, :5])

@@ -50,7 +50,7 @@ from swarm.navigation.probing import probe_target
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
-from swarm.navigation.view_targets import CameraReach, view_target
+from swarm.navigation.view_targets import CameraReach, uncertain_voxels, view_target
 
 __all__ = [
     "DEFAULT_MIN_STEP_BITS",
@@ -60,6 +60,7 @@ __all__ = [
     "ViewGeometry",
     "choose_target",
     "frontier_cells",
+    "last_look_target",
     "rank_entropy_targets",
     "wander_target",
 ]
@@ -176,6 +177,29 @@ def choose_target(
     if strategy == "random":
         return random_target(ctx, 2.0 * radius, rng, view.far)
     raise ValueError(f"unknown exploration strategy {strategy!r}; expected one of {STRATEGIES}")
+
+
+def last_look_target(
+    cmap: CoverageMap,
+    entropy: np.ndarray,
+    pose: tuple[float, float, float],
+    sensor_height: float,
+    trav: TraversabilityGrid,
+    planner_cost: np.ndarray,
+    camera: CameraReach,
+    min_bits: float,
+    tried: Sequence[np.ndarray] = (),
+    exclude: Sequence[np.ndarray] = (),
+    exclude_radius: float = 1.0,
+) -> ExplorationTarget | None:
+    """Where a robot that has no other target left would stop: the nearest view (kind
+    ``"last look"``) of a voxel still holding at least ``min_bits`` of entropy (known or not)
+    on a face of known free space, skipping the columns in ``tried``
+    (:func:`swarm.navigation.view_targets.uncertain_voxels`); None when no such voxel is in
+    view of a reachable cell. The arguments are those of :func:`choose_target`."""
+    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
+    voxels = uncertain_voxels(ctx, entropy, min_bits)
+    return view_target(ctx, camera, tried, kind="last look", voxels=voxels)
 
 
 def rank_entropy_targets(

@@ -77,6 +77,15 @@ class PathFollower:
         """The waypoints still ahead (from the start of the current segment)."""
         return self.path[self.segment :]
 
+    def way_left(self, x: float, y: float) -> float:
+        """Length (m) of the way from (x, y) to the goal: to the current segment's end, then
+        along the waypoints after it (0.0 without a path)."""
+        ahead = self.path[self.segment + 1 :] if len(self.path) > self.segment + 1 else self.path[-1:]
+        if len(ahead) == 0:
+            return 0.0
+        legs = np.diff(ahead, axis=0)
+        return float(np.hypot(ahead[0][0] - x, ahead[0][1] - y) + np.hypot(legs[:, 0], legs[:, 1]).sum())
+
     def command(self, x: float, y: float, yaw: float) -> Command:
         """The next (v, omega) for a robot at (x, y) heading ``yaw``; arrived=True (and zeros) at the goal."""
         lim = self.limits

@@ -16,6 +16,11 @@ stand to see them:
   sight in the slab (no opaque slab voxel in between). The nearest such cell by path cost
   is chosen; the gaze points at the column.
 
+*Last looks* (``uncertain_voxels``): where a robot would stop, the voxels still holding at
+least ``min_bits`` of entropy, known or not, on a face of known free space; looked at the
+same way, each column once, so a robot stops only when none of them is left in view of a
+reachable cell.
+
 Targets whose columns were already looked at (``tried``) are skipped, so a voxel that stays
 unknown when looked at (hidden in ways the slab test cannot tell) is given up after one try.
 With ``max_looks`` > 1 and the standing points of those looks (``stands``), a column is
@@ -67,6 +72,19 @@ class CameraReach:
 
 def frontier_voxels_3d(ctx: SearchContext) -> np.ndarray:
     """Unknown voxels face-adjacent to a known free voxel, bool of shape ``grid.shape``."""
+    known, near_free = _known_and_near_free(ctx)
+    return ~known & near_free
+
+
+def uncertain_voxels(ctx: SearchContext, entropy: np.ndarray, min_bits: float) -> np.ndarray:
+    """Voxels with at least ``min_bits`` of entropy (``entropy``: per voxel, flat, bits), known
+    or unknown, face-adjacent to a known free voxel: bool of shape ``grid.shape``."""
+    _known, near_free = _known_and_near_free(ctx)
+    return near_free & (np.asarray(entropy).reshape(near_free.shape) >= min_bits)
+
+
+def _known_and_near_free(ctx: SearchContext) -> tuple[np.ndarray, np.ndarray]:
+    """(known voxels, voxels with a face on a known free voxel), bool of shape ``grid.shape``."""
     cmap = ctx.cmap
     shape = cmap.grid.shape
     known = cmap.known_mask().reshape(shape)
@@ -79,7 +97,7 @@ def frontier_voxels_3d(ctx: SearchContext) -> np.ndarray:
     near_free[:, :-1] |= free[:, 1:]
     near_free[:, :, 1:] |= free[:, :, :-1]
     near_free[:, :, :-1] |= free[:, :, 1:]
-    return ~known & near_free
+    return known, near_free
 
 
 def view_target(
@@ -91,20 +109,26 @@ def view_target(
     *,
     stands: Sequence[np.ndarray] | None = None,
     max_looks: int = 1,
+    voxels: np.ndarray | None = None,
 ) -> ExplorationTarget | None:
     """Where to stand to see the nearest 3-D frontier voxel (see the module doc); None if no
-    frontier voxel has a reachable standing point. ``tried``: x-y of columns already looked at;
-    a column with ``max_looks`` of them within ``tried_radius`` is skipped. ``stands``: where
-    the robot stood for each of ``tried`` (same length); a column is then looked at again only
-    from cells farther than RESTAND_RADIUS from the stands of its earlier looks. ``utility``:
-    the column's frontier voxels (count).
+    frontier voxel has a reachable standing point. ``voxels`` (bool, ``grid.shape``): look at
+    these instead of the 3-D frontier (``uncertain_voxels`` for the last looks). ``tried``:
+    x-y of columns already looked at; a column with ``max_looks`` of them within
+    ``tried_radius`` is skipped. ``stands``: where the robot stood for each of ``tried``
+    (same length); a column is then looked at again only from cells farther than
+    RESTAND_RADIUS from the stands of its earlier looks. ``utility``: the column's frontier
+    voxels (count).
 
-    Raises ValueError when ``max_looks`` < 1 or ``stands`` and ``tried`` differ in length."""
+    Raises ValueError when ``max_looks`` < 1, ``stands`` and ``tried`` differ in length, or
+    ``voxels`` is not of the grid's shape."""
     if max_looks < 1:
         raise ValueError(f"max_looks must be >= 1, got {max_looks}")
     if stands is not None and len(stands) != len(tried):
         raise ValueError(f"stands has {len(stands)} points, tried {len(tried)}: one stand per look")
-    front = frontier_voxels_3d(ctx)
+    if voxels is not None and voxels.shape != ctx.cmap.grid.shape:
+        raise ValueError(f"voxels has shape {voxels.shape}, expected the grid's {ctx.cmap.grid.shape}")
+    front = frontier_voxels_3d(ctx) if voxels is None else voxels
     counts = front.sum(axis=2)
     cols = np.argwhere(counts > 0)
     if cols.size == 0 or not ctx.reach.any():
