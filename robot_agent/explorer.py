@@ -14,6 +14,11 @@ part of a room only from afar, and eq. 30 chooses targets in the sensor's slab a
 The entropy strategy drives through unknown or ambiguous floor only towards a probe (a room
 whose floor it has not seen, behind a door; ``swarm.navigation.probing``), planning and
 replanning it on the optimistic grid; every other target is reached on known free floor.
+
+Before it stops for want of targets, an entropy robot takes its last looks: at voxels that
+still hold over half the prior's entropy and that a reachable cell sees (docs/design.md
+section 3). In a team, a robot the coordinator leaves to itself first keeps away from where
+its teammates head (the reply's ``goals``).
 """
 
 from __future__ import annotations
