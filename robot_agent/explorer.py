@@ -372,12 +372,7 @@ class Explorer:
         ``team``: stay TEAM_SPREAD_RADIUS from where the teammates are heading."""
         return choose_target(
             self.strategy,
-            self.map,
-            self.entropy.values,
-            (here[0], here[1], yaw),
-            self.rig.camera_height,
-            trav,
-            cost,
+            *self._search_from(here, yaw, trav, cost),
             self.mission.exploration.radius,
             self.rng,
             exclude=exclude,
@@ -390,17 +385,17 @@ class Explorer:
             keep_away_radius=TEAM_SPREAD_RADIUS,
         )
 
+    def _search_from(self, here: np.ndarray, yaw: float, trav: TraversabilityGrid, cost: np.ndarray) -> tuple:
+        """The arguments every target search starts with: map, per-voxel entropy, pose (x, y,
+        yaw), camera height, traversability and path costs from the robot's cell."""
+        return self.map, self.entropy.values, (here[0], here[1], yaw), self.rig.camera_height, trav, cost
+
     def _last_look(
         self, here: np.ndarray, yaw: float, trav: TraversabilityGrid, cost: np.ndarray, exclude: list
     ) -> ExplorationTarget | None:
         """A view of a voxel with ``last_look_bits`` or more left (``last_look_target``), or None."""
         return last_look_target(
-            self.map,
-            self.entropy.values,
-            (here[0], here[1], yaw),
-            self.rig.camera_height,
-            trav,
-            cost,
+            *self._search_from(here, yaw, trav, cost),
             self.camera,
             self.last_look_bits,
             tried=self.tried_views + self.team_views,
