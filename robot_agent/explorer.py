@@ -26,10 +26,9 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from robot_agent import stereo
 from robot_agent.stereo import matcher_for_rig, points_from_depth
@@ -42,8 +41,8 @@ from swarm.map.fusion import warm_up
 from swarm.map.grid import Grid
 from swarm.navigation import planner
 from swarm.navigation.exploration import ExplorationTarget, choose_target, last_look_target
-from swarm.navigation.path_follower import FollowerLimits, PathFollower, needs_replan, wrap_angle
-from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
+from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free_cell
 from swarm.navigation.probing import open_swept, optimistic_traversability
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability
 from swarm.navigation.view_targets import CameraReach
@@ -52,11 +51,6 @@ from swarm.protocol.wire import Frame
 STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)
 REPLAN_EVERY = 4  # frames between traversability refreshes while driving
-STUCK_FRAMES = 16  # frames without 5 cm of motion before a target is given up
-# frames without getting 5 cm nearer the target (along the path) before it is given up: a
-# robot that rocks to and fro (pushing against a teammate in a narrow corridor) moves but
-# never arrives
-NO_PROGRESS_FRAMES = 48
 FAILED_MEMORY = 12  # how many given-up targets to avoid
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
 MAX_LOOKS_IN_PLACE = 2  # targets in a row at the robot's own cell before it is avoided
@@ -78,18 +72,6 @@ class Decision:
     state: str
     target: tuple[float, float] | None = None
     tilt: float | None = None  # camera head tilt (rad, positive down); None: no tilt head
-
-
-@dataclass
-class _Progress:
-    """How a drive goes: where the robot was STUCK_FRAMES ago at most (``position``,
-    ``frames`` since), and the least way left to the target so far (``best``, m;
-    ``since_best`` frames since it last shrank by 5 cm)."""
-
-    position: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    frames: int = 0
-    best: float = math.inf
-    since_best: int = 0
 
 
 def load_kernels() -> None:
@@ -132,7 +114,7 @@ class Explorer:
         self.target: ExplorationTarget | None = None
         self.failed: list[np.ndarray] = []
         self.swept: list[tuple[float, float]] = []
-        self.progress = _Progress()
+        self.progress = DriveWatch()
         self.frames = 0
         self.trav: TraversabilityGrid | None = None
         self.optimistic: TraversabilityGrid | None = None  # probes' grid (entropy strategy)
@@ -280,7 +262,7 @@ class Explorer:
             # Boxed in by floor the camera cannot see (a level camera misses the floor near
             # the robot): step blind to the nearest free cell beyond, as a robot with bumpers
             # or sonars would (the paper's Scout had sonars); the physics stops it on contact.
-            roomy = _large_free_areas(trav.free, BOXED_IN_CELLS)
+            roomy = large_free_areas(trav.free, BOXED_IN_CELLS)
             beyond = nearest_free_cell(roomy & ~np.isfinite(cost), cell)
             if beyond is not None:
                 cell, start = beyond, trav.centre(np.array(beyond))
@@ -352,7 +334,7 @@ class Explorer:
         self.target = target
         self.follower.set_path(path)
         self.state = "drive"
-        self.progress = _Progress(here.copy(), 0)
+        self.progress = DriveWatch(here)
         return self._drive(here, yaw)
 
     def _own_target(
@@ -403,16 +385,9 @@ class Explorer:
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
-        progress = self.progress
-        progress.frames += 1
-        progress.since_best += 1
-        if np.hypot(*(here - progress.position)) > 0.05:
-            progress.position, progress.frames = here.copy(), 0
-        to_go = self.follower.way_left(here[0], here[1])
-        if to_go < progress.best - 0.05:
-            progress.best, progress.since_best = to_go, 0
-        if progress.frames > STUCK_FRAMES or progress.since_best > NO_PROGRESS_FRAMES:
-            self.give_ups["stuck" if progress.frames > STUCK_FRAMES else "no progress"] += 1
+        reason = self.progress.update(here, self.follower.way_left(here[0], here[1]))
+        if reason is not None:
+            self.give_ups[reason] += 1
             return self._give_up()
         if self.frames % REPLAN_EVERY == 0:
             trav = self._refresh_traversability()
@@ -456,13 +431,3 @@ class Explorer:
 
     def _target_xy(self) -> tuple[float, float] | None:
         return None if self.target is None else (float(self.target.xy[0]), float(self.target.xy[1]))
-
-
-def _large_free_areas(free: np.ndarray, min_cells: int) -> np.ndarray:
-    """Free cells in 8-connected free areas of at least ``min_cells`` cells."""
-    labels, count = ndimage.label(free, structure=np.ones((3, 3), dtype=bool))
-    if count == 0:
-        return np.zeros_like(free, dtype=bool)
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    return sizes[labels] >= min_cells

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_agent.explorer import NO_PROGRESS_FRAMES, TEAM_SPREAD_RADIUS, Explorer
+from robot_agent.explorer import TEAM_SPREAD_RADIUS, Explorer
 from swarm.config import load_mission, mission_from_dict
 from swarm.navigation.exploration import ExplorationTarget
+from swarm.navigation.path_follower import NO_PROGRESS_FRAMES
 from swarm.protocol.wire import Frame, Pose
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

@@ -137,6 +137,39 @@ class PathFollower:
         return _nearest_on_segment(pos, a, b)
 
 
+#: Frames without 5 cm of motion before a drive is given up.
+STUCK_FRAMES = 16
+#: Frames without coming 5 cm nearer the goal along the path before a drive is given up: a
+#: robot that rocks to and fro (pushing against a teammate in a narrow corridor) moves, but
+#: never arrives.
+NO_PROGRESS_FRAMES = 48
+
+
+class DriveWatch:
+    """Whether a drive still gets anywhere, one ``update`` per frame: the robot must move
+    5 cm within STUCK_FRAMES frames, and come 5 cm nearer its goal (the way left along its
+    path, ``PathFollower.way_left``) within NO_PROGRESS_FRAMES frames."""
+
+    def __init__(self, position: np.ndarray | None = None) -> None:
+        self.position = np.zeros(2) if position is None else np.array(position, dtype=np.float64)[:2]
+        self.frames = 0  # frames since the robot was last 5 cm from ``position``
+        self.best = math.inf  # the least way left so far (m)
+        self.since_best = 0  # frames since ``best`` last shrank by 5 cm
+
+    def update(self, here: np.ndarray, way_left: float) -> str | None:
+        """Count one frame at ``here`` (x, y; m) with ``way_left`` (m) to go: the reason to
+        give the drive up ("stuck" or "no progress"), or None while it gets somewhere."""
+        self.frames += 1
+        self.since_best += 1
+        if np.hypot(*(np.asarray(here)[:2] - self.position)) > 0.05:
+            self.position, self.frames = np.array(here, dtype=np.float64)[:2], 0
+        if way_left < self.best - 0.05:
+            self.best, self.since_best = way_left, 0
+        if self.frames > STUCK_FRAMES:
+            return "stuck"
+        return "no progress" if self.since_best > NO_PROGRESS_FRAMES else None
+
+
 def needs_replan(path: np.ndarray, traversability: TraversabilityGrid) -> bool:
     """True when any segment of the (remaining) world path crosses a cell that is no longer navigable."""
     return not traversability.path_is_free(path)

@@ -160,6 +160,16 @@ def nearest_free_cell(
     return int(ii[k] + i0), int(jj[k] + j0)
 
 
+def large_free_areas(free: np.ndarray, min_cells: int) -> np.ndarray:
+    """Free cells (bool (nx, ny)) in 8-connected free areas of at least ``min_cells`` cells."""
+    labels, count = ndimage.label(free, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return np.zeros_like(free, dtype=bool)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return sizes[labels] >= min_cells
+
+
 def _drop_collinear(cells: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Keep the first, the last and the cells where the step direction changes."""
     if len(cells) <= 2:
