@@ -33,7 +33,7 @@ import numpy as np
 from robot_agent import stereo
 from robot_agent.stereo import matcher_for_rig, points_from_depth
 from swarm.config import Mission
-from swarm.map.coverage_map import CoverageMap, prior_information
+from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
@@ -131,9 +131,7 @@ class Explorer:
         self.team_goals: list[np.ndarray] = []
         self.looking_again = False  # frontier strategy: looking at columns a second/third time
         self.looking_last = False  # entropy strategy: last looks at uncertain voxels before stopping
-        lam0, eta0 = prior_information(self.sensor)
-        prior_bits = EntropyCache.from_information(np.array([lam0]), np.array([eta0]), table=self.table).total
-        self.last_look_bits = LAST_LOOK_SHARE * float(prior_bits)
+        self.last_look_bits = LAST_LOOK_SHARE * prior_entropy_bits(self.grid, self.sensor) / self.grid.size
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.give_ups: Counter[str] = Counter()  # drives given up, by reason (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
