@@ -45,14 +45,20 @@ def make_pair(folder, truth: np.ndarray | None = None) -> np.ndarray:
     return truth
 
 
-def test_pfm_reads_top_row_first_and_inf_as_unknown(tmp_path) -> None:
+@pytest.mark.parametrize("name", ["disp0.pfm", "disp0GT.pfm"])  # 2014 scenes, MiddEval3 training
+def test_pfm_reads_top_row_first_and_inf_as_unknown(tmp_path, name) -> None:
     disp = np.arange(12, dtype=np.float32).reshape(3, 4)
     disp[0, 1] = np.inf
-    write_pfm(tmp_path / "disp0.pfm", disp)
+    write_pfm(tmp_path / name, disp)
     got = bench.read_disparity(tmp_path)
     assert np.isnan(got[0, 1])
     mask = np.isfinite(disp)
     np.testing.assert_array_equal(got[mask], disp[mask])
+
+
+def test_a_folder_without_ground_truth_is_refused_naming_the_files(tmp_path) -> None:
+    with pytest.raises(FileNotFoundError, match="no disp0.pfm, disp0GT.pfm, disp0.tif or disp0.png"):
+        bench.read_disparity(tmp_path)
 
 
 def test_truncated_pfm_is_refused(tmp_path) -> None:

@@ -1,12 +1,14 @@
 """``python -m swarm.bench.stereo_pairs``: stereo quality on real pairs with ground truth, and time per pair.
 
 Quality: for each pair folder (Middlebury layout: ``im0.png``, ``im1.png``, ``calib.txt`` and the
-ground-truth disparity ``disp0.pfm`` with inf for unknown, or ``disp0.tif``/``disp0.png`` with
-0 for unknown; optionally ``mask0nocc.png``, 255 where the pixel is seen by both cameras), the
+ground-truth disparity ``disp0.pfm`` (the 2014 scenes) or ``disp0GT.pfm`` (the MiddEval3 training
+folders) with inf for unknown, or ``disp0.tif``/``disp0.png`` with 0 for unknown; optionally
+``mask0nocc.png``, 255 where the pixel is seen by both cameras), the
 valid fraction (pixels with ground truth that get a depth) and the share of valid pixels within
 5 % of the true depth Z = f b / (d + doffs), for the default matcher and for variants that change
-one setting each, side by side. The matcher is sized from the file's ``ndisp``, as
-``swarm stereo depth`` does.
+one setting each, and OpenCV's SGBM as the issue names it (5 paths, no padding, no texture
+filter), side by side. The matcher is sized from the file's ``ndisp``, as ``swarm stereo depth``
+does.
 
 Time: best and median of ``--repeat`` runs of disparity + depth for a real EuRoC pair, rectified, at
 752x480 and resized to 640x480, for each SGBM mode and the default (3way), at scale 1 and 0.5,
@@ -52,6 +54,9 @@ VARIANTS: dict[str, dict] = {
     "block 7": {"block_size": 7},
     "scale 0.5": {"scale": 0.5},
     "refine": {"refine_subpixel": True},
+    # The peer: plain OpenCV SGBM with the settings issue 17 calls sensible (block 5, P1/P2 = 8/32 x
+    # block^2, uniqueness 10, speckle filter, left-right check 1), without our padding or texture filter.
+    "opencv sgbm": {"mode": "sgbm", "pad_border": False, "min_texture": 0.0},
 }
 
 
@@ -70,18 +75,22 @@ def read_pfm(path: Path) -> np.ndarray:
 
 
 def read_disparity(folder: Path) -> np.ndarray:
-    """Ground-truth disparity (float32 pixels, NaN unknown) of a Middlebury-style folder."""
-    pfm = folder / "disp0.pfm"
-    if pfm.is_file():
-        disp = read_pfm(pfm)
-        disp[~np.isfinite(disp)] = np.nan
-        return disp
+    """Ground-truth disparity (float32 pixels, NaN unknown) of a Middlebury-style folder.
+
+    Read from the first of ``disp0.pfm``, ``disp0GT.pfm`` (inf unknown), ``disp0.tif`` and
+    ``disp0.png`` (0 unknown) that is there; FileNotFoundError when none is.
+    """
+    for name in ("disp0.pfm", "disp0GT.pfm"):
+        if (folder / name).is_file():
+            disp = read_pfm(folder / name)
+            disp[~np.isfinite(disp)] = np.nan
+            return disp
     for name in ("disp0.tif", "disp0.png"):
         if (folder / name).is_file():
             disp = cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED).astype(np.float32)
             disp[disp <= 0] = np.nan
             return disp
-    raise FileNotFoundError(f"{folder}: no disp0.pfm, disp0.tif or disp0.png")
+    raise FileNotFoundError(f"{folder}: no disp0.pfm, disp0GT.pfm, disp0.tif or disp0.png")
 
 
 @dataclass(frozen=True)
