@@ -8,18 +8,18 @@ from pathlib import Path
 
 from swarm.cli.common import fail
 
-BUNDLED_SCAN = Path("data") / "octomap" / "scan.dat.bz2"
-# The bundled scan, from the project folder or beside an editable install.
-DEFAULT_SCAN = next(
-    (p for p in (BUNDLED_SCAN, Path(__file__).resolve().parents[2] / BUNDLED_SCAN) if p.exists()),
-    BUNDLED_SCAN,
-)
-DEFAULT_EUROC = Path("..") / "shared" / "data" / "euroc_v1_01_micro"
 
-BUNDLED_BT = Path("data") / "octomap" / "geb079.bt"
-DEFAULT_BT = next(
-    (p for p in (BUNDLED_BT, Path(__file__).resolve().parents[2] / BUNDLED_BT) if p.exists()), BUNDLED_BT
-)
+def _bundled(relative: Path) -> Path:
+    """A file shipped in the repository, from the project folder or beside an editable install
+    (``relative`` itself when neither has it: the benchmark then says it is missing)."""
+    beside_install = Path(__file__).resolve().parents[2] / relative
+    return next((p for p in (relative, beside_install) if p.exists()), relative)
+
+
+DEFAULT_SCAN = _bundled(Path("data") / "octomap" / "scan.dat.bz2")
+# The replay tests' four EuRoC V1_01 pairs; their first is the first pair of the whole sequence.
+DEFAULT_EUROC = _bundled(Path("tests") / "data" / "euroc_mini")
+DEFAULT_BT = _bundled(Path("data") / "octomap" / "geb079.bt")
 
 
 # -- swarm bench --------------------------------------------------------------------------

@@ -28,7 +28,7 @@ import numpy as np
 
 from swarm.formats.floor_plan import FloorPlan
 from swarm.formats.map_file import save_map
-from swarm.map.coverage_map import CoverageMap
+from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation, surface_quality
@@ -135,7 +135,7 @@ def compute_metrics(
     known = cmap.known_mask()
     cov_for_mask = true_coverage if true_coverage is not None else np.zeros(grid.shape, np.float32)
     observable = evaluation.observable_mask(cov_for_mask, grid, record.workspace).ravel()
-    prior_bits = float(default_table()(np.float32(0.5), np.float32(cmap.sensor.prior_sigma())))
+    prior_bits = prior_entropy_bits(grid, cmap.sensor) / grid.size  # one voxel's, as the threshold takes it
 
     quality: dict[str, Any] = {"observable": None, "observed": None}
     mae = mae_observed = None
