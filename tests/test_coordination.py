@@ -7,7 +7,6 @@ import pytest
 from scipy import ndimage
 
 from coordinator.assignment import (
-    AssignmentBook,
     CoordinationParams,
     ObservedColumns,
     assign_team,
@@ -17,6 +16,7 @@ from coordinator.assignment import (
     teammates_share,
     visibility_discount,
 )
+from coordinator.assignment_book import AssignmentBook
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import ViewGeometry, choose_target, rank_entropy_targets
 from swarm.navigation.planner import GridPlanner
