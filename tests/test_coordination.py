@@ -18,8 +18,9 @@ from coordinator.assignment import (
 )
 from coordinator.assignment_book import AssignmentBook
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import ViewGeometry, choose_target, rank_entropy_targets
+from swarm.navigation.exploration import choose_target, rank_entropy_targets
 from swarm.navigation.planner import GridPlanner
+from swarm.navigation.standing_points import ViewGeometry
 from swarm.navigation.traversability import build_traversability
 from tests.test_exploration import SENSOR_Z, Scene
 
