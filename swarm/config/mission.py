@@ -16,8 +16,8 @@ import yaml
 from pydantic import Field, PrivateAttr
 
 from swarm.config.models import (
-    _NAME_PATTERN,
     DEFAULT_THRESHOLD_FRACTION,
+    NAME_PATTERN,
     PRIOR_BITS_PER_VOXEL,
     ConfigError,
     CoordinationConfig,
@@ -26,21 +26,21 @@ from swarm.config.models import (
     RigConfig,
     RobotBodyConfig,
     RobotSpec,
+    Section,
     SensorConfig,
     SharingConfig,
     SimConfig,
     StopConfig,
     WorkspaceConfig,
-    _Section,
 )
 from swarm.formats.errors import user_path
 from swarm.map.sensor_model import SensorModel
 
 
-class Mission(_Section):
+class Mission(Section):
     """A whole mission file. Use ``load_mission`` to read and check one."""
 
-    mission: str = Field(default="default", pattern=_NAME_PATTERN)
+    mission: str = Field(default="default", pattern=NAME_PATTERN)
     workspace: WorkspaceConfig
     floor_plan: str | FloorPlanRef | None = None
     #: a previous map (map.npz or OctoMap .bt) the mission starts from (paper section II.C.1)

@@ -31,7 +31,7 @@ DEFAULT_THRESHOLD_FRACTION = 0.25
 #: end point (28,691 bits, 44% in never-observable voxels: an 84% decrease of the rest).
 OBSERVABLE_FRACTION = 0.16
 
-_NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
+NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
 
 
 class ConfigError(InputError):
@@ -41,14 +41,16 @@ class ConfigError(InputError):
 # -- sections --------------------------------------------------------------------------
 
 
-class _Section(BaseModel):
+class Section(BaseModel):
+    """A config section: unknown fields are refused (so a misspelt key is an error, not ignored)."""
+
     model_config = ConfigDict(extra="forbid")
 
 
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
-class WorkspaceConfig(_Section):
+class WorkspaceConfig(Section):
     """The mapped box [lo, hi] (metres) and the voxel edge."""
 
     lo: Vec3
@@ -66,7 +68,7 @@ class WorkspaceConfig(_Section):
         return Grid.from_bounds(np.array(self.lo), np.array(self.hi), self.voxel)
 
 
-class Pose2D(_Section):
+class Pose2D(Section):
     """A pose on the floor: position (m) and yaw (radians, counter-clockwise from +x)."""
 
     x: FiniteFloat
@@ -86,7 +88,7 @@ DISPARITY_SIGMA_PX = 0.1
 DEFAULT_MIN_DEPTH = 0.35
 
 
-class RigConfig(_Section):
+class RigConfig(Section):
     """A rectified stereo rig (or, in ``range`` mode, a depth camera) on a robot.
 
     The left camera is the reference, on the robot's centre at ``camera_height``; the right
@@ -187,7 +189,7 @@ class RigConfig(_Section):
 AUTO_DISCRETIZE_PIXELS = 100_000
 
 
-class SensorConfig(_Section):
+class SensorConfig(Section):
     """Parameters of the Gaussian sensor model (docs/design.md section 3)."""
 
     sigma_min: FiniteFloat = Field(default=0.06, gt=0)
@@ -248,7 +250,7 @@ class ExplorationConfig(BaseModel):
     random_wander_steps: int = Field(default=20, ge=0)
 
 
-class SharingConfig(_Section):
+class SharingConfig(Section):
     """The agent's utility filter (docs/design.md section 3): a voxel goes out once its pending
     information is worth ``share_min_bits``; the voxels held back are worth at most
     ``max_held_bits`` together (null: no bound), beyond which the most valuable go out too."""
@@ -257,7 +259,7 @@ class SharingConfig(_Section):
     max_held_bits: FiniteFloat | None = Field(default=2000.0, gt=0)
 
 
-class CoordinationConfig(_Section):
+class CoordinationConfig(Section):
     """The coordinator's Burgard-style assignment (docs/coordinator.md).
 
     ``footprint_radius`` None: min(2 * exploration.radius, the sensor reach: ``Mission.sensor_reach``).
@@ -273,7 +275,7 @@ class CoordinationConfig(_Section):
     candidate_spacing: FiniteFloat = Field(default=0.5, ge=0)
 
 
-class RobotBodyConfig(_Section):
+class RobotBodyConfig(Section):
     """The simulated robot: a disc with differential-drive limits."""
 
     radius: FiniteFloat = Field(default=0.18, gt=0)
@@ -281,7 +283,7 @@ class RobotBodyConfig(_Section):
     max_turn_rate: FiniteFloat = Field(default=1.5, gt=0)
 
 
-class StopConfig(_Section):
+class StopConfig(Section):
     """Stop when the map entropy reaches H_th (bits) or after ``max_time_s`` of sim time.
 
     H_th is ``entropy_threshold_bits`` when given. Else, with ``observable_fraction`` f,
@@ -296,7 +298,7 @@ class StopConfig(_Section):
     max_time_s: FiniteFloat = Field(default=600.0, gt=0)
 
 
-class SimConfig(_Section):
+class SimConfig(Section):
     """Simulator clock: physics step ``dt``, one frame every ``frame_period_s``."""
 
     dt: FiniteFloat = Field(default=0.1, gt=0)
@@ -311,14 +313,14 @@ class SimConfig(_Section):
         return self
 
 
-class FloorPlanRef(_Section):
+class FloorPlanRef(Section):
     """A floor plan file (project YAML or ROS map.yaml) and the height of ROS-map walls."""
 
     path: str
     wall_height: FiniteFloat = Field(default=2.0, gt=0)
 
 
-class RobotSpec(_Section):
-    id: str = Field(pattern=_NAME_PATTERN)
+class RobotSpec(Section):
+    id: str = Field(pattern=NAME_PATTERN)
     start: Pose2D
     rig: str | dict[str, Any] | None = None

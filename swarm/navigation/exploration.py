@@ -48,7 +48,7 @@ from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_pl
 from swarm.navigation.baselines import frontier_cells, frontier_target, random_cell_target, random_target
 from swarm.navigation.probing import probe_target
 from swarm.navigation.search_context import SearchContext
-from swarm.navigation.standing_points import ViewGeometry, _standing_cell
+from swarm.navigation.standing_points import ViewGeometry, standing_cell
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
 from swarm.navigation.view_targets import CameraReach, uncertain_voxels, view_target
@@ -355,7 +355,7 @@ def _entropy_candidates(
                 if np.min(np.linalg.norm(np.asarray(taken) - here, axis=1)) < min_separation:
                     continue
             g = G[i, j, :2] / gnorm[i, j]
-            stand = _standing_cell(ctx, i, j, g, view)
+            stand = standing_cell(ctx, i, j, g, view)
             open_[i, j] = False
             if stand is not None:
                 taken.append(here)

@@ -26,7 +26,7 @@ class ViewGeometry:
     half_angle: float = math.radians(30.0)
 
 
-def _standing_cell(
+def standing_cell(
     ctx: SearchContext, i: int, j: int, g: np.ndarray, view: ViewGeometry
 ) -> tuple[int, int] | None:
     """Where to stand to view voxel column (i, j) looking along the unit gradient ``g``.
