@@ -14,11 +14,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from coordinator.assignment import (
-    AssignmentBook,
     CoordinationParams,
     best_target,
     teammates_share,
 )
+from coordinator.assignment_book import AssignmentBook
 from coordinator.replica import TeamMap
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap

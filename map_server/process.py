@@ -8,7 +8,8 @@ import signal
 import threading
 from pathlib import Path
 
-from map_server.server import MapServer, ServerOptions
+from map_server.options import ServerOptions
+from map_server.server import MapServer
 from swarm.config import Mission
 from swarm.protocol import bus
 

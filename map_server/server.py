@@ -16,53 +16,25 @@ import logging
 import re
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
 
 from map_server.contributions import Contributions
 from map_server.inbox import Inbox
-from map_server.ledger import MAX_EPOCHS, Ledger, Rejected, describe_grid, validate_delta
-from map_server.limits import SLACK_FRAMES, mission_bounds
+from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
+from map_server.limits import mission_bounds
+from map_server.options import ServerOptions, max_payload_for
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector
 from swarm.config import Mission
-from swarm.map.grid import Grid
 from swarm.protocol import bus
 from swarm.protocol.codec import short
 from swarm.protocol.map_messages import PRIOR_SOURCE
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
-
-
-@dataclass(frozen=True)
-class ServerOptions:
-    """Tuning of the server: compaction thresholds, group-commit size, progress interval, and
-    the limits of docs/protocol.md ("Limits"): payload size (None: derived from the grid),
-    inbox per robot, which robots may send (None: the mission's), the information bound."""
-
-    compact_bytes: int = 256 << 20
-    compact_records: int = 20_000
-    max_batch: int = 64
-    log_every_s: float = 10.0
-    fsync: bool = True
-    max_payload_bytes: int | None = None
-    inbox_messages: int = 256
-    inbox_bytes: int | None = None
-    robots: tuple[str, ...] | None = None
-    robot_pattern: str | None = None
-    information_bound: bool = True
-    slack_frames: int = SLACK_FRAMES
-    max_epochs: int = MAX_EPOCHS
-    quarantine: tuple[str, ...] = ()
-
-
-def max_payload_for(grid: Grid) -> int:
-    """The default largest delta payload: every voxel once (12 bytes each) plus 64 KiB of fields."""
-    return 12 * grid.size + (64 << 10)
 
 
 class MapServer:

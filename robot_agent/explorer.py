@@ -1,4 +1,5 @@
-"""One robot's mind, without I/O: fuse each frame, pick targets, plan, and drive.
+"""One robot's mind, without I/O: fuse each frame (its local map, ``robot_agent.local_map``),
+pick targets, plan, and drive.
 
 The loop is the paper's (section III): fuse the batch of the current view into the local
 coverage map, choose a viewpoint by the entropy gradient (eq. 27-35, or a baseline), drive
@@ -31,14 +32,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from robot_agent import stereo
-from robot_agent.stereo import matcher_for_rig, points_from_depth
+from robot_agent.local_map import LocalMapping
+from robot_agent.stereo import matcher_for_rig
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
-from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.map.fusion import warm_up
-from swarm.map.grid import Grid
 from swarm.navigation import planner
 from swarm.navigation.exploration import ExplorationTarget, choose_target, last_look_target
 from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
@@ -46,7 +46,6 @@ from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free
 from swarm.navigation.probing import open_swept, optimistic_traversability
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability
 from swarm.navigation.view_targets import CameraReach
-from swarm.protocol.wire import Frame
 
 STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)
@@ -83,7 +82,7 @@ def load_kernels() -> None:
     planner.warm_up()
 
 
-class Explorer:
+class Explorer(LocalMapping):
     """The local map of one robot and the decisions it drives by."""
 
     def __init__(self, mission: Mission, robot_id: str, strategy: str = "entropy", seed: int = 0) -> None:
@@ -139,44 +138,6 @@ class Explorer:
         self.head = 0.0  # the tilt this robot asks for now
         #: Asked first for each new target (the coordinator); None: choose alone.
         self.assigner: Callable[[], ExplorationTarget | None] | None = None
-
-    # -- perception ----------------------------------------------------------------------
-    def points(self, frame: Frame) -> np.ndarray:
-        """World points of a frame's valid pixels within max range (stereo is matched first)."""
-        cam = frame.camera
-        if frame.is_depth:
-            depth = frame.depth
-        else:
-            depth = self.matcher.depth(frame.left, frame.right, cam)
-        return points_from_depth(
-            depth, cam.fx, cam.fy, cam.cx, cam.cy, frame.pose.xyz, frame.pose.ypr, self.sensor.max_range
-        )
-
-    def fuse(self, frame: Frame) -> Delta:
-        """Fuse a frame's batch into the local map (eq. 24-25); returns the information it added."""
-        result = self.map.integrate(np.asarray(frame.pose.xyz), self.points(frame))
-        self.apply_entropy(result.delta)
-        return result.delta
-
-    def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
-        """Start from the team map (a server snapshot, prior included); before any frame."""
-        if not self.grid.matches(grid):
-            raise ValueError(f"the team map's grid {grid} is not the mission's {self.grid}")
-        self.map = CoverageMap(self.grid, self.sensor, lam, eta)
-        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
-
-    def apply_external(self, delta: Delta) -> None:
-        """Add information another robot gathered (from the team's merged stream)."""
-        self.map.apply(delta)
-        self.apply_entropy(delta)
-
-    def apply_entropy(self, delta: Delta) -> None:
-        idx = delta.idx.astype(np.int64)
-        self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
-
-    @property
-    def map_entropy(self) -> float:
-        return float(self.entropy.total)
 
     # -- decisions -----------------------------------------------------------------------
     def decide(self, x: float, y: float, yaw: float) -> Decision:

@@ -7,7 +7,6 @@ import pytest
 from scipy import ndimage
 
 from coordinator.assignment import (
-    AssignmentBook,
     CoordinationParams,
     ObservedColumns,
     assign_team,
@@ -17,9 +16,11 @@ from coordinator.assignment import (
     teammates_share,
     visibility_discount,
 )
+from coordinator.assignment_book import AssignmentBook
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import ViewGeometry, choose_target, rank_entropy_targets
+from swarm.navigation.exploration import choose_target, rank_entropy_targets
 from swarm.navigation.planner import GridPlanner
+from swarm.navigation.standing_points import ViewGeometry
 from swarm.navigation.traversability import build_traversability
 from tests.test_exploration import SENSOR_Z, Scene
 

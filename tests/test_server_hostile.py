@@ -11,7 +11,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from map_server.server import ServerOptions
+from map_server.options import ServerOptions
 from map_server.team_map import TeamMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, MapQueryError

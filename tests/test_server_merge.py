@@ -17,7 +17,8 @@ import pytest
 import yaml
 
 from map_server.ledger import Ledger
-from map_server.server import MapServer, ServerOptions
+from map_server.options import ServerOptions
+from map_server.server import MapServer
 from map_server.team_map import TeamMap
 from swarm.config import Mission, mission_from_dict
 from swarm.map.coverage_map import CoverageMap

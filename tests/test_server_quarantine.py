@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from map_server.ledger import Rejected
-from map_server.server import MapServer, ServerOptions
+from map_server.options import ServerOptions
+from map_server.server import MapServer
 from map_server.team_map import TeamMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient

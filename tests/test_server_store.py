@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from map_server.ledger import validate_delta
-from map_server.server import MapServer, ServerOptions
+from map_server.options import ServerOptions
+from map_server.server import MapServer
 from map_server.store import (
     RECORD_HEADER,
     WAL_HEADER,

@@ -174,8 +174,8 @@ def _run_server(args: argparse.Namespace) -> int:
     import logging
     import re
 
+    from map_server.options import ServerOptions
     from map_server.process import serve
-    from map_server.server import ServerOptions
     from map_server.store import StoreError
     from swarm.config import ConfigError, load_mission
 

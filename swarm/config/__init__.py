@@ -11,12 +11,12 @@ rig YAML file (overrides too) or an inline mapping of overrides.
 """
 
 from swarm.config.loading import check_mission, load_mission, mission_from_dict, mission_from_map
+from swarm.config.mission import Mission
 from swarm.config.models import (
     DEFAULT_THRESHOLD_FRACTION,
     OBSERVABLE_FRACTION,
     PRIOR_BITS_PER_VOXEL,
     ConfigError,
-    Mission,
     RigConfig,
 )
 from swarm.formats.validation_errors import describe_validation_error

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
+from swarm.config.mission import Mission
 from swarm.config.models import (
     OBSERVABLE_FRACTION,
     ConfigError,
-    Mission,
     RigConfig,
     RobotBodyConfig,
 )

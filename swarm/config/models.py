@@ -1,29 +1,24 @@
 """Mission configuration models: the sections of a mission YAML file, validated by pydantic.
 
-Rigs: the top-level ``rig`` is the default; ``rigs`` holds named variants (each a set of
-overrides of the default rig); a robot's ``rig`` is a name from ``rigs``, a path to a
-rig YAML file (overrides too) or an inline mapping of overrides.
+The whole file, the sections together, is :class:`swarm.config.mission.Mission`.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
     FiniteFloat,
-    PrivateAttr,
     field_validator,
     model_validator,
 )
 
-from swarm.formats.errors import InputError, user_path
+from swarm.formats.errors import InputError
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol.wire import Camera
@@ -36,7 +31,7 @@ DEFAULT_THRESHOLD_FRACTION = 0.25
 #: end point (28,691 bits, 44% in never-observable voxels: an 84% decrease of the rest).
 OBSERVABLE_FRACTION = 0.16
 
-_NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
+NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
 
 
 class ConfigError(InputError):
@@ -46,14 +41,16 @@ class ConfigError(InputError):
 # -- sections --------------------------------------------------------------------------
 
 
-class _Section(BaseModel):
+class Section(BaseModel):
+    """A config section: unknown fields are refused (so a misspelt key is an error, not ignored)."""
+
     model_config = ConfigDict(extra="forbid")
 
 
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
-class WorkspaceConfig(_Section):
+class WorkspaceConfig(Section):
     """The mapped box [lo, hi] (metres) and the voxel edge."""
 
     lo: Vec3
@@ -71,7 +68,7 @@ class WorkspaceConfig(_Section):
         return Grid.from_bounds(np.array(self.lo), np.array(self.hi), self.voxel)
 
 
-class Pose2D(_Section):
+class Pose2D(Section):
     """A pose on the floor: position (m) and yaw (radians, counter-clockwise from +x)."""
 
     x: FiniteFloat
@@ -91,7 +88,7 @@ DISPARITY_SIGMA_PX = 0.1
 DEFAULT_MIN_DEPTH = 0.35
 
 
-class RigConfig(_Section):
+class RigConfig(Section):
     """A rectified stereo rig (or, in ``range`` mode, a depth camera) on a robot.
 
     The left camera is the reference, on the robot's centre at ``camera_height``; the right
@@ -192,7 +189,7 @@ class RigConfig(_Section):
 AUTO_DISCRETIZE_PIXELS = 100_000
 
 
-class SensorConfig(_Section):
+class SensorConfig(Section):
     """Parameters of the Gaussian sensor model (docs/design.md section 3)."""
 
     sigma_min: FiniteFloat = Field(default=0.06, gt=0)
@@ -253,7 +250,7 @@ class ExplorationConfig(BaseModel):
     random_wander_steps: int = Field(default=20, ge=0)
 
 
-class SharingConfig(_Section):
+class SharingConfig(Section):
     """The agent's utility filter (docs/design.md section 3): a voxel goes out once its pending
     information is worth ``share_min_bits``; the voxels held back are worth at most
     ``max_held_bits`` together (null: no bound), beyond which the most valuable go out too."""
@@ -262,7 +259,7 @@ class SharingConfig(_Section):
     max_held_bits: FiniteFloat | None = Field(default=2000.0, gt=0)
 
 
-class CoordinationConfig(_Section):
+class CoordinationConfig(Section):
     """The coordinator's Burgard-style assignment (docs/coordinator.md).
 
     ``footprint_radius`` None: min(2 * exploration.radius, the sensor reach: ``Mission.sensor_reach``).
@@ -278,7 +275,7 @@ class CoordinationConfig(_Section):
     candidate_spacing: FiniteFloat = Field(default=0.5, ge=0)
 
 
-class RobotBodyConfig(_Section):
+class RobotBodyConfig(Section):
     """The simulated robot: a disc with differential-drive limits."""
 
     radius: FiniteFloat = Field(default=0.18, gt=0)
@@ -286,7 +283,7 @@ class RobotBodyConfig(_Section):
     max_turn_rate: FiniteFloat = Field(default=1.5, gt=0)
 
 
-class StopConfig(_Section):
+class StopConfig(Section):
     """Stop when the map entropy reaches H_th (bits) or after ``max_time_s`` of sim time.
 
     H_th is ``entropy_threshold_bits`` when given. Else, with ``observable_fraction`` f,
@@ -301,7 +298,7 @@ class StopConfig(_Section):
     max_time_s: FiniteFloat = Field(default=600.0, gt=0)
 
 
-class SimConfig(_Section):
+class SimConfig(Section):
     """Simulator clock: physics step ``dt``, one frame every ``frame_period_s``."""
 
     dt: FiniteFloat = Field(default=0.1, gt=0)
@@ -316,129 +313,14 @@ class SimConfig(_Section):
         return self
 
 
-class FloorPlanRef(_Section):
+class FloorPlanRef(Section):
     """A floor plan file (project YAML or ROS map.yaml) and the height of ROS-map walls."""
 
     path: str
     wall_height: FiniteFloat = Field(default=2.0, gt=0)
 
 
-class RobotSpec(_Section):
-    id: str = Field(pattern=_NAME_PATTERN)
+class RobotSpec(Section):
+    id: str = Field(pattern=NAME_PATTERN)
     start: Pose2D
     rig: str | dict[str, Any] | None = None
-
-
-class Mission(_Section):
-    """A whole mission file. Use ``load_mission`` to read and check one."""
-
-    mission: str = Field(default="default", pattern=_NAME_PATTERN)
-    workspace: WorkspaceConfig
-    floor_plan: str | FloorPlanRef | None = None
-    #: a previous map (map.npz or OctoMap .bt) the mission starts from (paper section II.C.1)
-    prior_map: str | None = None
-    robots: list[RobotSpec] = Field(min_length=1)
-    rig: RigConfig = RigConfig()
-    rigs: dict[str, dict[str, Any]] = {}
-    sensor: SensorConfig = SensorConfig()
-    exploration: ExplorationConfig = ExplorationConfig()
-    sharing: SharingConfig = SharingConfig()
-    coordination: CoordinationConfig = CoordinationConfig()
-    robot: RobotBodyConfig = RobotBodyConfig()
-    stop: StopConfig = StopConfig()
-    sim: SimConfig = SimConfig()
-
-    _source: Path | None = PrivateAttr(default=None)
-    _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
-    _robot_rigs: dict[str, RigConfig] = PrivateAttr(default_factory=dict)
-    _plan: Any = PrivateAttr(default=None)
-
-    # -- accessors -----------------------------------------------------------------------
-    @property
-    def source(self) -> Path | None:
-        """The file this mission was loaded from, if any."""
-        return self._source
-
-    @property
-    def robot_ids(self) -> list[str]:
-        return [r.id for r in self.robots]
-
-    def robot_spec(self, robot_id: str) -> RobotSpec:
-        for spec in self.robots:
-            if spec.id == robot_id:
-                return spec
-        raise KeyError(f"no robot {robot_id!r} in mission {self.mission!r}")
-
-    def rig_for(self, robot_id: str) -> RigConfig:
-        """The resolved rig of a robot (its own overrides applied to the default rig)."""
-        self.robot_spec(robot_id)
-        return self._robot_rigs.get(robot_id, self.rig)
-
-    def sensor_model_for(self, robot_id: str) -> SensorModel:
-        """The sensor model a robot fuses its frames with (``sensor_model_of`` its rig)."""
-        return self.sensor_model_of(self.rig_for(robot_id))
-
-    def sensor_model_of(self, rig: RigConfig) -> SensorModel:
-        """The sensor model of frames from ``rig``: its camera's size decides
-        ``discretize: auto``, its hit range (``RigConfig.hit_range_m`` at the workspace's
-        voxel) cuts its far returns."""
-        return self.sensor.model(
-            pixels=rig.width * rig.height, hit_range=rig.hit_range_m(self.workspace.voxel)
-        )
-
-    def sensor_reach(self) -> float:
-        """The widest range (m) up to which a robot's frames update the map: the largest
-        ``SensorModel.reach`` of its robots' sensor models (``sensor_model_for``)."""
-        return max(self.sensor_model_for(r).reach for r in self.robot_ids)
-
-    def floor_plan_ref(self) -> FloorPlanRef | None:
-        """The floor plan reference with its path made absolute."""
-        if self.floor_plan is None:
-            return None
-        ref = self.floor_plan
-        if isinstance(ref, str):
-            ref = FloorPlanRef(path=ref)
-        return ref.model_copy(update={"path": str(user_path(ref.path, self._base_dir).resolve())})
-
-    def prior_map_path(self) -> Path | None:
-        """The previous map's file, made absolute, or None."""
-        return None if self.prior_map is None else (self._base_dir / self.prior_map).resolve()
-
-    def load_floor_plan(self):
-        """The mission's ``swarm.formats.floor_plan.FloorPlan`` (cached), or None without one."""
-        if self._plan is None and self.floor_plan is not None:
-            from swarm.formats.floor_plan import load_floor_plan
-
-            ref = self.floor_plan_ref()
-            self._plan = load_floor_plan(ref.path, ref.wall_height)
-        return self._plan
-
-    def threshold_bits(self) -> float:
-        """H_th: the configured threshold, else 25% of the prior entropy (7 bits per voxel).
-
-        Raises ConfigError when the threshold is ``stop.observable_fraction`` and has not
-        been resolved to bits yet (``swarm.mission.threshold.resolve_threshold`` does that).
-        """
-        if self.stop.entropy_threshold_bits is not None:
-            return float(self.stop.entropy_threshold_bits)
-        if self.stop.observable_fraction is not None:
-            raise ConfigError(
-                f"{self.source or '<mission>'}: stop.observable_fraction: the threshold needs the "
-                "simulator's ground truth; run the mission with `swarm sim`, or set "
-                "stop.entropy_threshold_bits"
-            )
-        return DEFAULT_THRESHOLD_FRACTION * PRIOR_BITS_PER_VOXEL * self.workspace.grid().size
-
-    def to_yaml(self) -> str:
-        """The mission as YAML, with file paths made absolute (for run folders)."""
-        data = self.model_dump(mode="json")
-        ref = self.floor_plan_ref()
-        if ref is not None:
-            data["floor_plan"] = ref.model_dump(mode="json")
-        if self.prior_map is not None:
-            data["prior_map"] = str(self.prior_map_path())
-        for robot in data["robots"]:
-            rig = robot.get("rig")
-            if isinstance(rig, str) and rig.endswith((".yaml", ".yml")):
-                robot["rig"] = str(user_path(rig, self._base_dir).resolve())
-        return yaml.safe_dump(data, sort_keys=False)

@@ -28,8 +28,8 @@ slab voxel is *opaque* when it is known and E[C] >= 0.2 (not surely free); unkno
 free voxels are transparent. A voxel is *in view* of reachable space within a range r
 when a path of at most r through transparent slab voxels (octagonal metric: 4- and
 8-neighbour steps alternate) joins it to a reachable cell. An entropy target's standing point is then
-checked exactly (:class:`ViewGeometry`: distance, angle to the gaze, straight line of
-sight); candidates without one are skipped.
+checked exactly (:mod:`swarm.navigation.standing_points`: distance, angle to the gaze,
+straight line of sight); candidates without one are skipped.
 
 Grids: the traversability grid must be the map's x-y columns (same origin, resolution
 and shape), as :func:`swarm.navigation.traversability.build_traversability` makes it.
@@ -48,6 +48,7 @@ from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_pl
 from swarm.navigation.baselines import frontier_cells, frontier_target, random_cell_target, random_target
 from swarm.navigation.probing import probe_target
 from swarm.navigation.search_context import SearchContext
+from swarm.navigation.standing_points import ViewGeometry, standing_cell
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
 from swarm.navigation.view_targets import CameraReach, uncertain_voxels, view_target
@@ -57,7 +58,6 @@ __all__ = [
     "STRATEGIES",
     "EntropyCandidate",
     "ExplorationTarget",
-    "ViewGeometry",
     "choose_target",
     "frontier_cells",
     "last_look_target",
@@ -97,17 +97,6 @@ class EntropyCandidate:
         return ExplorationTarget(
             xy=self.xy, gaze_yaw=self.gaze_yaw, utility=self.utility, voxel=self.voxel, kind="entropy"
         )
-
-
-@dataclass(frozen=True)
-class ViewGeometry:
-    """Where a robot may stand to look at an entropy target voxel: between ``near`` and
-    ``far`` metres from it, with it within ``half_angle`` (radians) of the gaze (half the
-    camera's horizontal field of view)."""
-
-    near: float = 0.3
-    far: float = 1.0
-    half_angle: float = math.radians(30.0)
 
 
 def choose_target(
@@ -366,7 +355,7 @@ def _entropy_candidates(
                 if np.min(np.linalg.norm(np.asarray(taken) - here, axis=1)) < min_separation:
                     continue
             g = G[i, j, :2] / gnorm[i, j]
-            stand = _standing_cell(ctx, i, j, g, view)
+            stand = standing_cell(ctx, i, j, g, view)
             open_[i, j] = False
             if stand is not None:
                 taken.append(here)
@@ -385,45 +374,3 @@ def _entropy_candidates(
         if not widen or xi >= far:
             break
         xi *= 2.0
-
-
-def _standing_cell(
-    ctx: SearchContext, i: int, j: int, g: np.ndarray, view: ViewGeometry
-) -> tuple[int, int] | None:
-    """Where to stand to view voxel column (i, j) looking along the unit gradient ``g``.
-
-    Among reachable cells at distance view.near .. view.far from the voxel, within
-    view.half_angle of the gaze g as seen from the cell (so the voxel and the higher
-    entropy beyond it are in the field of view) and with a straight line of sight to it
-    (no opaque slab voxel in between), the one nearest the point (near + far) / 2 behind
-    the voxel along -g. None if no cell fits.
-    """
-    lo, hi = view.near, view.far
-    e = ctx.voxel
-    n = int(math.ceil(hi / e))
-    nx, ny = ctx.reach.shape
-    i0, i1, j0, j1 = max(i - n, 0), min(i + n + 1, nx), max(j - n, 0), min(j + n + 1, ny)
-    ii, jj = np.nonzero(ctx.reach[i0:i1, j0:j1])
-    ii += i0
-    jj += j0
-    target = ctx.centre(i, j)
-    pts = np.stack([ctx.cx[ii], ctx.cy[jj]], axis=-1)
-    ahead = target - pts
-    d = np.linalg.norm(ahead, axis=1)
-    ok = (d >= lo - 1e-9) & (d <= hi + 1e-9) & (ahead @ g >= math.cos(view.half_angle) * d - 1e-9)
-    ii, jj, pts = ii[ok], jj[ok], pts[ok]
-    if ii.size == 0:
-        return None
-    # line of sight: samples every quarter voxel, ignoring the target's own column
-    t = np.arange(1, 4 * n + 1) / (4 * n + 1)
-    samples = pts[:, None, :] + t[None, :, None] * (target - pts)[:, None, :]
-    si = np.clip(np.floor((samples[..., 0] - ctx.cmap.grid.lo[0]) / e).astype(np.int64), 0, nx - 1)
-    sj = np.clip(np.floor((samples[..., 1] - ctx.cmap.grid.lo[1]) / e).astype(np.int64), 0, ny - 1)
-    blocked = ctx.opaque[si, sj] & ~((si == i) & (sj == j))
-    clear = ~blocked.any(axis=1)
-    if not clear.any():
-        return None
-    ii, jj, pts = ii[clear], jj[clear], pts[clear]
-    ideal = target - 0.5 * (lo + hi) * g
-    k = int(np.argmin(np.linalg.norm(pts - ideal, axis=1)))
-    return int(ii[k]), int(jj[k])

@@ -1,0 +1,38 @@
+"""The map server's options: compaction thresholds, group commits, progress logging and the
+limits of docs/protocol.md ("Limits"), with the default bound on a delta's payload size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from map_server.ledger import MAX_EPOCHS
+from map_server.limits import SLACK_FRAMES
+from swarm.map.grid import Grid
+
+
+@dataclass(frozen=True)
+class ServerOptions:
+    """Tuning of the server: compaction thresholds, group-commit size, progress interval, and
+    the limits of docs/protocol.md ("Limits"): payload size (None: derived from the grid),
+    inbox per robot, which robots may send (None: the mission's), the information bound."""
+
+    compact_bytes: int = 256 << 20
+    compact_records: int = 20_000
+    max_batch: int = 64
+    log_every_s: float = 10.0
+    fsync: bool = True
+    max_payload_bytes: int | None = None
+    inbox_messages: int = 256
+    inbox_bytes: int | None = None
+    robots: tuple[str, ...] | None = None
+    robot_pattern: str | None = None
+    information_bound: bool = True
+    slack_frames: int = SLACK_FRAMES
+    max_epochs: int = MAX_EPOCHS
+    quarantine: tuple[str, ...] = ()
+
+
+def max_payload_for(grid: Grid) -> int:
+    """The default largest delta payload: every voxel once (12 bytes each) plus 64 KiB of fields."""
+    return 12 * grid.size + (64 << 10)

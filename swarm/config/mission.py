@@ -1,0 +1,152 @@
+"""The whole mission file: its sections together (``swarm.config.models``), and what the roles
+ask of it: each robot's rig and sensor model, the sensor reach, file paths, H_th, and the
+mission as YAML for run folders.
+
+Rigs: the top-level ``rig`` is the default; ``rigs`` holds named variants (each a set of
+overrides of the default rig); a robot's ``rig`` is a name from ``rigs``, a path to a
+rig YAML file (overrides too) or an inline mapping of overrides.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import Field, PrivateAttr
+
+from swarm.config.models import (
+    DEFAULT_THRESHOLD_FRACTION,
+    NAME_PATTERN,
+    PRIOR_BITS_PER_VOXEL,
+    ConfigError,
+    CoordinationConfig,
+    ExplorationConfig,
+    FloorPlanRef,
+    RigConfig,
+    RobotBodyConfig,
+    RobotSpec,
+    Section,
+    SensorConfig,
+    SharingConfig,
+    SimConfig,
+    StopConfig,
+    WorkspaceConfig,
+)
+from swarm.formats.errors import user_path
+from swarm.map.sensor_model import SensorModel
+
+
+class Mission(Section):
+    """A whole mission file. Use ``load_mission`` to read and check one."""
+
+    mission: str = Field(default="default", pattern=NAME_PATTERN)
+    workspace: WorkspaceConfig
+    floor_plan: str | FloorPlanRef | None = None
+    #: a previous map (map.npz or OctoMap .bt) the mission starts from (paper section II.C.1)
+    prior_map: str | None = None
+    robots: list[RobotSpec] = Field(min_length=1)
+    rig: RigConfig = RigConfig()
+    rigs: dict[str, dict[str, Any]] = {}
+    sensor: SensorConfig = SensorConfig()
+    exploration: ExplorationConfig = ExplorationConfig()
+    sharing: SharingConfig = SharingConfig()
+    coordination: CoordinationConfig = CoordinationConfig()
+    robot: RobotBodyConfig = RobotBodyConfig()
+    stop: StopConfig = StopConfig()
+    sim: SimConfig = SimConfig()
+
+    _source: Path | None = PrivateAttr(default=None)
+    _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
+    _robot_rigs: dict[str, RigConfig] = PrivateAttr(default_factory=dict)
+    _plan: Any = PrivateAttr(default=None)
+
+    # -- accessors -----------------------------------------------------------------------
+    @property
+    def source(self) -> Path | None:
+        """The file this mission was loaded from, if any."""
+        return self._source
+
+    @property
+    def robot_ids(self) -> list[str]:
+        return [r.id for r in self.robots]
+
+    def robot_spec(self, robot_id: str) -> RobotSpec:
+        for spec in self.robots:
+            if spec.id == robot_id:
+                return spec
+        raise KeyError(f"no robot {robot_id!r} in mission {self.mission!r}")
+
+    def rig_for(self, robot_id: str) -> RigConfig:
+        """The resolved rig of a robot (its own overrides applied to the default rig)."""
+        self.robot_spec(robot_id)
+        return self._robot_rigs.get(robot_id, self.rig)
+
+    def sensor_model_for(self, robot_id: str) -> SensorModel:
+        """The sensor model a robot fuses its frames with (``sensor_model_of`` its rig)."""
+        return self.sensor_model_of(self.rig_for(robot_id))
+
+    def sensor_model_of(self, rig: RigConfig) -> SensorModel:
+        """The sensor model of frames from ``rig``: its camera's size decides
+        ``discretize: auto``, its hit range (``RigConfig.hit_range_m`` at the workspace's
+        voxel) cuts its far returns."""
+        return self.sensor.model(
+            pixels=rig.width * rig.height, hit_range=rig.hit_range_m(self.workspace.voxel)
+        )
+
+    def sensor_reach(self) -> float:
+        """The widest range (m) up to which a robot's frames update the map: the largest
+        ``SensorModel.reach`` of its robots' sensor models (``sensor_model_for``)."""
+        return max(self.sensor_model_for(r).reach for r in self.robot_ids)
+
+    def floor_plan_ref(self) -> FloorPlanRef | None:
+        """The floor plan reference with its path made absolute."""
+        if self.floor_plan is None:
+            return None
+        ref = self.floor_plan
+        if isinstance(ref, str):
+            ref = FloorPlanRef(path=ref)
+        return ref.model_copy(update={"path": str(user_path(ref.path, self._base_dir).resolve())})
+
+    def prior_map_path(self) -> Path | None:
+        """The previous map's file, made absolute, or None."""
+        return None if self.prior_map is None else (self._base_dir / self.prior_map).resolve()
+
+    def load_floor_plan(self):
+        """The mission's ``swarm.formats.floor_plan.FloorPlan`` (cached), or None without one."""
+        if self._plan is None and self.floor_plan is not None:
+            from swarm.formats.floor_plan import load_floor_plan
+
+            ref = self.floor_plan_ref()
+            self._plan = load_floor_plan(ref.path, ref.wall_height)
+        return self._plan
+
+    def threshold_bits(self) -> float:
+        """H_th: the configured threshold, else 25% of the prior entropy (7 bits per voxel).
+
+        Raises ConfigError when the threshold is ``stop.observable_fraction`` and has not
+        been resolved to bits yet (``swarm.mission.threshold.resolve_threshold`` does that).
+        """
+        if self.stop.entropy_threshold_bits is not None:
+            return float(self.stop.entropy_threshold_bits)
+        if self.stop.observable_fraction is not None:
+            raise ConfigError(
+                f"{self.source or '<mission>'}: stop.observable_fraction: the threshold needs the "
+                "simulator's ground truth; run the mission with `swarm sim`, or set "
+                "stop.entropy_threshold_bits"
+            )
+        return DEFAULT_THRESHOLD_FRACTION * PRIOR_BITS_PER_VOXEL * self.workspace.grid().size
+
+    def to_yaml(self) -> str:
+        """The mission as YAML, with file paths made absolute (for run folders)."""
+        data = self.model_dump(mode="json")
+        ref = self.floor_plan_ref()
+        if ref is not None:
+            data["floor_plan"] = ref.model_dump(mode="json")
+        if self.prior_map is not None:
+            data["prior_map"] = str(self.prior_map_path())
+        for robot in data["robots"]:
+            rig = robot.get("rig")
+            if isinstance(rig, str) and rig.endswith((".yaml", ".yml")):
+                robot["rig"] = str(user_path(rig, self._base_dir).resolve())
+        return yaml.safe_dump(data, sort_keys=False)
