@@ -141,3 +141,38 @@ def test_opencv_file_with_stereo_rectify_outputs_loads_with_a_note(tmp_path):
     calib = load_stereo_calibration(path)
     assert calib.baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
     assert any("E, F, R1, R2, P1, P2, Q: ignored" in note for note in calib.notes)
+
+
+def _opencv_storage(mats: dict) -> str:
+    """An OpenCV FileStorage YAML (``%YAML:1.0``, ``---``, ``!!opencv-matrix`` nodes, data on
+    several lines) as ``cv::FileStorage`` writes it."""
+    lines = ["%YAML:1.0", "---"]
+    for name, m in mats.items():
+        m = np.atleast_2d(m)
+        values = [f"{v:.16e}" for v in m.ravel()]
+        data = ",\n       ".join(", ".join(values[i : i + 3]) for i in range(0, len(values), 3))
+        lines.append(f"{name}: !!opencv-matrix\n   rows: {m.shape[0]}\n   cols: {m.shape[1]}\n   dt: d")
+        lines.append(f"   data: [ {data} ]")
+    return "\n".join(lines) + "\n"
+
+
+def test_files_saved_by_windows_editors_load(tmp_path):
+    """A byte-order mark and CRLF line ends (Notepad's UTF-8) on a FileStorage file and a calib.txt."""
+    text = _opencv_storage({"M1": K1, "D1": D1, "M2": K2, "D2": D2, "R": R, "T": T})
+    text += f"image_size: [ {SIZE[0]}, {SIZE[1]} ]\n"
+    path = tmp_path / "stereo.yml"
+    path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    assert load_stereo_calibration(path).baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
+    mb = tmp_path / "calib"
+    mb.write_bytes(
+        b"\xef\xbb\xbfcam0=[1000 0 300; 0 1000 200; 0 0 1]\r\ncam1=[1000 0 320; 0 1000 200; 0 0 1]\r\n"
+        b"doffs=20\r\nbaseline=150\r\n"
+    )
+    assert load_stereo_calibration(mb).baseline == pytest.approx(0.15)
+
+
+def test_a_file_not_in_utf8_is_refused_by_name(tmp_path):
+    path = tmp_path / "stereo.yml"
+    path.write_bytes(b"%YAML:1.0\n# square size 25 \xb5m\nfx: 1\n")
+    with pytest.raises(CalibrationError, match=r"stereo.yml: not UTF-8 text \(byte 0xb5 at offset 27\)"):
+        load_stereo_calibration(path)

@@ -30,6 +30,7 @@ from swarm.formats.stereo_calibration import (
     RectificationMaps,
     StereoCalibration,
     calibration_from_dict,
+    read_calibration_text,
     read_calibration_yaml,
     rectify_stereo,
 )
@@ -254,12 +255,7 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
     """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres, ``ndisp`` kept."""
     path = Path(path)
     source = str(path)
-    try:
-        lines = path.read_text().splitlines()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    lines = read_calibration_text(path).splitlines()
     values: dict[str, str] = {}
     for line in lines:
         if "=" in line:
@@ -317,9 +313,7 @@ def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -
     """Read any supported form: ``right`` is the second file of per-camera forms (camera_info,
     EuRoC sensor.yaml). Raises CalibrationError naming the file and field."""
     path = Path(path)
-    if path.suffix == ".txt" or (
-        path.exists() and path.read_text(errors="replace").lstrip().startswith("cam0=")
-    ):
+    if path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0="):
         if right is not None:
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")
         return load_middlebury(path)

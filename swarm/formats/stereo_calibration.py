@@ -269,18 +269,32 @@ def read_calibration_yaml(path: Path) -> Any:
 
     Raises CalibrationError naming the file when it is missing, unreadable or not YAML.
     """
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    text = read_calibration_text(path)
     if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
         text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
         return yaml.load(text, Loader=_CalibLoader)
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+
+
+def read_calibration_text(path: Path) -> str:
+    """A calibration file's text: UTF-8, a byte-order mark (Windows editors write one) dropped.
+
+    Raises CalibrationError naming the file when it is missing, unreadable or not UTF-8.
+    """
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: calibration file not found") from None
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); save it as UTF-8"
+        ) from None
 
 
 def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCalibration:
