@@ -176,3 +176,15 @@ def test_a_file_not_in_utf8_is_refused_by_name(tmp_path):
     path.write_bytes(b"%YAML:1.0\n# square size 25 \xb5m\nfx: 1\n")
     with pytest.raises(CalibrationError, match=r"stereo.yml: not UTF-8 text \(byte 0xb5 at offset 27\)"):
         load_stereo_calibration(path)
+
+
+def test_yaml_document_separators(tmp_path):
+    """``---`` after a document (how ``rostopic echo`` ends a message) is not a second calibration;
+    documents that differ are refused by name."""
+    left, right = _camera_infos(tmp_path)
+    for path in (left, right):
+        path.write_text("---\n" + path.read_text() + "---\n")
+    assert load_stereo_calibration(left, right).baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
+    right.write_text(right.read_text() + left.read_text())
+    with pytest.raises(CalibrationError, match=r"right.yaml: holds 2 different YAML documents"):
+        load_stereo_calibration(left, right)

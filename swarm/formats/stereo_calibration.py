@@ -273,9 +273,20 @@ def read_calibration_yaml(path: Path) -> Any:
     if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
         text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        return yaml.load(text, Loader=_CalibLoader)
+        documents = [d for d in yaml.load_all(text, Loader=_CalibLoader) if d is not None]
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+
+    # ``rostopic echo`` / ``ros2 topic echo`` end each message with ``---``: messages that differ
+    # only in their header (a camera_info echoed several times) are one calibration.
+    def unstamped(d: Any) -> Any:
+        return {k: v for k, v in d.items() if k != "header"} if isinstance(d, dict) else d
+
+    if any(unstamped(d) != unstamped(documents[0]) for d in documents[1:]):
+        raise CalibrationError(
+            f"{path}: holds {len(documents)} different YAML documents (separated by ---); keep one"
+        )
+    return documents[0] if documents else None
 
 
 def read_calibration_text(path: Path) -> str:
