@@ -188,3 +188,40 @@ def test_yaml_document_separators(tmp_path):
     right.write_text(right.read_text() + left.read_text())
     with pytest.raises(CalibrationError, match=r"right.yaml: holds 2 different YAML documents"):
         load_stereo_calibration(left, right)
+
+
+def _echoed_camera_infos(tmp_path, ros: int):
+    """The two CameraInfo messages as ``rostopic echo -n 1`` (ROS 1: ``K D R P``, flow lists) or
+    ``ros2 topic echo --once`` (ROS 2: ``k d r p``, block lists) print them, ``---`` at the end."""
+    r1, r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    paths = []
+    for name, k, d, r, p in (("left", K1, D1, r1, p1), ("right", K2, D2, r2, p2)):
+        fields = {"d": d, "k": k, "r": r, "p": p}
+        if ros == 1:
+            stamp = 'header: \n  seq: 7\n  stamp: \n    secs: 1700000000\n    nsecs: 5\n  frame_id: "cam"\n'
+            body = "".join(f"{f.upper()}: {np.ravel(v).tolist()}\n" for f, v in fields.items())
+        else:
+            stamp = "header:\n  stamp:\n    sec: 1700000000\n    nanosec: 5000\n  frame_id: cam\n"
+            body = yaml.safe_dump({f: np.ravel(v).tolist() for f, v in fields.items()}, sort_keys=False)
+        text = (
+            f"{stamp}height: {SIZE[1]}\nwidth: {SIZE[0]}\ndistortion_model: plumb_bob\n{body}"
+            "binning_x: 0\nbinning_y: 0\nroi:\n  x_offset: 0\n  y_offset: 0\n  height: 0\n  width: 0\n"
+            "  do_rectify: false\n---\n"
+        )
+        path = tmp_path / f"{name}_info{ros}.yaml"
+        path.write_text(text)
+        paths.append(path)
+    return paths
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_echoed_camera_info_messages(tmp_path, ros):
+    want = load_stereo_calibration(*_camera_infos(tmp_path))
+    left, right = _echoed_camera_infos(tmp_path, ros)
+    got = load_stereo_calibration(left, right)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right", "image_size"):
+        assert getattr(got, field) == getattr(want, field)
+    with pytest.raises(CalibrationError, match="right camera's too"):
+        load_stereo_calibration(left)

@@ -309,6 +309,19 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
 # -- one entry point -------------------------------------------------------------------------
 
 
+def _is_camera_info(data: Any) -> bool:
+    """camera_calibration's YAML, or a CameraInfo message as ``rostopic echo`` (``K``, ``P``) or
+    ``ros2 topic echo`` (``k``, ``p``) print it."""
+    if not isinstance(data, dict):
+        return False
+    return (
+        "projection_matrix" in data
+        or "camera_matrix" in data
+        or {"k", "p"} <= set(data)
+        or {"K", "P"} <= set(data)
+    )
+
+
 def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -> StereoCalibration:
     """Read any supported form: ``right`` is the second file of per-camera forms (camera_info,
     EuRoC sensor.yaml). Raises CalibrationError naming the file and field."""
@@ -318,7 +331,7 @@ def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")
         return load_middlebury(path)
     data = _read_yaml(path)
-    if isinstance(data, dict) and ("projection_matrix" in data or "camera_matrix" in data):
+    if _is_camera_info(data):
         if right is None:
             raise CalibrationError(
                 f"{path}: a ROS camera_info describes one camera; give the right camera's too "
