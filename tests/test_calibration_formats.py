@@ -225,3 +225,47 @@ def test_echoed_camera_info_messages(tmp_path, ros):
         assert getattr(got, field) == getattr(want, field)
     with pytest.raises(CalibrationError, match="right camera's too"):
         load_stereo_calibration(left)
+
+
+def test_opencv_stereo_calib_sample_two_files(tmp_path):
+    """OpenCV's stereo_calib sample writes intrinsics.yml (M1 D1 M2 D2) and extrinsics.yml
+    (R T R1 R2 P1 P2 Q), and no image size: the pair loads, the size taken from the images."""
+    r1, r2, p1, p2, q, *_ = cv2.stereoRectify(K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), alpha=1)
+    intrinsics, extrinsics = tmp_path / "intrinsics.yml", tmp_path / "extrinsics.yml"
+    intrinsics.write_text(_opencv_storage({"M1": K1, "D1": D1, "M2": K2, "D2": D2}))
+    extrinsics.write_text(
+        _opencv_storage({"R": R, "T": T.reshape(3, 1), "R1": r1, "R2": r2, "P1": p1, "P2": p2, "Q": q})
+    )
+    want = rectify_stereo(K1, D1, K2, D2, R, T, SIZE)
+    for pair in ((intrinsics, extrinsics), (extrinsics, intrinsics)):
+        got = load_stereo_calibration(*pair, image_size=SIZE)
+        for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right", "image_size"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
+        assert any("image_size: not in the file, taken from the images (320x240)" in n for n in got.notes)
+    with pytest.raises(CalibrationError, match=r"image_size: required field is missing \(add image_size"):
+        load_stereo_calibration(intrinsics, extrinsics)
+    with pytest.raises(CalibrationError, match=r"intrinsics.yml: T: required field is missing \(OpenCV"):
+        load_stereo_calibration(intrinsics, image_size=SIZE)
+
+
+def test_stereo_depth_reads_the_two_stereo_calib_files(tmp_path, capsys):
+    """``swarm stereo depth --calib intrinsics.yml --calib-right extrinsics.yml``: the size is the images'."""
+    from tests.test_stereo import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair
+
+    left, right, truth = synthetic_pair(6)
+    cv2.imwrite(str(tmp_path / "left.png"), left)
+    cv2.imwrite(str(tmp_path / "right.png"), right)
+    k = np.array([[FX, 0, CX], [0, FX, CY], [0, 0, 1]])
+    (tmp_path / "intrinsics.yml").write_text(
+        _opencv_storage({"M1": k, "D1": np.zeros(5), "M2": k, "D2": np.zeros(5)})
+    )
+    (tmp_path / "extrinsics.yml").write_text(
+        _opencv_storage({"R": np.eye(3), "T": np.array([-BASELINE, 0, 0])})
+    )
+    d = str(tmp_path)
+    rc = cli([f"{d}/left.png", f"{d}/right.png", "--calib", f"{d}/intrinsics.yml",
+              "--calib-right", f"{d}/extrinsics.yml", "--out", f"{d}/depth.npy"])  # fmt: skip
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert f"taken from the images ({left.shape[1]}x{left.shape[0]})" in out.out
+    assert relative_error(np.load(tmp_path / "depth.npy"), truth)[0] < 0.03

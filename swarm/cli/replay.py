@@ -77,7 +77,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     bag.add_argument("--left-info", help="left sensor_msgs/CameraInfo topic")
     bag.add_argument("--right-info", help="right sensor_msgs/CameraInfo topic")
     bag.add_argument("--calib-left", type=Path, help="calibration file (any form of docs/stereo.md)")
-    bag.add_argument("--calib-right", type=Path, help="the right camera's file for per-camera forms")
+    bag.add_argument(
+        "--calib-right",
+        type=Path,
+        help="the second file of two-file forms: the right camera's (camera_info, sensor.yaml), or "
+        "extrinsics.yml beside --calib-left intrinsics.yml (OpenCV's stereo_calib sample)",
+    )
     bag.add_argument(
         "--tolerance", type=float, default=0.01, help="time matching tolerance, s (default 0.01)"
     )

@@ -322,9 +322,13 @@ def _is_camera_info(data: Any) -> bool:
     )
 
 
-def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -> StereoCalibration:
-    """Read any supported form: ``right`` is the second file of per-camera forms (camera_info,
-    EuRoC sensor.yaml). Raises CalibrationError naming the file and field."""
+def load_stereo_calibration(
+    path: str | Path, right: str | Path | None = None, image_size: tuple[int, int] | None = None
+) -> StereoCalibration:
+    """Read any supported form: ``right`` is the second file of two-file forms (camera_info and
+    EuRoC sensor.yaml: the right camera's; OpenCV's ``stereo_calib`` sample: ``extrinsics.yml``
+    beside ``intrinsics.yml``). ``image_size`` (width, height) is the images' size, used by an
+    OpenCV calibration that states none. Raises CalibrationError naming the file and field."""
     path = Path(path)
     if path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0="):
         if right is not None:
@@ -347,5 +351,23 @@ def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -
     if isinstance(data, dict) and "cam0" in data and "cam1" in data:
         return stereo_from_camchain(data, str(path))
     if right is not None:
+        other = _read_yaml(Path(right))
+        if _opencv_halves(data, other):  # stereo_calib's intrinsics.yml + extrinsics.yml
+            return calibration_from_dict({**data, **other}, f"{path} + {right}", image_size)
         raise CalibrationError(f"{right}: {path} describes both cameras; give it alone")
-    return calibration_from_dict(data, source=str(path))
+    return calibration_from_dict(data, source=str(path), image_size=image_size)
+
+
+def _opencv_halves(a: Any, b: Any) -> bool:
+    """Whether two mappings are the two files of OpenCV's stereo_calib sample: the camera
+    matrices (``M1 D1 M2 D2``) in one, ``R T`` (with ``R1 R2 P1 P2 Q``) in the other."""
+    if not (isinstance(a, dict) and isinstance(b, dict)):
+        return False
+
+    def cameras(d: dict) -> bool:
+        return any(k in d for k in ("K1", "M1")) and "T" not in d
+
+    def extrinsics(d: dict) -> bool:
+        return {"R", "T"} <= set(d) and not any(k in d for k in ("K1", "M1", "K2", "M2"))
+
+    return (cameras(a) and extrinsics(b)) or (cameras(b) and extrinsics(a))

@@ -308,8 +308,14 @@ def read_calibration_text(path: Path) -> str:
         ) from None
 
 
-def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCalibration:
-    """Build a StereoCalibration from the parsed YAML mapping of either form."""
+def calibration_from_dict(
+    data: Any, source: str = "<calibration>", image_size: tuple[int, int] | None = None
+) -> StereoCalibration:
+    """Build a StereoCalibration from the parsed YAML mapping of either form.
+
+    ``image_size`` (width, height) is the images' size, taken for a full calibration that states
+    none (OpenCV's ``stereo_calib`` sample writes no ``image_size``), with a note.
+    """
     if not isinstance(data, dict):
         raise CalibrationError(
             f"{source}: expected a mapping of calibration fields, got {type(data).__name__}"
@@ -328,6 +334,12 @@ def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCal
         )
     ignored = [k for k in OPENCV_DERIVED_KEYS if k in data] if full else []
     data = {k: v for k, v in data.items() if k not in ignored}
+    size_note = ()
+    if full and "image_size" not in data and image_size is not None:
+        data["image_size"] = list(image_size)
+        size_note = (
+            f"{source}: image_size: not in the file, taken from the images ({image_size[0]}x{image_size[1]})",
+        )
     try:
         if rectified:
             rig = _RectifiedFile.model_validate(data)
@@ -356,7 +368,7 @@ def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCal
             "K1, D1, K2, D2, R, T with cv2.stereoRectify",
         )
     return rectify_stereo(
-        cal.K1, cal.D1, cal.K2, cal.D2, cal.R, cal.T, cal.image_size, source, cal.alpha, notes
+        cal.K1, cal.D1, cal.K2, cal.D2, cal.R, cal.T, cal.image_size, source, cal.alpha, notes + size_note
     )
 
 
@@ -369,6 +381,10 @@ def _format_errors(exc: ValidationError, source: str) -> str:
             msg = "unknown field"
         elif err["type"] == "missing":
             msg = "required field is missing"
+            if field == "image_size":
+                msg += " (add image_size: [width, height], the size of the calibration images)"
+            elif field in ("R", "T"):
+                msg += " (OpenCV's stereo_calib sample writes R and T to extrinsics.yml: give it too)"
         got = err.get("input")
         shown = "" if isinstance(got, dict | list) or err["type"] == "missing" else f" (got {got!r})"
         lines.append(f"{source}: {field}: {msg}{shown}")
