@@ -269,3 +269,21 @@ def test_stereo_depth_reads_the_two_stereo_calib_files(tmp_path, capsys):
     assert rc == 0, out.err
     assert f"taken from the images ({left.shape[1]}x{left.shape[0]})" in out.out
     assert relative_error(np.load(tmp_path / "depth.npy"), truth)[0] < 0.03
+
+
+@pytest.mark.parametrize(
+    ("model", "intrinsics"), [("omni", [0.9, 460, 460, 367, 248]), ("ds", [-0.2, 0.6, 350, 350, 367, 248])]
+)
+def test_kalibr_camchain_of_another_camera_model_is_refused_naming_it(tmp_path, model, intrinsics):
+    """kalibr_calibrate_cameras --models omni-radtan / ds-none: refused for camera_model, not intrinsics."""
+    cam = {"camera_model": model, "intrinsics": intrinsics, "distortion_model": "radtan",
+           "distortion_coeffs": [0.0] * 4, "resolution": [752, 480], "rostopic": "/cam0"}  # fmt: skip
+    pose = np.eye(4)
+    pose[0, 3] = -0.11
+    chain = {"cam0": cam, "cam1": {**cam, "T_cn_cnm1": pose.tolist(), "cam_overlaps": [0]}}
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump(chain))
+    with pytest.raises(
+        CalibrationError, match=f"camchain.yaml: cam0: camera_model: '{model}' is not supported"
+    ):
+        load_stereo_calibration(path)

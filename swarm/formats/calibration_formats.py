@@ -191,6 +191,11 @@ class KalibrCamera:
     def from_dict(cls, data: Any, source: str, pose_field: str = "T_BS") -> KalibrCamera:
         if not isinstance(data, dict):
             raise CalibrationError(f"{source}: expected a mapping, got {type(data).__name__}")
+        camera_model = str(data.get("camera_model", "pinhole"))
+        if camera_model != "pinhole":  # Kalibr's omni, eucm, ds put more numbers in intrinsics
+            raise CalibrationError(
+                f"{source}: camera_model: {camera_model!r} is not supported (pinhole only)"
+            )
         fu, fv, cu, cv = _numbers(_field(data, source, "intrinsics"), 4, source, "intrinsics")
         if fu <= 0 or fv <= 0:
             raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
