@@ -287,3 +287,35 @@ def test_kalibr_camchain_of_another_camera_model_is_refused_naming_it(tmp_path, 
         CalibrationError, match=f"camchain.yaml: cam0: camera_model: '{model}' is not supported"
     ):
         load_stereo_calibration(path)
+
+
+def test_kalibr_forms_name_their_own_extrinsics_field(tmp_path):
+    """EuRoC sensor.yaml pairs and camchain.yaml have no ``T``: a swapped pair or a translation in
+    millimetres (silently a 110 m baseline before) is refused naming T_BS / cam1.T_cn_cnm1."""
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    with pytest.raises(
+        CalibrationError, match=r"cam0.yaml: T_BS: the second camera must be to the right .*swapped"
+    ):
+        load_stereo_calibration(tmp_path / "cam1.yaml", tmp_path / "cam0.yaml")
+    mm = {
+        "-0.0216401454975": "-21.6401454975",
+        "-0.064676986768": "-64.676986768",
+        "0.00981073058949": "9.81073058949",
+    }
+    text = EUROC_CAM0
+    for metres, millimetres in mm.items():
+        text = text.replace(metres, millimetres)
+    (tmp_path / "cam0_mm.yaml").write_text(text)
+    with pytest.raises(CalibrationError, match=r"T_BS: the cameras are [0-9.]+ m apart; must be in metres"):
+        load_stereo_calibration(tmp_path / "cam0_mm.yaml", tmp_path / "cam1.yaml")
+    pose = np.eye(4)
+    pose[:3, 3] = [-110.0, 0.2, 0.9]  # millimetres
+    cam = {"camera_model": "pinhole", "intrinsics": [458.6, 457.3, 367, 248], "distortion_model": "radtan",
+           "distortion_coeffs": [-0.28, 0.07, 0.0, 0.0], "resolution": [752, 480]}  # fmt: skip
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump({"cam0": cam, "cam1": {**cam, "T_cn_cnm1": pose.tolist()}}))
+    with pytest.raises(
+        CalibrationError, match=r"^\S*camchain.yaml: cam1.T_cn_cnm1: the cameras are 110.004 m apart"
+    ):
+        load_stereo_calibration(path)

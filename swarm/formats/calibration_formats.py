@@ -224,15 +224,20 @@ class KalibrCamera:
         return cls.from_dict(_read_yaml(path), str(path))
 
 
-def stereo_from_kalibr(left: KalibrCamera, right: KalibrCamera) -> StereoCalibration:
-    """Rectify a pair given both cameras' poses in one body frame (EuRoC's two ``T_BS``)."""
-    source = f"{left.source} + {right.source}"
+def stereo_from_kalibr(
+    left: KalibrCamera, right: KalibrCamera, source: str | None = None, extrinsics: str = "T_BS"
+) -> StereoCalibration:
+    """Rectify a pair given both cameras' poses in one body frame (EuRoC's two ``T_BS``).
+
+    ``source`` and ``extrinsics`` (the field that holds the relative pose) name the pair in errors."""
+    source = source or f"{left.source} + {right.source}"
     if left.size != right.size:
         raise CalibrationError(f"{right.source}: resolution: {right.size}, the left camera is {left.size}")
     right_from_left = np.linalg.inv(right.body_from_camera) @ left.body_from_camera  # X1 = R X0 + T
     return rectify_stereo(
-        left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source
-    )
+        left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source,
+        extrinsics=extrinsics,
+    )  # fmt: skip
 
 
 def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
@@ -248,7 +253,7 @@ def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
     )
     right_dict["T_BS"] = np.linalg.inv(right_from_left.reshape(4, 4)).tolist()
     right = KalibrCamera.from_dict(right_dict, f"{source}: cam1")
-    return stereo_from_kalibr(left, right)
+    return stereo_from_kalibr(left, right, source, "cam1.T_cn_cnm1")
 
 
 # -- Middlebury calib.txt ------------------------------------------------------------------

@@ -402,25 +402,33 @@ def rectify_stereo(
     source: str = "<calibration>",
     alpha: float = 0.0,
     notes: tuple[str, ...] = (),
+    extrinsics: str = "T",
 ) -> StereoCalibration:
     """Rectify a raw stereo pair's calibration (OpenCV's X2 = R X1 + T, metres, radtan distortion).
 
     ``k1``, ``k2`` are 3x3 camera matrices, ``d1``, ``d2`` OpenCV distortion vectors, ``size``
-    is (width, height). Raises CalibrationError (naming ``T``) for vertical or swapped rigs.
+    is (width, height). Raises CalibrationError naming ``extrinsics``, the file's field(s) the
+    translation comes from, for a baseline in millimetres, vertical or swapped rigs.
     """
     t = np.asarray(translation, dtype=np.float64).reshape(3)
+    if not np.linalg.norm(t) <= MAX_BASELINE_M:
+        raise CalibrationError(
+            f"{source}: {extrinsics}: the cameras are {np.linalg.norm(t):g} m apart; must be in metres "
+            "(millimetres?)"
+        )
+    swapped = "T[0] < 0 with X2 = R X1 + T" if extrinsics == "T" else "are the two cameras swapped?"
     r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
         k1, d1, k2, d2, size, rotation, t.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha
     )
     if abs(p2[1, 3]) > abs(p2[0, 3]):
         raise CalibrationError(
-            f"{source}: T: the cameras are displaced vertically; only side-by-side rigs work"
+            f"{source}: {extrinsics}: the cameras are displaced vertically; only side-by-side rigs work"
         )
     baseline = -p2[0, 3] / p2[0, 0]
     if not baseline > 0:
         raise CalibrationError(
-            f"{source}: T: the second camera must be to the right of the first "
-            f"(T[0] < 0 with X2 = R X1 + T), got T = {t.tolist()}"
+            f"{source}: {extrinsics}: the second camera must be to the right of the first "
+            f"({swapped}), got X2 = R X1 + T with T = {t.tolist()}"
         )
     if not all(math.isfinite(v) for v in (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2], baseline)):
         raise CalibrationError(f"{source}: K1, K2, R, T: rectification failed (non-finite projection)")
