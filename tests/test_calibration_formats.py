@@ -319,3 +319,18 @@ def test_kalibr_forms_name_their_own_extrinsics_field(tmp_path):
         CalibrationError, match=r"^\S*camchain.yaml: cam1.T_cn_cnm1: the cameras are 110.004 m apart"
     ):
         load_stereo_calibration(path)
+
+
+def test_opencv_file_with_image_width_and_height(tmp_path):
+    """``image_width`` / ``image_height`` (the names OpenCV's calibration sample writes, and many
+    hand-written FileStorage stereo files use) stand for ``image_size``."""
+    text = _opencv_storage({"K1": K1, "D1": D1, "K2": K2, "D2": D2, "R": R, "T": T.reshape(3, 1)})
+    path = tmp_path / "stereo_calib.yml"
+    path.write_text(text.replace("---\n", f"---\nimage_width: {SIZE[0]}\nimage_height: {SIZE[1]}\n"))
+    got = load_stereo_calibration(path)
+    want = rectify_stereo(K1, D1, K2, D2, R, T, SIZE)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right", "image_size"):
+        assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
+    path.write_text(text.replace("---\n", f"---\nimage_width: {SIZE[0]}\n"))
+    with pytest.raises(CalibrationError, match="stereo_calib.yml: image_width, image_height: give both"):
+        load_stereo_calibration(path)

@@ -23,7 +23,7 @@ nodes load too)::
     D2: ...
     R: [[...], [...], [...]]      # or a Rodrigues 3-vector; X2 = R X1 + T
     T: [-0.09, 0, 0]              # metres; the second camera is to the right: T[0] < 0
-    image_size: [160, 120]        # width, height
+    image_size: [160, 120]        # width, height (or image_width, image_height)
     alpha: 0                      # optional cv2.stereoRectify free scaling (0: only valid pixels)
 
 The full form is rectified once on load (``cv2.stereoRectify`` with zero disparity at
@@ -334,6 +334,14 @@ def calibration_from_dict(
         )
     ignored = [k for k in OPENCV_DERIVED_KEYS if k in data] if full else []
     data = {k: v for k, v in data.items() if k not in ignored}
+    if full and ("image_width" in data or "image_height" in data):  # OpenCV's calibration sample's names
+        if not ("image_width" in data and "image_height" in data):
+            raise CalibrationError(f"{source}: image_width, image_height: give both or neither")
+        size = [data.pop("image_width"), data.pop("image_height")]
+        if data.setdefault("image_size", size) != size:
+            raise CalibrationError(
+                f"{source}: image_size: {data['image_size']} but image_width, image_height say {size}"
+            )
     size_note = ()
     if full and "image_size" not in data and image_size is not None:
         data["image_size"] = list(image_size)
