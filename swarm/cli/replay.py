@@ -144,10 +144,19 @@ def _replay(args: argparse.Namespace, opener) -> int:
     from swarm.formats.stereo_calibration import CalibrationError
     from swarm.mission.replay_run import ReplayOptions, default_mission, run_replay
 
+    if args.frames is not None and args.frames < 1:
+        return _fail(f"--frames {args.frames}: must be at least 1 (leave it out for all pairs)")
+    if args.start < 0:
+        return _fail(f"--start {args.start}: must be 0 or more (the first pair is 0)")
     try:
         recording = opener(args)
         if len(recording) == 0:
             return _fail(f"no pair left after matching ({recording.matched.describe()})")
+        if args.start >= len(recording):
+            return _fail(
+                f"--start {args.start}: the recording has {len(recording)} pairs after matching "
+                f"(0 to {len(recording) - 1})"
+            )
         _fit_image_size(recording, args.start)
         robot = args.robot
         if args.config is not None:
