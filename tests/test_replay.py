@@ -156,3 +156,26 @@ def test_start_and_frames_outside_the_recording_are_refused(tmp_path, capsys, op
     assert main(["replay", "asl", str(EUROC), "--out", str(out), *options]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_asl_csv_files_saved_by_excel_load(tmp_path):
+    """data.csv files with a byte-order mark and CRLF line ends (Excel's "CSV UTF-8") read as the
+    originals; a CSV not in UTF-8 is refused naming it."""
+    import shutil
+
+    from replay.asl import AslRecording, RecordingError
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    for path in copy.rglob("data.csv"):
+        lines = path.read_bytes().replace(b"\r\n", b"\n").split(b"\n")
+        path.write_bytes(b"\xef\xbb\xbf" + b"\r\n".join(lines))
+    want, got = AslRecording(EUROC), AslRecording(copy)
+    assert len(got) == len(want) == 4
+    assert np.array_equal(got.left_stamps, want.left_stamps) and np.allclose(
+        got.positions(), want.positions()
+    )
+    path = copy / "mav0/cam0/data.csv"
+    path.write_bytes(path.read_bytes().replace(b"#timestamp", b"#\xb5timestamp"))
+    with pytest.raises(RecordingError, match=r"cam0/data.csv: not UTF-8 text"):
+        AslRecording(copy)
