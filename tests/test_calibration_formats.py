@@ -334,3 +334,12 @@ def test_opencv_file_with_image_width_and_height(tmp_path):
     path.write_text(text.replace("---\n", f"---\nimage_width: {SIZE[0]}\n"))
     with pytest.raises(CalibrationError, match="stereo_calib.yml: image_width, image_height: give both"):
         load_stereo_calibration(path)
+
+
+def test_an_empty_file_is_called_empty(tmp_path):
+    left, _right = _camera_infos(tmp_path)
+    empty = tmp_path / "right.yaml"
+    empty.write_text("# saved before the calibration finished\n---\n")
+    for args in ((empty,), (left, empty)):
+        with pytest.raises(CalibrationError, match=r"right.yaml: the file is empty"):
+            load_stereo_calibration(*args)

@@ -286,7 +286,9 @@ def read_calibration_yaml(path: Path) -> Any:
         raise CalibrationError(
             f"{path}: holds {len(documents)} different YAML documents (separated by ---); keep one"
         )
-    return documents[0] if documents else None
+    if not documents:
+        raise CalibrationError(f"{path}: the file is empty (no YAML mapping in it)")
+    return documents[0]
 
 
 def read_calibration_text(path: Path) -> str:
