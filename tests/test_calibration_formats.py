@@ -343,3 +343,16 @@ def test_an_empty_file_is_called_empty(tmp_path):
     for args in ((empty,), (left, empty)):
         with pytest.raises(CalibrationError, match=r"right.yaml: the file is empty"):
             load_stereo_calibration(*args)
+
+
+def test_a_txt_that_is_not_middlebury_says_what_was_expected(tmp_path):
+    """ROS camera_calibration's tarball holds ost.txt beside left.yaml and right.yaml."""
+    path = tmp_path / "ost.txt"
+    path.write_text(
+        "# oST version 5.0 parameters\n\n\n[image]\n\nwidth\n320\n\nheight\n240\n\n"
+        "[narrow_stereo/left]\n\ncamera matrix\n300 0 161\n0 301 118\n0 0 1\n"
+    )
+    with pytest.raises(
+        CalibrationError, match=r"ost.txt: cam0: required field is missing .*left.yaml and right.yaml"
+    ):
+        load_stereo_calibration(path)

@@ -272,6 +272,13 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
             key, value = line.split("=", 1)
             values[key.strip()] = value.strip()
 
+    if "cam0" not in values:  # e.g. the ost.txt beside ROS camera_calibration's left/right.yaml
+        raise CalibrationError(
+            f"{source}: cam0: required field is missing (a .txt calibration is read as a Middlebury "
+            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1]; of ROS camera_calibration's output give "
+            "left.yaml and right.yaml, not ost.txt)"
+        )
+
     def matrix(name: str) -> np.ndarray:
         match = _MATRIX.match(values.get(name, ""))
         if match is None:
