@@ -40,13 +40,16 @@ def _rows(path: Path, columns: int) -> list[list[str]]:
     if not path.is_file():
         raise RecordingError(f"{path}: file not found")
     rows = []
-    with path.open(newline="") as fh:
-        for n, row in enumerate(csv.reader(fh), 1):
-            if not row or row[0].lstrip().startswith("#"):
-                continue
-            if len(row) < columns:
-                raise RecordingError(f"{path}: line {n}: expected {columns} columns, got {len(row)}")
-            rows.append([c.strip() for c in row])
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:  # a byte-order mark: saved by Excel
+            for n, row in enumerate(csv.reader(fh), 1):
+                if not row or row[0].lstrip().startswith("#"):
+                    continue
+                if len(row) < columns:
+                    raise RecordingError(f"{path}: line {n}: expected {columns} columns, got {len(row)}")
+                rows.append([c.strip() for c in row])
+    except UnicodeDecodeError as exc:
+        raise RecordingError(f"{path}: not UTF-8 text (byte offset {exc.start})") from None
     if not rows:
         raise RecordingError(f"{path}: no data rows")
     return rows

@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--calib-right",
         type=Path,
-        help="the right camera's file, for per-camera forms (ROS camera_info, EuRoC sensor.yaml)",
+        help="the second file of two-file forms: the right camera's (ROS camera_info, EuRoC sensor.yaml), "
+        "or extrinsics.yml beside --calib intrinsics.yml (OpenCV's stereo_calib sample)",
     )
     parser.add_argument(
         "--out",
@@ -117,9 +118,9 @@ def run(args: argparse.Namespace) -> int:
     if args.png is not None and args.png.suffix.lower() != ".png":
         return _fail(f"--png {args.png}: the picture is a PNG; name it {args.png.with_suffix('.png').name}")
     try:
-        calib = load_stereo_calibration(args.calib, args.calib_right)
         left = _read_image(args.left, "left")
         right = _read_image(args.right, "right")
+        calib = load_stereo_calibration(args.calib, args.calib_right, image_size=left.shape[1::-1])
     except (CalibrationError, FileNotFoundError, ValueError) as exc:
         return _fail(str(exc))
     for note in calib.notes:

@@ -141,3 +141,218 @@ def test_opencv_file_with_stereo_rectify_outputs_loads_with_a_note(tmp_path):
     calib = load_stereo_calibration(path)
     assert calib.baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
     assert any("E, F, R1, R2, P1, P2, Q: ignored" in note for note in calib.notes)
+
+
+def _opencv_storage(mats: dict) -> str:
+    """An OpenCV FileStorage YAML (``%YAML:1.0``, ``---``, ``!!opencv-matrix`` nodes, data on
+    several lines) as ``cv::FileStorage`` writes it."""
+    lines = ["%YAML:1.0", "---"]
+    for name, m in mats.items():
+        m = np.atleast_2d(m)
+        values = [f"{v:.16e}" for v in m.ravel()]
+        data = ",\n       ".join(", ".join(values[i : i + 3]) for i in range(0, len(values), 3))
+        lines.append(f"{name}: !!opencv-matrix\n   rows: {m.shape[0]}\n   cols: {m.shape[1]}\n   dt: d")
+        lines.append(f"   data: [ {data} ]")
+    return "\n".join(lines) + "\n"
+
+
+def test_files_saved_by_windows_editors_load(tmp_path):
+    """A byte-order mark and CRLF line ends (Notepad's UTF-8) on a FileStorage file and a calib.txt."""
+    text = _opencv_storage({"M1": K1, "D1": D1, "M2": K2, "D2": D2, "R": R, "T": T})
+    text += f"image_size: [ {SIZE[0]}, {SIZE[1]} ]\n"
+    path = tmp_path / "stereo.yml"
+    path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    assert load_stereo_calibration(path).baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
+    mb = tmp_path / "calib"
+    mb.write_bytes(
+        b"\xef\xbb\xbfcam0=[1000 0 300; 0 1000 200; 0 0 1]\r\ncam1=[1000 0 320; 0 1000 200; 0 0 1]\r\n"
+        b"doffs=20\r\nbaseline=150\r\n"
+    )
+    assert load_stereo_calibration(mb).baseline == pytest.approx(0.15)
+
+
+def test_a_file_not_in_utf8_is_refused_by_name(tmp_path):
+    path = tmp_path / "stereo.yml"
+    path.write_bytes(b"%YAML:1.0\n# square size 25 \xb5m\nfx: 1\n")
+    with pytest.raises(CalibrationError, match=r"stereo.yml: not UTF-8 text \(byte 0xb5 at offset 27\)"):
+        load_stereo_calibration(path)
+
+
+def test_yaml_document_separators(tmp_path):
+    """``---`` after a document (how ``rostopic echo`` ends a message) is not a second calibration;
+    documents that differ are refused by name."""
+    left, right = _camera_infos(tmp_path)
+    for path in (left, right):
+        path.write_text("---\n" + path.read_text() + "---\n")
+    assert load_stereo_calibration(left, right).baseline == pytest.approx(np.linalg.norm(T), rel=1e-6)
+    right.write_text(right.read_text() + left.read_text())
+    with pytest.raises(CalibrationError, match=r"right.yaml: holds 2 different YAML documents"):
+        load_stereo_calibration(left, right)
+
+
+def _echoed_camera_infos(tmp_path, ros: int):
+    """The two CameraInfo messages as ``rostopic echo -n 1`` (ROS 1: ``K D R P``, flow lists) or
+    ``ros2 topic echo --once`` (ROS 2: ``k d r p``, block lists) print them, ``---`` at the end."""
+    r1, r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    paths = []
+    for name, k, d, r, p in (("left", K1, D1, r1, p1), ("right", K2, D2, r2, p2)):
+        fields = {"d": d, "k": k, "r": r, "p": p}
+        if ros == 1:
+            stamp = 'header: \n  seq: 7\n  stamp: \n    secs: 1700000000\n    nsecs: 5\n  frame_id: "cam"\n'
+            body = "".join(f"{f.upper()}: {np.ravel(v).tolist()}\n" for f, v in fields.items())
+        else:
+            stamp = "header:\n  stamp:\n    sec: 1700000000\n    nanosec: 5000\n  frame_id: cam\n"
+            body = yaml.safe_dump({f: np.ravel(v).tolist() for f, v in fields.items()}, sort_keys=False)
+        text = (
+            f"{stamp}height: {SIZE[1]}\nwidth: {SIZE[0]}\ndistortion_model: plumb_bob\n{body}"
+            "binning_x: 0\nbinning_y: 0\nroi:\n  x_offset: 0\n  y_offset: 0\n  height: 0\n  width: 0\n"
+            "  do_rectify: false\n---\n"
+        )
+        path = tmp_path / f"{name}_info{ros}.yaml"
+        path.write_text(text)
+        paths.append(path)
+    return paths
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_echoed_camera_info_messages(tmp_path, ros):
+    want = load_stereo_calibration(*_camera_infos(tmp_path))
+    left, right = _echoed_camera_infos(tmp_path, ros)
+    got = load_stereo_calibration(left, right)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right", "image_size"):
+        assert getattr(got, field) == getattr(want, field)
+    with pytest.raises(CalibrationError, match="right camera's too"):
+        load_stereo_calibration(left)
+
+
+def test_opencv_stereo_calib_sample_two_files(tmp_path):
+    """OpenCV's stereo_calib sample writes intrinsics.yml (M1 D1 M2 D2) and extrinsics.yml
+    (R T R1 R2 P1 P2 Q), and no image size: the pair loads, the size taken from the images."""
+    r1, r2, p1, p2, q, *_ = cv2.stereoRectify(K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), alpha=1)
+    intrinsics, extrinsics = tmp_path / "intrinsics.yml", tmp_path / "extrinsics.yml"
+    intrinsics.write_text(_opencv_storage({"M1": K1, "D1": D1, "M2": K2, "D2": D2}))
+    extrinsics.write_text(
+        _opencv_storage({"R": R, "T": T.reshape(3, 1), "R1": r1, "R2": r2, "P1": p1, "P2": p2, "Q": q})
+    )
+    want = rectify_stereo(K1, D1, K2, D2, R, T, SIZE)
+    for pair in ((intrinsics, extrinsics), (extrinsics, intrinsics)):
+        got = load_stereo_calibration(*pair, image_size=SIZE)
+        for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right", "image_size"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
+        assert any("image_size: not in the file, taken from the images (320x240)" in n for n in got.notes)
+    with pytest.raises(CalibrationError, match=r"image_size: required field is missing \(add image_size"):
+        load_stereo_calibration(intrinsics, extrinsics)
+    with pytest.raises(CalibrationError, match=r"intrinsics.yml: T: required field is missing \(OpenCV"):
+        load_stereo_calibration(intrinsics, image_size=SIZE)
+
+
+def test_stereo_depth_reads_the_two_stereo_calib_files(tmp_path, capsys):
+    """``swarm stereo depth --calib intrinsics.yml --calib-right extrinsics.yml``: the size is the images'."""
+    from tests.test_stereo import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair
+
+    left, right, truth = synthetic_pair(6)
+    cv2.imwrite(str(tmp_path / "left.png"), left)
+    cv2.imwrite(str(tmp_path / "right.png"), right)
+    k = np.array([[FX, 0, CX], [0, FX, CY], [0, 0, 1]])
+    (tmp_path / "intrinsics.yml").write_text(
+        _opencv_storage({"M1": k, "D1": np.zeros(5), "M2": k, "D2": np.zeros(5)})
+    )
+    (tmp_path / "extrinsics.yml").write_text(
+        _opencv_storage({"R": np.eye(3), "T": np.array([-BASELINE, 0, 0])})
+    )
+    d = str(tmp_path)
+    rc = cli([f"{d}/left.png", f"{d}/right.png", "--calib", f"{d}/intrinsics.yml",
+              "--calib-right", f"{d}/extrinsics.yml", "--out", f"{d}/depth.npy"])  # fmt: skip
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert f"taken from the images ({left.shape[1]}x{left.shape[0]})" in out.out
+    assert relative_error(np.load(tmp_path / "depth.npy"), truth)[0] < 0.03
+
+
+@pytest.mark.parametrize(
+    ("model", "intrinsics"), [("omni", [0.9, 460, 460, 367, 248]), ("ds", [-0.2, 0.6, 350, 350, 367, 248])]
+)
+def test_kalibr_camchain_of_another_camera_model_is_refused_naming_it(tmp_path, model, intrinsics):
+    """kalibr_calibrate_cameras --models omni-radtan / ds-none: refused for camera_model, not intrinsics."""
+    cam = {"camera_model": model, "intrinsics": intrinsics, "distortion_model": "radtan",
+           "distortion_coeffs": [0.0] * 4, "resolution": [752, 480], "rostopic": "/cam0"}  # fmt: skip
+    pose = np.eye(4)
+    pose[0, 3] = -0.11
+    chain = {"cam0": cam, "cam1": {**cam, "T_cn_cnm1": pose.tolist(), "cam_overlaps": [0]}}
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump(chain))
+    with pytest.raises(
+        CalibrationError, match=f"camchain.yaml: cam0: camera_model: '{model}' is not supported"
+    ):
+        load_stereo_calibration(path)
+
+
+def test_kalibr_forms_name_their_own_extrinsics_field(tmp_path):
+    """EuRoC sensor.yaml pairs and camchain.yaml have no ``T``: a swapped pair or a translation in
+    millimetres (silently a 110 m baseline before) is refused naming T_BS / cam1.T_cn_cnm1."""
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    with pytest.raises(
+        CalibrationError, match=r"cam0.yaml: T_BS: the second camera must be to the right .*swapped"
+    ):
+        load_stereo_calibration(tmp_path / "cam1.yaml", tmp_path / "cam0.yaml")
+    mm = {
+        "-0.0216401454975": "-21.6401454975",
+        "-0.064676986768": "-64.676986768",
+        "0.00981073058949": "9.81073058949",
+    }
+    text = EUROC_CAM0
+    for metres, millimetres in mm.items():
+        text = text.replace(metres, millimetres)
+    (tmp_path / "cam0_mm.yaml").write_text(text)
+    with pytest.raises(CalibrationError, match=r"T_BS: the cameras are [0-9.]+ m apart; must be in metres"):
+        load_stereo_calibration(tmp_path / "cam0_mm.yaml", tmp_path / "cam1.yaml")
+    pose = np.eye(4)
+    pose[:3, 3] = [-110.0, 0.2, 0.9]  # millimetres
+    cam = {"camera_model": "pinhole", "intrinsics": [458.6, 457.3, 367, 248], "distortion_model": "radtan",
+           "distortion_coeffs": [-0.28, 0.07, 0.0, 0.0], "resolution": [752, 480]}  # fmt: skip
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump({"cam0": cam, "cam1": {**cam, "T_cn_cnm1": pose.tolist()}}))
+    with pytest.raises(
+        CalibrationError, match=r"^\S*camchain.yaml: cam1.T_cn_cnm1: the cameras are 110.004 m apart"
+    ):
+        load_stereo_calibration(path)
+
+
+def test_opencv_file_with_image_width_and_height(tmp_path):
+    """``image_width`` / ``image_height`` (the names OpenCV's calibration sample writes, and many
+    hand-written FileStorage stereo files use) stand for ``image_size``."""
+    text = _opencv_storage({"K1": K1, "D1": D1, "K2": K2, "D2": D2, "R": R, "T": T.reshape(3, 1)})
+    path = tmp_path / "stereo_calib.yml"
+    path.write_text(text.replace("---\n", f"---\nimage_width: {SIZE[0]}\nimage_height: {SIZE[1]}\n"))
+    got = load_stereo_calibration(path)
+    want = rectify_stereo(K1, D1, K2, D2, R, T, SIZE)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right", "image_size"):
+        assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
+    path.write_text(text.replace("---\n", f"---\nimage_width: {SIZE[0]}\n"))
+    with pytest.raises(CalibrationError, match="stereo_calib.yml: image_width, image_height: give both"):
+        load_stereo_calibration(path)
+
+
+def test_an_empty_file_is_called_empty(tmp_path):
+    left, _right = _camera_infos(tmp_path)
+    empty = tmp_path / "right.yaml"
+    empty.write_text("# saved before the calibration finished\n---\n")
+    for args in ((empty,), (left, empty)):
+        with pytest.raises(CalibrationError, match=r"right.yaml: the file is empty"):
+            load_stereo_calibration(*args)
+
+
+def test_a_txt_that_is_not_middlebury_says_what_was_expected(tmp_path):
+    """ROS camera_calibration's tarball holds ost.txt beside left.yaml and right.yaml."""
+    path = tmp_path / "ost.txt"
+    path.write_text(
+        "# oST version 5.0 parameters\n\n\n[image]\n\nwidth\n320\n\nheight\n240\n\n"
+        "[narrow_stereo/left]\n\ncamera matrix\n300 0 161\n0 301 118\n0 0 1\n"
+    )
+    with pytest.raises(
+        CalibrationError, match=r"ost.txt: cam0: required field is missing .*left.yaml and right.yaml"
+    ):
+        load_stereo_calibration(path)

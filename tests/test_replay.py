@@ -134,3 +134,48 @@ def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_
     assert all(float(r["round_trip_ms"]) > 0 and 0 < float(r["stereo_valid"]) <= 1 for r in rows)
     got, want = load_map(out / "map.npz"), load_map(euroc_asl_run / "map.npz")
     assert np.array_equal(got.lam, want.lam) and np.array_equal(got.eta, want.eta)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (
+            ["--start", "100", "--frames", "20"],
+            "--start 100: the recording has 4 pairs after matching (0 to 3)",
+        ),
+        (["--start", "-1"], "--start -1: must be 0 or more"),
+        (["--frames", "0"], "--frames 0: must be at least 1"),
+    ],
+)
+def test_start_and_frames_outside_the_recording_are_refused(tmp_path, capsys, options, message):
+    """docs/recordings.md's ``--frames 20 --start 100`` on a shorter recording: one error line, no
+    empty run of the server and agent."""
+    from swarm.cli import main
+
+    out = tmp_path / "run"
+    assert main(["replay", "asl", str(EUROC), "--out", str(out), *options]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_asl_csv_files_saved_by_excel_load(tmp_path):
+    """data.csv files with a byte-order mark and CRLF line ends (Excel's "CSV UTF-8") read as the
+    originals; a CSV not in UTF-8 is refused naming it."""
+    import shutil
+
+    from replay.asl import AslRecording, RecordingError
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    for path in copy.rglob("data.csv"):
+        lines = path.read_bytes().replace(b"\r\n", b"\n").split(b"\n")
+        path.write_bytes(b"\xef\xbb\xbf" + b"\r\n".join(lines))
+    want, got = AslRecording(EUROC), AslRecording(copy)
+    assert len(got) == len(want) == 4
+    assert np.array_equal(got.left_stamps, want.left_stamps) and np.allclose(
+        got.positions(), want.positions()
+    )
+    path = copy / "mav0/cam0/data.csv"
+    path.write_bytes(path.read_bytes().replace(b"#timestamp", b"#\xb5timestamp"))
+    with pytest.raises(RecordingError, match=r"cam0/data.csv: not UTF-8 text"):
+        AslRecording(copy)

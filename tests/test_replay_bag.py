@@ -132,3 +132,28 @@ def test_euroc_bags_replayed_give_the_asl_map(tmp_path, euroc_asl_run):
         assert np.array_equal(got.lam, want.lam) and np.array_equal(got.eta, want.eta), name
         metrics = json.loads((out / "metrics.json").read_text())
         assert metrics["frames"] == REPLAY_FRAMES and metrics["unanswered"] == 0, name
+
+
+def test_calibration_for_another_image_size_is_refused_before_the_run(tmp_path, capsys):
+    """A calibration file made for other images (here a camera_calibration pair for 640 x 480 on
+    EuRoC's 752 x 480) is one error line naming it, before any process starts; a rectified rig
+    that states no size takes the images'."""
+    from swarm.cli import main
+    from swarm.cli.replay import _fit_image_size
+
+    bag = tmp_path / "euroc.bag"
+    _write_euroc_bag(bag, 1)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("fx: 436.2\nfy: 436.2\ncx: 364.4\ncy: 256.8\nbaseline: 0.11\nwidth: 640\nheight: 480\n")
+    topics = ["--left", "/cam0/image_raw", "--right", "/cam1/image_raw", "--pose", "/cam0/pose"]
+    out = tmp_path / "run"
+    rc = main(["replay", "bag", str(bag), *topics, "--calib-left", str(rig), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "rig.yaml: image_size: calibration is for 640x480 images, the recording's left image" in err
+    assert "(pair 0) is 752x480" in err
+    assert not out.exists()
+    rig.write_text("fx: 436.2\nfy: 436.2\ncx: 364.4\ncy: 256.8\nbaseline: 0.11\n")
+    rec = BagRecording(bag, "/cam0/image_raw", "/cam1/image_raw", "/cam0/pose", load_stereo_calibration(rig))
+    _fit_image_size(rec, 0)
+    assert rec.calibration.image_size == (752, 480) and rec.calibration.baseline == 0.11

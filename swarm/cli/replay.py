@@ -77,7 +77,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     bag.add_argument("--left-info", help="left sensor_msgs/CameraInfo topic")
     bag.add_argument("--right-info", help="right sensor_msgs/CameraInfo topic")
     bag.add_argument("--calib-left", type=Path, help="calibration file (any form of docs/stereo.md)")
-    bag.add_argument("--calib-right", type=Path, help="the right camera's file for per-camera forms")
+    bag.add_argument(
+        "--calib-right",
+        type=Path,
+        help="the second file of two-file forms: the right camera's (camera_info, sensor.yaml), or "
+        "extrinsics.yml beside --calib-left intrinsics.yml (OpenCV's stereo_calib sample)",
+    )
     bag.add_argument(
         "--tolerance", type=float, default=0.01, help="time matching tolerance, s (default 0.01)"
     )
@@ -109,6 +114,22 @@ def _open_bag(args: argparse.Namespace):
     )  # fmt: skip
 
 
+def _fit_image_size(recording, start: int) -> None:
+    """Check the calibration against the first pair's images before any process starts: a file for
+    another size is refused naming it; a rectified rig that states no size takes the images'."""
+    import dataclasses
+
+    first = next(iter(recording.pairs(start, 1)), None)
+    if first is None:
+        return
+    height, width = first.left.shape[:2]
+    calib = recording.calibration
+    if calib.image_size is None and calib.maps is None:
+        recording.calibration = dataclasses.replace(calib, image_size=(width, height))
+    else:
+        calib.check_image_size(width, height, f"the recording's left image (pair {start})")
+
+
 def _run_asl(args: argparse.Namespace) -> int:
     return _replay(args, _open_asl)
 
@@ -123,10 +144,20 @@ def _replay(args: argparse.Namespace, opener) -> int:
     from swarm.formats.stereo_calibration import CalibrationError
     from swarm.mission.replay_run import ReplayOptions, default_mission, run_replay
 
+    if args.frames is not None and args.frames < 1:
+        return _fail(f"--frames {args.frames}: must be at least 1 (leave it out for all pairs)")
+    if args.start < 0:
+        return _fail(f"--start {args.start}: must be 0 or more (the first pair is 0)")
     try:
         recording = opener(args)
         if len(recording) == 0:
             return _fail(f"no pair left after matching ({recording.matched.describe()})")
+        if args.start >= len(recording):
+            return _fail(
+                f"--start {args.start}: the recording has {len(recording)} pairs after matching "
+                f"(0 to {len(recording) - 1})"
+            )
+        _fit_image_size(recording, args.start)
         robot = args.robot
         if args.config is not None:
             mission = load_mission(args.config)

@@ -30,6 +30,7 @@ from swarm.formats.stereo_calibration import (
     RectificationMaps,
     StereoCalibration,
     calibration_from_dict,
+    read_calibration_text,
     read_calibration_yaml,
     rectify_stereo,
 )
@@ -190,6 +191,11 @@ class KalibrCamera:
     def from_dict(cls, data: Any, source: str, pose_field: str = "T_BS") -> KalibrCamera:
         if not isinstance(data, dict):
             raise CalibrationError(f"{source}: expected a mapping, got {type(data).__name__}")
+        camera_model = str(data.get("camera_model", "pinhole"))
+        if camera_model != "pinhole":  # Kalibr's omni, eucm, ds put more numbers in intrinsics
+            raise CalibrationError(
+                f"{source}: camera_model: {camera_model!r} is not supported (pinhole only)"
+            )
         fu, fv, cu, cv = _numbers(_field(data, source, "intrinsics"), 4, source, "intrinsics")
         if fu <= 0 or fv <= 0:
             raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
@@ -218,15 +224,20 @@ class KalibrCamera:
         return cls.from_dict(_read_yaml(path), str(path))
 
 
-def stereo_from_kalibr(left: KalibrCamera, right: KalibrCamera) -> StereoCalibration:
-    """Rectify a pair given both cameras' poses in one body frame (EuRoC's two ``T_BS``)."""
-    source = f"{left.source} + {right.source}"
+def stereo_from_kalibr(
+    left: KalibrCamera, right: KalibrCamera, source: str | None = None, extrinsics: str = "T_BS"
+) -> StereoCalibration:
+    """Rectify a pair given both cameras' poses in one body frame (EuRoC's two ``T_BS``).
+
+    ``source`` and ``extrinsics`` (the field that holds the relative pose) name the pair in errors."""
+    source = source or f"{left.source} + {right.source}"
     if left.size != right.size:
         raise CalibrationError(f"{right.source}: resolution: {right.size}, the left camera is {left.size}")
     right_from_left = np.linalg.inv(right.body_from_camera) @ left.body_from_camera  # X1 = R X0 + T
     return rectify_stereo(
-        left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source
-    )
+        left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source,
+        extrinsics=extrinsics,
+    )  # fmt: skip
 
 
 def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
@@ -242,7 +253,7 @@ def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
     )
     right_dict["T_BS"] = np.linalg.inv(right_from_left.reshape(4, 4)).tolist()
     right = KalibrCamera.from_dict(right_dict, f"{source}: cam1")
-    return stereo_from_kalibr(left, right)
+    return stereo_from_kalibr(left, right, source, "cam1.T_cn_cnm1")
 
 
 # -- Middlebury calib.txt ------------------------------------------------------------------
@@ -254,17 +265,19 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
     """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres, ``ndisp`` kept."""
     path = Path(path)
     source = str(path)
-    try:
-        lines = path.read_text().splitlines()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    lines = read_calibration_text(path).splitlines()
     values: dict[str, str] = {}
     for line in lines:
         if "=" in line:
             key, value = line.split("=", 1)
             values[key.strip()] = value.strip()
+
+    if "cam0" not in values:  # e.g. the ost.txt beside ROS camera_calibration's left/right.yaml
+        raise CalibrationError(
+            f"{source}: cam0: required field is missing (a .txt calibration is read as a Middlebury "
+            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1]; of ROS camera_calibration's output give "
+            "left.yaml and right.yaml, not ost.txt)"
+        )
 
     def matrix(name: str) -> np.ndarray:
         match = _MATRIX.match(values.get(name, ""))
@@ -313,18 +326,33 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
 # -- one entry point -------------------------------------------------------------------------
 
 
-def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -> StereoCalibration:
-    """Read any supported form: ``right`` is the second file of per-camera forms (camera_info,
-    EuRoC sensor.yaml). Raises CalibrationError naming the file and field."""
+def _is_camera_info(data: Any) -> bool:
+    """camera_calibration's YAML, or a CameraInfo message as ``rostopic echo`` (``K``, ``P``) or
+    ``ros2 topic echo`` (``k``, ``p``) print it."""
+    if not isinstance(data, dict):
+        return False
+    return (
+        "projection_matrix" in data
+        or "camera_matrix" in data
+        or {"k", "p"} <= set(data)
+        or {"K", "P"} <= set(data)
+    )
+
+
+def load_stereo_calibration(
+    path: str | Path, right: str | Path | None = None, image_size: tuple[int, int] | None = None
+) -> StereoCalibration:
+    """Read any supported form: ``right`` is the second file of two-file forms (camera_info and
+    EuRoC sensor.yaml: the right camera's; OpenCV's ``stereo_calib`` sample: ``extrinsics.yml``
+    beside ``intrinsics.yml``). ``image_size`` (width, height) is the images' size, used by an
+    OpenCV calibration that states none. Raises CalibrationError naming the file and field."""
     path = Path(path)
-    if path.suffix == ".txt" or (
-        path.exists() and path.read_text(errors="replace").lstrip().startswith("cam0=")
-    ):
+    if path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0="):
         if right is not None:
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")
         return load_middlebury(path)
     data = _read_yaml(path)
-    if isinstance(data, dict) and ("projection_matrix" in data or "camera_matrix" in data):
+    if _is_camera_info(data):
         if right is None:
             raise CalibrationError(
                 f"{path}: a ROS camera_info describes one camera; give the right camera's too "
@@ -340,5 +368,23 @@ def load_stereo_calibration(path: str | Path, right: str | Path | None = None) -
     if isinstance(data, dict) and "cam0" in data and "cam1" in data:
         return stereo_from_camchain(data, str(path))
     if right is not None:
+        other = _read_yaml(Path(right))
+        if _opencv_halves(data, other):  # stereo_calib's intrinsics.yml + extrinsics.yml
+            return calibration_from_dict({**data, **other}, f"{path} + {right}", image_size)
         raise CalibrationError(f"{right}: {path} describes both cameras; give it alone")
-    return calibration_from_dict(data, source=str(path))
+    return calibration_from_dict(data, source=str(path), image_size=image_size)
+
+
+def _opencv_halves(a: Any, b: Any) -> bool:
+    """Whether two mappings are the two files of OpenCV's stereo_calib sample: the camera
+    matrices (``M1 D1 M2 D2``) in one, ``R T`` (with ``R1 R2 P1 P2 Q``) in the other."""
+    if not (isinstance(a, dict) and isinstance(b, dict)):
+        return False
+
+    def cameras(d: dict) -> bool:
+        return any(k in d for k in ("K1", "M1")) and "T" not in d
+
+    def extrinsics(d: dict) -> bool:
+        return {"R", "T"} <= set(d) and not any(k in d for k in ("K1", "M1", "K2", "M2"))
+
+    return (cameras(a) and extrinsics(b)) or (cameras(b) and extrinsics(a))

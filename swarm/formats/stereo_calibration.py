@@ -23,7 +23,7 @@ nodes load too)::
     D2: ...
     R: [[...], [...], [...]]      # or a Rodrigues 3-vector; X2 = R X1 + T
     T: [-0.09, 0, 0]              # metres; the second camera is to the right: T[0] < 0
-    image_size: [160, 120]        # width, height
+    image_size: [160, 120]        # width, height (or image_width, image_height)
     alpha: 0                      # optional cv2.stereoRectify free scaling (0: only valid pixels)
 
 The full form is rectified once on load (``cv2.stereoRectify`` with zero disparity at
@@ -269,22 +269,55 @@ def read_calibration_yaml(path: Path) -> Any:
 
     Raises CalibrationError naming the file when it is missing, unreadable or not YAML.
     """
+    text = read_calibration_text(path)
+    if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
+        text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        text = path.read_text()
+        documents = [d for d in yaml.load_all(text, Loader=_CalibLoader) if d is not None]
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+
+    # ``rostopic echo`` / ``ros2 topic echo`` end each message with ``---``: messages that differ
+    # only in their header (a camera_info echoed several times) are one calibration.
+    def unstamped(d: Any) -> Any:
+        return {k: v for k, v in d.items() if k != "header"} if isinstance(d, dict) else d
+
+    if any(unstamped(d) != unstamped(documents[0]) for d in documents[1:]):
+        raise CalibrationError(
+            f"{path}: holds {len(documents)} different YAML documents (separated by ---); keep one"
+        )
+    if not documents:
+        raise CalibrationError(f"{path}: the file is empty (no YAML mapping in it)")
+    return documents[0]
+
+
+def read_calibration_text(path: Path) -> str:
+    """A calibration file's text: UTF-8, a byte-order mark (Windows editors write one) dropped.
+
+    Raises CalibrationError naming the file when it is missing, unreadable or not UTF-8.
+    """
+    try:
+        raw = path.read_bytes()
     except FileNotFoundError:
         raise CalibrationError(f"{path}: calibration file not found") from None
     except OSError as exc:
         raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
-    if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
-        text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        return yaml.load(text, Loader=_CalibLoader)
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); save it as UTF-8"
+        ) from None
 
 
-def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCalibration:
-    """Build a StereoCalibration from the parsed YAML mapping of either form."""
+def calibration_from_dict(
+    data: Any, source: str = "<calibration>", image_size: tuple[int, int] | None = None
+) -> StereoCalibration:
+    """Build a StereoCalibration from the parsed YAML mapping of either form.
+
+    ``image_size`` (width, height) is the images' size, taken for a full calibration that states
+    none (OpenCV's ``stereo_calib`` sample writes no ``image_size``), with a note.
+    """
     if not isinstance(data, dict):
         raise CalibrationError(
             f"{source}: expected a mapping of calibration fields, got {type(data).__name__}"
@@ -303,6 +336,20 @@ def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCal
         )
     ignored = [k for k in OPENCV_DERIVED_KEYS if k in data] if full else []
     data = {k: v for k, v in data.items() if k not in ignored}
+    if full and ("image_width" in data or "image_height" in data):  # OpenCV's calibration sample's names
+        if not ("image_width" in data and "image_height" in data):
+            raise CalibrationError(f"{source}: image_width, image_height: give both or neither")
+        size = [data.pop("image_width"), data.pop("image_height")]
+        if data.setdefault("image_size", size) != size:
+            raise CalibrationError(
+                f"{source}: image_size: {data['image_size']} but image_width, image_height say {size}"
+            )
+    size_note = ()
+    if full and "image_size" not in data and image_size is not None:
+        data["image_size"] = list(image_size)
+        size_note = (
+            f"{source}: image_size: not in the file, taken from the images ({image_size[0]}x{image_size[1]})",
+        )
     try:
         if rectified:
             rig = _RectifiedFile.model_validate(data)
@@ -331,7 +378,7 @@ def calibration_from_dict(data: Any, source: str = "<calibration>") -> StereoCal
             "K1, D1, K2, D2, R, T with cv2.stereoRectify",
         )
     return rectify_stereo(
-        cal.K1, cal.D1, cal.K2, cal.D2, cal.R, cal.T, cal.image_size, source, cal.alpha, notes
+        cal.K1, cal.D1, cal.K2, cal.D2, cal.R, cal.T, cal.image_size, source, cal.alpha, notes + size_note
     )
 
 
@@ -344,6 +391,10 @@ def _format_errors(exc: ValidationError, source: str) -> str:
             msg = "unknown field"
         elif err["type"] == "missing":
             msg = "required field is missing"
+            if field == "image_size":
+                msg += " (add image_size: [width, height], the size of the calibration images)"
+            elif field in ("R", "T"):
+                msg += " (OpenCV's stereo_calib sample writes R and T to extrinsics.yml: give it too)"
         got = err.get("input")
         shown = "" if isinstance(got, dict | list) or err["type"] == "missing" else f" (got {got!r})"
         lines.append(f"{source}: {field}: {msg}{shown}")
@@ -361,25 +412,33 @@ def rectify_stereo(
     source: str = "<calibration>",
     alpha: float = 0.0,
     notes: tuple[str, ...] = (),
+    extrinsics: str = "T",
 ) -> StereoCalibration:
     """Rectify a raw stereo pair's calibration (OpenCV's X2 = R X1 + T, metres, radtan distortion).
 
     ``k1``, ``k2`` are 3x3 camera matrices, ``d1``, ``d2`` OpenCV distortion vectors, ``size``
-    is (width, height). Raises CalibrationError (naming ``T``) for vertical or swapped rigs.
+    is (width, height). Raises CalibrationError naming ``extrinsics``, the file's field(s) the
+    translation comes from, for a baseline in millimetres, vertical or swapped rigs.
     """
     t = np.asarray(translation, dtype=np.float64).reshape(3)
+    if not np.linalg.norm(t) <= MAX_BASELINE_M:
+        raise CalibrationError(
+            f"{source}: {extrinsics}: the cameras are {np.linalg.norm(t):g} m apart; must be in metres "
+            "(millimetres?)"
+        )
+    swapped = "T[0] < 0 with X2 = R X1 + T" if extrinsics == "T" else "are the two cameras swapped?"
     r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
         k1, d1, k2, d2, size, rotation, t.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha
     )
     if abs(p2[1, 3]) > abs(p2[0, 3]):
         raise CalibrationError(
-            f"{source}: T: the cameras are displaced vertically; only side-by-side rigs work"
+            f"{source}: {extrinsics}: the cameras are displaced vertically; only side-by-side rigs work"
         )
     baseline = -p2[0, 3] / p2[0, 0]
     if not baseline > 0:
         raise CalibrationError(
-            f"{source}: T: the second camera must be to the right of the first "
-            f"(T[0] < 0 with X2 = R X1 + T), got T = {t.tolist()}"
+            f"{source}: {extrinsics}: the second camera must be to the right of the first "
+            f"({swapped}), got X2 = R X1 + T with T = {t.tolist()}"
         )
     if not all(math.isfinite(v) for v in (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2], baseline)):
         raise CalibrationError(f"{source}: K1, K2, R, T: rectification failed (non-finite projection)")
