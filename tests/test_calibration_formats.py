@@ -143,6 +143,44 @@ def test_opencv_file_with_stereo_rectify_outputs_loads_with_a_note(tmp_path):
     assert any("E, F, R1, R2, P1, P2, Q: ignored" in note for note in calib.notes)
 
 
+def _plain_opencv_yaml(**extra) -> str:
+    """A full calibration in plain YAML plus ``extra`` top-level fields."""
+    data = {"K1": K1.tolist(), "D1": D1.tolist(), "K2": K2.tolist(), "D2": D2.tolist(), "R": R.tolist()}
+    data |= {"T": T.tolist(), "image_size": list(SIZE)} | extra
+    return yaml.safe_dump(data)
+
+
+def test_what_calibration_tools_add_beside_the_calibration_is_ignored_with_a_note(tmp_path):
+    """calibration_time, reprojection errors, board sizes: written by OpenCV's samples and other
+    tools; the file loads, with the same numbers as without them, and a note names them."""
+    added = {
+        "calibration_time": "Mon Nov 30 10:00:00 2026",
+        "avg_reprojection_error": 0.21,
+        "rmsErr": 0.3,
+        "board_width": 9,
+        "board_height": 6,
+        "square_size": 0.025,
+        "Valid_ROI_Left": [0, 0, 320, 240],
+    }
+    (tmp_path / "plain.yaml").write_text(_plain_opencv_yaml())
+    (tmp_path / "tool.yaml").write_text(_plain_opencv_yaml(**added))
+    plain = load_stereo_calibration(tmp_path / "plain.yaml")
+    tool = load_stereo_calibration(tmp_path / "tool.yaml")
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+        assert getattr(tool, field) == getattr(plain, field)
+    (note,) = [n for n in tool.notes if "ignored" in n]
+    assert all(name in note for name in added)
+
+
+@pytest.mark.parametrize(("typo", "field"), [("alpah", "alpha"), ("image_sise", "image_size"), ("R_1", "R1")])
+def test_a_misspelt_field_is_refused_naming_the_field_it_resembles(tmp_path, typo, field):
+    (tmp_path / "typo.yaml").write_text(_plain_opencv_yaml(**{typo: 0}))
+    with pytest.raises(
+        CalibrationError, match=rf"typo.yaml: {typo}: unknown field \(did you mean {field}\?\)"
+    ):
+        load_stereo_calibration(tmp_path / "typo.yaml")
+
+
 def _opencv_storage(mats: dict) -> str:
     """An OpenCV FileStorage YAML (``%YAML:1.0``, ``---``, ``!!opencv-matrix`` nodes, data on
     several lines) as ``cv::FileStorage`` writes it."""

@@ -25,13 +25,12 @@ from typing import Any
 import cv2
 import numpy as np
 
+from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
 from swarm.formats.stereo_calibration import (
     CalibrationError,
     RectificationMaps,
     StereoCalibration,
     calibration_from_dict,
-    read_calibration_text,
-    read_calibration_yaml,
     rectify_stereo,
 )
 

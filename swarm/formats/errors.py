@@ -20,6 +20,10 @@ class FloorPlanError(InputError):
     """A floor plan (project YAML or ROS ``map.yaml`` and its image) that cannot be read."""
 
 
+class CalibrationError(InputError):
+    """An unusable calibration: the message names the file, the field and the problem."""
+
+
 def non_finite_numbers(data: object, where: str = "") -> Iterator[tuple[str, float]]:
     """(dotted field, value) of every NaN or infinite float inside parsed YAML/JSON ``data``.
 

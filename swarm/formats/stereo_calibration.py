@@ -41,17 +41,18 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
+from pydantic import ValidationError
 
-from swarm.formats.errors import InputError
-
-#: A baseline or translation above this many metres is taken for a unit mistake (millimetres).
-MAX_BASELINE_M = 5.0
-
-
-class CalibrationError(InputError):
-    """An unusable calibration: the message names the file, the field and the problem."""
+from swarm.formats.calibration_schema import (
+    MAX_BASELINE_M,
+    OPENCV_DERIVED_KEYS,
+    OpenCVFile,
+    RectifiedFile,
+    format_errors,
+    other_tool_fields,
+)
+from swarm.formats.calibration_text import read_calibration_yaml
+from swarm.formats.errors import CalibrationError
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,143 +119,7 @@ class StereoCalibration:
         return self.maps.apply(left, right)
 
 
-# -- YAML schema -----------------------------------------------------------------------------
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-
-class _RectifiedFile(_Strict):
-    fx: FiniteFloat = Field(gt=0)
-    fy: FiniteFloat = Field(gt=0)
-    cx: FiniteFloat
-    cy: FiniteFloat
-    baseline: FiniteFloat = Field(gt=0)
-    cx_right: FiniteFloat | None = None
-    width: int | None = Field(default=None, ge=1)
-    height: int | None = Field(default=None, ge=1)
-
-    @field_validator("baseline")
-    @classmethod
-    def _metres(cls, value: float) -> float:
-        if value > MAX_BASELINE_M:
-            raise ValueError(
-                f"must be in metres, {value:g} m is implausible (Middlebury calib.txt gives millimetres)"
-            )
-        return value
-
-
-def _matrix(value: Any, shape: tuple[int, int]) -> np.ndarray:
-    if isinstance(value, dict) and {"rows", "cols", "data"} <= set(value):
-        value = np.asarray(value["data"], dtype=np.float64).reshape(int(value["rows"]), int(value["cols"]))
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"must be a {shape[0]}x{shape[1]} matrix of numbers") from exc
-    if arr.size != shape[0] * shape[1]:
-        raise ValueError(f"must be a {shape[0]}x{shape[1]} matrix, got {arr.size} numbers")
-    arr = arr.reshape(shape)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("holds NaN or inf")
-    return arr
-
-
-def _vector(value: Any, sizes: tuple[int, ...]) -> np.ndarray:
-    if isinstance(value, dict) and "data" in value:
-        value = value["data"]
-    if value is None:
-        value = []
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise ValueError("must be a list of numbers") from exc
-    if arr.size not in sizes:
-        raise ValueError(f"must have {' or '.join(map(str, sizes))} numbers, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("holds NaN or inf")
-    return arr
-
-
-#: Outputs of cv2.stereoCalibrate / cv2.stereoRectify that a full calibration file may carry.
-#: They follow from K1, D1, K2, D2, R, T: they are read, and ignored with a note.
-OPENCV_DERIVED_KEYS = ("E", "F", "R1", "R2", "P1", "P2", "Q", "roi1", "roi2", "validRoi1", "validRoi2", "rms")
-
-
-class _OpenCVFile(_Strict):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, arbitrary_types_allowed=True)
-
-    K1: Any = Field(validation_alias=AliasChoices("K1", "M1"))
-    D1: Any = Field(default=None, validate_default=True)
-    K2: Any = Field(validation_alias=AliasChoices("K2", "M2"))
-    D2: Any = Field(default=None, validate_default=True)
-    R: Any
-    T: Any
-    image_size: Any
-    alpha: FiniteFloat = Field(default=0.0, ge=-1, le=1)
-
-    @field_validator("K1", "K2")
-    @classmethod
-    def _camera_matrix(cls, value: Any) -> np.ndarray:
-        k = _matrix(value, (3, 3))
-        if k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise ValueError("focal lengths K[0][0] and K[1][1] must be > 0")
-        if not np.allclose(k[2], [0, 0, 1]):
-            raise ValueError("last row must be [0, 0, 1]")
-        return k
-
-    @field_validator("D1", "D2")
-    @classmethod
-    def _distortion(cls, value: Any) -> np.ndarray:
-        return _vector(value, (0, 4, 5, 8, 12, 14))
-
-    @field_validator("R")
-    @classmethod
-    def _rotation(cls, value: Any) -> np.ndarray:
-        raw = value["data"] if isinstance(value, dict) and "data" in value else value
-        try:
-            count = np.asarray(raw, dtype=np.float64).size
-        except (TypeError, ValueError) as exc:
-            raise ValueError("must be a 3x3 rotation matrix or a Rodrigues 3-vector") from exc
-        if count == 3:
-            rvec = _vector(value, (3,))
-            return cv2.Rodrigues(rvec.reshape(3, 1))[0]
-        r = _matrix(value, (3, 3))
-        if not np.allclose(r @ r.T, np.eye(3), atol=1e-3) or np.linalg.det(r) < 0:
-            raise ValueError("must be a rotation matrix (orthonormal, determinant +1)")
-        return r
-
-    @field_validator("T")
-    @classmethod
-    def _translation(cls, value: Any) -> np.ndarray:
-        t = _vector(value, (3,))
-        if np.linalg.norm(t) > MAX_BASELINE_M:
-            raise ValueError(f"must be in metres, |T| = {np.linalg.norm(t):g} m is implausible")
-        if np.linalg.norm(t) == 0:
-            raise ValueError("must not be zero (the cameras need a baseline)")
-        return t
-
-    @field_validator("image_size")
-    @classmethod
-    def _size(cls, value: Any) -> tuple[int, int]:
-        arr = _vector(value, (2,))
-        if np.any(arr < 1) or np.any(arr != np.round(arr)):
-            raise ValueError("must be [width, height], two positive integers")
-        return int(arr[0]), int(arr[1])
-
-
 # -- loading ---------------------------------------------------------------------------------
-
-
-def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> dict:
-    return loader.construct_mapping(node, deep=True)
-
-
-class _CalibLoader(yaml.SafeLoader):
-    """SafeLoader that also reads OpenCV FileStorage's ``!!opencv-matrix`` nodes."""
-
-
-_CalibLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", _opencv_matrix)
 
 
 def load_calibration(path: str | Path) -> StereoCalibration:
@@ -262,52 +127,6 @@ def load_calibration(path: str | Path) -> StereoCalibration:
     path = Path(path)
     data = read_calibration_yaml(path)
     return calibration_from_dict(data, source=str(path))
-
-
-def read_calibration_yaml(path: Path) -> Any:
-    """The parsed YAML of a calibration file (OpenCV ``%YAML:1.0`` files with matrices too).
-
-    Raises CalibrationError naming the file when it is missing, unreadable or not YAML.
-    """
-    text = read_calibration_text(path)
-    if text.startswith("%YAML:"):  # OpenCV FileStorage header, not valid YAML 1.1
-        text = text.split("\n", 1)[1] if "\n" in text else ""
-    try:
-        documents = [d for d in yaml.load_all(text, Loader=_CalibLoader) if d is not None]
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
-
-    # ``rostopic echo`` / ``ros2 topic echo`` end each message with ``---``: messages that differ
-    # only in their header (a camera_info echoed several times) are one calibration.
-    def unstamped(d: Any) -> Any:
-        return {k: v for k, v in d.items() if k != "header"} if isinstance(d, dict) else d
-
-    if any(unstamped(d) != unstamped(documents[0]) for d in documents[1:]):
-        raise CalibrationError(
-            f"{path}: holds {len(documents)} different YAML documents (separated by ---); keep one"
-        )
-    if not documents:
-        raise CalibrationError(f"{path}: the file is empty (no YAML mapping in it)")
-    return documents[0]
-
-
-def read_calibration_text(path: Path) -> str:
-    """A calibration file's text: UTF-8, a byte-order mark (Windows editors write one) dropped.
-
-    Raises CalibrationError naming the file when it is missing, unreadable or not UTF-8.
-    """
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror})") from None
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise CalibrationError(
-            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); save it as UTF-8"
-        ) from None
 
 
 def calibration_from_dict(
@@ -335,7 +154,8 @@ def calibration_from_dict(
             "K1, D1, K2, D2, R, T, image_size (full OpenCV calibration)"
         )
     ignored = [k for k in OPENCV_DERIVED_KEYS if k in data] if full else []
-    data = {k: v for k, v in data.items() if k not in ignored}
+    extra = other_tool_fields(data) if full else []
+    data = {k: v for k, v in data.items() if k not in ignored and k not in extra}
     if full and ("image_width" in data or "image_height" in data):  # OpenCV's calibration sample's names
         if not ("image_width" in data and "image_height" in data):
             raise CalibrationError(f"{source}: image_width, image_height: give both or neither")
@@ -352,11 +172,11 @@ def calibration_from_dict(
         )
     try:
         if rectified:
-            rig = _RectifiedFile.model_validate(data)
+            rig = RectifiedFile.model_validate(data)
         else:
-            cal = _OpenCVFile.model_validate(data)
+            cal = OpenCVFile.model_validate(data)
     except ValidationError as exc:
-        raise CalibrationError(_format_errors(exc, source)) from None
+        raise CalibrationError(format_errors(exc, source)) from None
     if rectified:
         if (rig.width is None) != (rig.height is None):
             raise CalibrationError(f"{source}: width, height: give both or neither")
@@ -377,28 +197,11 @@ def calibration_from_dict(
             f"{source}: {', '.join(ignored)}: ignored; the rectification is recomputed from "
             "K1, D1, K2, D2, R, T with cv2.stereoRectify",
         )
+    if extra:
+        notes += (f"{source}: {', '.join(extra)}: not calibration fields this reader uses; ignored",)
     return rectify_stereo(
         cal.K1, cal.D1, cal.K2, cal.D2, cal.R, cal.T, cal.image_size, source, cal.alpha, notes + size_note
     )
-
-
-def _format_errors(exc: ValidationError, source: str) -> str:
-    lines = []
-    for err in exc.errors():
-        field = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            msg = "unknown field"
-        elif err["type"] == "missing":
-            msg = "required field is missing"
-            if field == "image_size":
-                msg += " (add image_size: [width, height], the size of the calibration images)"
-            elif field in ("R", "T"):
-                msg += " (OpenCV's stereo_calib sample writes R and T to extrinsics.yml: give it too)"
-        got = err.get("input")
-        shown = "" if isinstance(got, dict | list) or err["type"] == "missing" else f" (got {got!r})"
-        lines.append(f"{source}: {field}: {msg}{shown}")
-    return "\n".join(lines)
 
 
 def rectify_stereo(
