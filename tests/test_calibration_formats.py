@@ -125,6 +125,34 @@ def test_middlebury_calib_txt(tmp_path):
         load_stereo_calibration(path)
 
 
+def test_an_opencv_matrix_whose_rows_and_cols_miss_its_data_is_refused_naming_both(tmp_path):
+    text = _opencv_storage({"M1": K1, "D1": D1, "M2": K2, "D2": D2, "R": R, "T": T})
+    text = text.replace("rows: 3\n   cols: 3", "rows: 3\n   cols: 2", 1) + f"image_size: {list(SIZE)}\n"
+    (tmp_path / "stereo.yml").write_text(text)
+    with pytest.raises(
+        CalibrationError, match=r"stereo.yml: K1: rows x cols is 3 x 2 but data holds 9 numbers"
+    ):
+        load_stereo_calibration(tmp_path / "stereo.yml")
+
+
+def test_camera_info_sizes_written_as_whole_floats_load(tmp_path):
+    """``image_width: 640.0``, as some tools write it, is 640; 640.5 is refused naming the fields."""
+    left, right = _camera_infos(tmp_path)
+    want = load_stereo_calibration(left, right)
+    for path in (left, right):
+        info = yaml.safe_load(path.read_text())
+        info["image_width"], info["image_height"] = float(SIZE[0]), float(SIZE[1])
+        path.write_text(yaml.safe_dump(info))
+    got = load_stereo_calibration(left, right)
+    assert (got.fx, got.baseline, got.image_size) == (want.fx, want.baseline, want.image_size)
+    info["image_width"] = SIZE[0] + 0.5
+    right.write_text(yaml.safe_dump(info))
+    with pytest.raises(
+        CalibrationError, match=r"right.yaml: image_width, image_height: must be positive integers"
+    ):
+        load_stereo_calibration(left, right)
+
+
 def test_opencv_file_with_stereo_rectify_outputs_loads_with_a_note(tmp_path):
     r1, r2, p1, p2, q, *_ = cv2.stereoRectify(K1, D1, K2, D2, SIZE, R, T.reshape(3, 1))
     e = np.eye(3)

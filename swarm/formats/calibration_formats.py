@@ -42,6 +42,13 @@ def _read_yaml(path: Path) -> Any:
     return read_calibration_yaml(path)
 
 
+def _whole(value: Any) -> Any:
+    """``value`` as an int when it is a whole float (some tools write ``image_width: 640.0``)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
 def _numbers(value: Any, count: int | tuple[int, ...], source: str, field: str) -> np.ndarray:
     if isinstance(value, dict) and "data" in value:
         value = value["data"]
@@ -86,10 +93,12 @@ class CameraInfo:
         """From a camera_info YAML mapping or a CameraInfo message's fields (ROS 1 or 2 names)."""
         if not isinstance(data, dict):
             raise CalibrationError(f"{source}: expected a camera_info mapping, got {type(data).__name__}")
-        width = _field(data, source, "image_width", "width")
-        height = _field(data, source, "image_height", "height")
+        width = _whole(_field(data, source, "image_width", "width"))
+        height = _whole(_field(data, source, "image_height", "height"))
         if not (isinstance(width, int) and isinstance(height, int) and width > 0 and height > 0):
-            raise CalibrationError(f"{source}: image_width, image_height: must be positive integers")
+            raise CalibrationError(
+                f"{source}: image_width, image_height: must be positive integers (got {width!r}, {height!r})"
+            )
         model = str(data.get("distortion_model", "plumb_bob") or "")
         if model not in PINHOLE_MODELS:
             raise CalibrationError(

@@ -45,7 +45,11 @@ class RectifiedFile(_Strict):
 
 def _matrix(value: Any, shape: tuple[int, int]) -> np.ndarray:
     if isinstance(value, dict) and {"rows", "cols", "data"} <= set(value):
-        value = np.asarray(value["data"], dtype=np.float64).reshape(int(value["rows"]), int(value["cols"]))
+        rows, cols, data = value["rows"], value["cols"], value["data"]
+        count = len(data) if isinstance(data, list) else 1
+        if not (isinstance(rows, int) and isinstance(cols, int) and rows * cols == count):
+            raise ValueError(f"rows x cols is {rows} x {cols} but data holds {count} numbers")
+        value = data
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
