@@ -130,7 +130,7 @@ def test_an_opencv_matrix_whose_rows_and_cols_miss_its_data_is_refused_naming_bo
     text = text.replace("rows: 3\n   cols: 3", "rows: 3\n   cols: 2", 1) + f"image_size: {list(SIZE)}\n"
     (tmp_path / "stereo.yml").write_text(text)
     with pytest.raises(
-        CalibrationError, match=r"stereo.yml: K1: rows x cols is 3 x 2 but data holds 9 numbers"
+        CalibrationError, match=r"stereo.yml: M1: rows x cols is 3 x 2 but data holds 9 numbers"
     ):
         load_stereo_calibration(tmp_path / "stereo.yml")
 
