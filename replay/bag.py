@@ -41,6 +41,28 @@ _CHANNELS = {
 }
 
 
+_IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+_POSE_TYPES = (
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "nav_msgs/msg/Odometry",
+    "tf2_msgs/msg/TFMessage",
+    "tf/msg/tfMessage",
+)
+_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
+ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
+    "left": _IMAGE_TYPES,
+    "right": _IMAGE_TYPES,
+    "pose": _POSE_TYPES,
+    "left_info": _INFO_TYPES,
+    "right_info": _INFO_TYPES,
+}
+
+
+def _type_name(msgtype: str) -> str:
+    return msgtype.replace("/msg/", "/")
+
+
 def _stamp(msg: Any) -> float:
     stamp = msg.header.stamp
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
@@ -170,11 +192,22 @@ class BagRecording:
     def _connections(self, reader: Any) -> dict[str, list]:
         present = sorted({c.topic for c in reader.connections})
         conns = {}
+        roles: dict[str, str] = {}
         for role, topic in self.topics.items():
+            if topic in roles:
+                raise RecordingError(f"{self.path}: topic {topic} is given as both {roles[topic]} and {role}")
+            roles[topic] = role
             found = [c for c in reader.connections if c.topic == topic]
             if not found:
                 raise RecordingError(f"{self.path}: topic {topic} ({role}) is not in the bag "
                                      f"(topics: {', '.join(present)})")  # fmt: skip
+            for conn in found:
+                if conn.msgtype not in ROLE_TYPES[role]:
+                    wanted = ", ".join(_type_name(t) for t in ROLE_TYPES[role])
+                    raise RecordingError(
+                        f"{self.path}: topic {topic} ({role}) is a {_type_name(conn.msgtype)}; "
+                        f"the {role} topic must be one of {wanted}"
+                    )
             conns[role] = found
         return conns
 
