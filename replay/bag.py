@@ -7,7 +7,9 @@
   topics (the first message of each);
 * poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
   (the orientation turns camera vectors into world vectors): ``geometry_msgs/PoseStamped``,
-  ``nav_msgs/Odometry``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by ``child_frame``.
+  ``geometry_msgs/PoseWithCovarianceStamped``, ``nav_msgs/Odometry``,
+  ``geometry_msgs/TransformStamped``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by
+  ``child_frame`` (which also filters Odometry and TransformStamped by their child_frame_id).
 
 Times are the messages' header stamps; left, right and pose are matched within a tolerance
 and what was dropped is counted (``matched.describe()``).
@@ -46,6 +48,7 @@ _POSE_TYPES = (
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
     "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/TransformStamped",
     "tf2_msgs/msg/TFMessage",
     "tf/msg/tfMessage",
 )
@@ -93,16 +96,33 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     return image
 
 
+def _children(msg: Any) -> list[str]:
+    """The child_frame_id(s) a pose message carries (TFMessage, Odometry, TransformStamped)."""
+    if hasattr(msg, "transforms"):
+        return [tf.child_frame_id for tf in msg.transforms]
+    return [msg.child_frame_id] if hasattr(msg, "child_frame_id") else []
+
+
 def _pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """(time, position, world_R_optical) of a PoseStamped / Odometry / TFMessage, or None."""
+    """(time, position, world_R_optical) of a pose message, or None if it is of another frame.
+
+    TFMessage: its transform whose child_frame_id is ``child_frame``; Odometry and TransformStamped:
+    kept when ``child_frame`` is None or is their child_frame_id.
+    """
     if hasattr(msg, "transforms"):
         for tf in msg.transforms:
             if tf.child_frame_id.lstrip("/") == (child_frame or "").lstrip("/"):
                 t, q = tf.transform.translation, tf.transform.rotation
                 return _stamp(tf), np.array([t.x, t.y, t.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
         return None
-    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    p, q = pose.position, pose.orientation
+    if child_frame and hasattr(msg, "child_frame_id"):
+        if msg.child_frame_id.lstrip("/") != child_frame.lstrip("/"):
+            return None
+    if hasattr(msg, "transform"):  # TransformStamped (e.g. vicon_bridge, motion capture)
+        p, q = msg.transform.translation, msg.transform.rotation
+    else:
+        pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+        p, q = pose.position, pose.orientation
     return _stamp(msg), np.array([p.x, p.y, p.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
 
 
@@ -150,6 +170,7 @@ class BagRecording:
         self._reader_type = AnyReader
         stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
         positions, rotations, infos = [], [], {}
+        children: set[str] = set()  # the pose topic's child frames, for the errors
         with AnyReader([self.path]) as reader:
             conns = self._connections(reader)
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
@@ -162,6 +183,7 @@ class BagRecording:
                     continue
                 msg = reader.deserialize(raw, conn.msgtype)
                 if role == "pose":
+                    children.update(_children(msg))
                     found = _pose(msg, child_frame)
                     if found is not None:
                         stamps["pose"].append(found[0])
@@ -171,8 +193,14 @@ class BagRecording:
                     stamps[role].append(_stamp(msg))
         for role in self.topics:
             if role in stamps and not stamps[role]:
-                extra = f" with child_frame_id {child_frame!r}" if role == "pose" and child_frame else ""
-                raise RecordingError(f"{path}: topic {self.topics[role]}: no messages{extra}")
+                what = "no messages"
+                if role == "pose" and children:
+                    what = (
+                        f"no messages with child_frame_id {child_frame!r}"
+                        if child_frame
+                        else "give --child-frame, the left camera's child_frame_id"
+                    ) + f" (child frames: {', '.join(sorted(children))})"
+                raise RecordingError(f"{path}: topic {self.topics[role]}: {what}")
         if calibration is None:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
         self.calibration = calibration

@@ -29,6 +29,46 @@ class DriverBag(BagWriter):
         )  # fmt: skip
         self.write(topic, "sensor_msgs/msg/Image", msg, t if log_t is None else log_t)
 
+    def _transform(self, t, parent, child, xyz):
+        m = self.t
+        transform = m["geometry_msgs/msg/Transform"](
+            translation=m["geometry_msgs/msg/Vector3"](x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2])),
+            rotation=m["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        return m["geometry_msgs/msg/TransformStamped"](
+            header=self.header(t, parent), child_frame_id=child, transform=transform
+        )
+
+    def tf(self, topic, t, transforms) -> None:
+        """A tf2_msgs/TFMessage of several (parent, child, xyz) transforms (tf2_ros's broadcaster)."""
+        if "tf2_msgs/msg/TFMessage" not in self.t:  # not in rosbags' ROS 1 store: a recorded bag has it
+            from rosbags.typesys import get_types_from_msg
+
+            msgdef = "geometry_msgs/TransformStamped[] transforms"
+            self.store.register(get_types_from_msg(msgdef, "tf2_msgs/msg/TFMessage"))
+            self.t = self.store.types
+        msg = self.t["tf2_msgs/msg/TFMessage"](transforms=[self._transform(t, *tf) for tf in transforms])
+        self.write(topic, "tf2_msgs/msg/TFMessage", msg, t)
+
+    def transform_stamped(self, topic, t, child, xyz) -> None:
+        """A geometry_msgs/TransformStamped, as vicon_bridge publishes a tracked subject."""
+        self.write(topic, "geometry_msgs/msg/TransformStamped", self._transform(t, "world", child, xyz), t)
+
+    def odometry(self, topic, t, child, xyz) -> None:
+        m = self.t
+        point = m["geometry_msgs/msg/Point"](x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
+        pose = m["geometry_msgs/msg/Pose"](
+            position=point, orientation=m["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+        )
+        zero = m["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+        twist = m["geometry_msgs/msg/Twist"](linear=zero, angular=zero)
+        msg = m["nav_msgs/msg/Odometry"](
+            header=self.header(t, "odom"), child_frame_id=child,
+            pose=m["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            twist=m["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)),
+        )  # fmt: skip
+        self.write(topic, "nav_msgs/msg/Odometry", msg, t)
+
     def empty_topic(self, topic: str, msgtype: str) -> None:
         self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
 
@@ -67,3 +107,31 @@ def test_a_topic_of_the_wrong_type_is_named_with_the_types_read(tmp_path, ros):
         BagRecording(path, "/cam0/image_raw", "/right", "/pose", None, "/left", "/right")
     with pytest.raises(RecordingError, match=r"topic /left is given as both left and right"):
         BagRecording(path, "/left", "/left", "/pose", CALIB)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_pose_from_tf_odometry_and_transform_stamped_by_child_frame(tmp_path, ros):
+    """/tf with several transforms a message, Odometry of the base, a motion-capture TransformStamped:
+    the left camera's poses are the messages of its child frame; the frames present are listed."""
+    path = _bag(tmp_path, ros)
+    times = [1.0, 1.05, 1.1]
+    with DriverBag(path, ros) as bag:
+        for k, t in enumerate(times):
+            bag.image("/left", t, _gray(k))
+            bag.image("/right", t, _gray(k))
+            bag.tf("/tf", t, [("odom", "base_link", (t, 0, 0)), ("world", "cam0_optical", (t, 5, 1))])
+            bag.odometry("/odom", t, "base_link", (t, 1, 0))
+            bag.transform_stamped("/vicon/rig/rig", t, "rig", (t, 2, 1))
+    rec = BagRecording(path, "/left", "/right", "/tf", CALIB, child_frame="cam0_optical")
+    assert np.allclose(rec.positions(), [[t, 5, 1] for t in times])
+    rec = BagRecording(path, "/left", "/right", "/vicon/rig/rig", CALIB)
+    assert np.allclose(rec.positions(), [[t, 2, 1] for t in times])
+    assert [p.t for p in rec.pairs()] == pytest.approx(times)
+    rec = BagRecording(path, "/left", "/right", "/odom", CALIB, child_frame="base_link")
+    assert np.allclose(rec.positions(), [[t, 1, 0] for t in times])
+    with pytest.raises(RecordingError, match=r"topic /odom: no messages with child_frame_id 'cam0_optical' "
+                       r"\(child frames: base_link\)"):  # fmt: skip
+        BagRecording(path, "/left", "/right", "/odom", CALIB, child_frame="cam0_optical")
+    with pytest.raises(RecordingError, match=r"topic /tf: give --child-frame, the left camera's "
+                       r"child_frame_id \(child frames: base_link, cam0_optical\)"):  # fmt: skip
+        BagRecording(path, "/left", "/right", "/tf", CALIB)
