@@ -208,14 +208,29 @@ class BagRecording:
         self.pose_stamps = np.asarray(stamps["pose"])[order]
         self.pose_positions = np.asarray(positions)[order]
         self.pose_rotations = np.asarray(rotations)[order]
-        self.left_stamps = np.asarray(stamps["left"])
-        right_stamps = np.asarray(stamps["right"])
-        for role, arr in (("left", self.left_stamps), ("right", right_stamps)):
-            if np.any(np.diff(arr) < 0):
-                raise RecordingError(f"{path}: topic {self.topics[role]}: header stamps go back in time")
+        # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
+        # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
+        ordered = {}
+        for role in ("left", "right"):
+            arr = np.asarray(stamps[role])
+            if arr.size > 1 and np.all(arr == arr[0]):
+                raise RecordingError(
+                    f"{path}: topic {self.topics[role]}: all {arr.size} messages have the header stamp "
+                    f"{arr[0]:.9f} (the driver does not stamp its images)"
+                )
+            ordered[role] = np.argsort(arr, kind="stable")
+        left_sorted = np.asarray(stamps["left"])[ordered["left"]]
+        first = np.r_[True, np.diff(left_sorted) > 0]
+        self.left_stamps = left_sorted[first]
+        self._left_message = ordered["left"][first]  # message number of each left stamp
+        self._right_message = ordered["right"]
         self.matched: Matched = match_stamps(
-            self.left_stamps, {"right image": right_stamps, "pose": self.pose_stamps}, tolerance_s
+            self.left_stamps,
+            {"right image": np.asarray(stamps["right"])[ordered["right"]], "pose": self.pose_stamps},
+            tolerance_s,
         )
+        if not first.all():
+            self.matched.dropped["duplicate left stamp"] += int((~first).sum())
 
     def _connections(self, reader: Any) -> dict[str, list]:
         present = sorted({c.topic for c in reader.connections})
@@ -248,8 +263,12 @@ class BagRecording:
     def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]:
         """Matched pairs in time order (the bag is read once more, keeping only the pairs asked)."""
         stop = len(self) if count is None else min(len(self), start + count)
-        want_left = {int(i): k for k, i in enumerate(self.matched.reference[start:stop], start)}
-        want_right = {int(j): k for k, j in enumerate(self.matched.others["right image"][start:stop], start)}
+        # message number on each topic -> the pairs it is in (a right image can serve two left ones)
+        want: dict[str, dict[int, list[int]]] = {"left": {}, "right": {}}
+        for k in range(start, stop):
+            i, j = self.matched.reference[k], self.matched.others["right image"][k]
+            want["left"].setdefault(int(self._left_message[i]), []).append(k)
+            want["right"].setdefault(int(self._right_message[j]), []).append(k)
         found: dict[int, dict[str, np.ndarray]] = {}
         counts = {"left": 0, "right": 0}
         nxt = start
@@ -261,12 +280,12 @@ class BagRecording:
                 role = "left" if conn in conns["left"] else "right"
                 n = counts[role]
                 counts[role] += 1
-                k = (want_left if role == "left" else want_right).get(n)
-                if k is None:
+                ks = want[role].get(n)
+                if ks is None:
                     continue
-                found.setdefault(k, {})[role] = decode_image(
-                    reader.deserialize(raw, conn.msgtype), conn.topic
-                )
+                image = decode_image(reader.deserialize(raw, conn.msgtype), conn.topic)
+                for k in ks:
+                    found.setdefault(k, {})[role] = image
                 while nxt in found and len(found[nxt]) == 2:
                     p = self.matched.others["pose"][nxt]
                     t = float(self.left_stamps[self.matched.reference[nxt]])
@@ -277,3 +296,5 @@ class BagRecording:
                     nxt += 1
                 if nxt >= stop:
                     return
+        if nxt < stop:
+            raise RecordingError(f"{self.path}: pair {nxt} of {len(self)} was not found on the second read")

@@ -135,3 +135,43 @@ def test_pose_from_tf_odometry_and_transform_stamped_by_child_frame(tmp_path, ro
     with pytest.raises(RecordingError, match=r"topic /tf: give --child-frame, the left camera's "
                        r"child_frame_id \(child frames: base_link, cam0_optical\)"):  # fmt: skip
         BagRecording(path, "/left", "/right", "/tf", CALIB)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_stamps_out_of_order_duplicated_or_shared_keep_every_pair(tmp_path, ros):
+    """Header stamps out of arrival order (a driver's threads, a merged bag) are sorted; a left stamp
+    seen twice is kept once and counted; a right image matched to two left ones serves both (before,
+    every later pair was silently lost)."""
+    path = _bag(tmp_path, ros)
+    left = [(1.0, 0), (1.1, 2), (1.05, 1), (1.05, 1), (1.15, 3), (1.2, 4)]  # (header stamp, image)
+    right = [(1.0, 0), (1.05, 1), (1.1, 2), (1.16, 3)]  # the 1.2 right image lost
+    with DriverBag(path, ros) as bag:
+        for n, (t, k) in enumerate(left):
+            bag.raw_image("/left", t, "mono8", _gray(k).tobytes(), log_t=2.0 + n * 0.05)
+        for n, (t, k) in enumerate(right):
+            bag.raw_image("/right", t, "mono8", _gray(k).tobytes(), log_t=2.0 + n * 0.05)
+        for t in (1.0, 1.05, 1.1, 1.15, 1.2):
+            bag.pose("/pose", t, [t, 0, 1], [1, 0, 0, 0])
+    rec = BagRecording(path, "/left", "/right", "/pose", CALIB, tolerance_s=0.05)
+    assert rec.matched.describe() == "5 kept, dropped: 1 duplicate left stamp"
+    got = list(rec.pairs())
+    assert [p.t for p in got] == pytest.approx([1.0, 1.05, 1.1, 1.15, 1.2])
+    for p, k, kr in zip(got, [0, 1, 2, 3, 4], [0, 1, 2, 3, 3], strict=True):
+        assert np.array_equal(p.left, _gray(k)) and np.array_equal(p.right, _gray(kr))
+        assert p.position[0] == pytest.approx(p.t)
+    assert [p.t for p in rec.pairs(3, 2)] == pytest.approx([1.15, 1.2])
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_images_without_stamps_are_named(tmp_path, ros):
+    """A driver that leaves header.stamp at 0: refused by name, not one pair at t = 0."""
+    path = _bag(tmp_path, ros)
+    with DriverBag(path, ros) as bag:
+        for n in range(3):
+            bag.raw_image("/left", 0.0, "mono8", _gray(n).tobytes(), log_t=1.0 + n)
+            bag.raw_image("/right", 0.0, "mono8", _gray(n).tobytes(), log_t=1.0 + n)
+            bag.pose("/pose", 0.0, [0, 0, 1], [1, 0, 0, 0])
+    with pytest.raises(
+        RecordingError, match=r"topic /left: all 3 messages have the header stamp 0.000000000"
+    ):
+        BagRecording(path, "/left", "/right", "/pose", CALIB)
