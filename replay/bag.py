@@ -192,7 +192,7 @@ class BagRecording:
                 else:
                     stamps[role].append(_stamp(msg))
         for role in self.topics:
-            if role in stamps and not stamps[role]:
+            if not (stamps[role] if role in stamps else role in infos):
                 what = "no messages"
                 if role == "pose" and children:
                     what = (

@@ -175,3 +175,15 @@ def test_images_without_stamps_are_named(tmp_path, ros):
         RecordingError, match=r"topic /left: all 3 messages have the header stamp 0.000000000"
     ):
         BagRecording(path, "/left", "/right", "/pose", CALIB)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_a_camera_info_topic_without_messages_is_named(tmp_path, ros):
+    """The info topic recorded but empty (the camera's info published before the recording began)."""
+    path = _bag(tmp_path, ros)
+    with DriverBag(path, ros) as bag:
+        bag.empty_topic("/right/camera_info", "sensor_msgs/msg/CameraInfo")
+        bag.camera_info("/left/camera_info", 1.0, (W, H), np.eye(3), [], np.eye(3), np.eye(3, 4))
+        _stereo(bag, [1.0, 1.05])
+    with pytest.raises(RecordingError, match=r"topic /right/camera_info: no messages"):
+        BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/right/camera_info")
