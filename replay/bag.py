@@ -18,6 +18,7 @@ and what was dropped is counted (``matched.describe()``).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -142,6 +143,32 @@ def _bag_path(path: Path) -> Path:
     return path
 
 
+@contextmanager
+def _open_reader(path: Path) -> Iterator[Any]:
+    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise RecordingError(
+            f"{path}: a ROS 2 bag is a folder with its metadata.yaml beside the .db3 / .mcap files, and "
+            "there is none ('ros2 bag reindex FOLDER' writes it)"
+        )
+    if path.suffix == ".active":
+        raise RecordingError(
+            f"{path}: an unfinished ROS 1 recording (rosbag record was stopped before it closed the bag): "
+            "'rosbag reindex' it and rename it to .bag"
+        )
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except (AnyReaderError, OSError) as exc:
+        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
 class BagRecording:
     """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses."""
 
@@ -157,8 +184,6 @@ class BagRecording:
         child_frame: str | None = None,
         tolerance_s: float = 0.01,
     ) -> None:
-        from rosbags.highlevel import AnyReader
-
         self.path = _bag_path(Path(path))
         self.topics = {"left": left, "right": right, "pose": pose}
         if calibration is None:
@@ -167,11 +192,10 @@ class BagRecording:
                                      "camera_info topics (--left-info, --right-info)")  # fmt: skip
             self.topics |= {"left_info": left_info, "right_info": right_info}
         self.child_frame = child_frame
-        self._reader_type = AnyReader
         stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
-        with AnyReader([self.path]) as reader:
+        with _open_reader(self.path) as reader:
             conns = self._connections(reader)
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
                 role = next(r for r, cs in conns.items() if conn in cs)
@@ -272,7 +296,7 @@ class BagRecording:
         found: dict[int, dict[str, np.ndarray]] = {}
         counts = {"left": 0, "right": 0}
         nxt = start
-        with self._reader_type([self.path]) as reader:
+        with _open_reader(self.path) as reader:
             conns = {
                 r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
             }

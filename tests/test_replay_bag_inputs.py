@@ -187,3 +187,34 @@ def test_a_camera_info_topic_without_messages_is_named(tmp_path, ros):
         _stereo(bag, [1.0, 1.05])
     with pytest.raises(RecordingError, match=r"topic /right/camera_info: no messages"):
         BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/right/camera_info")
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "error"),
+    [
+        ("run.bag", b"not a bag", r"run.bag: not a readable ROS 1 or ROS 2 bag \(File magic is invalid"),
+        (
+            "run.bag.active",
+            b"#ROSBAG V2.0\n",
+            r"run.bag.active: an unfinished ROS 1 recording .*rosbag reindex",
+        ),
+        ("ros2/run_0.mcap", b"\x89MCAP0\r\n", r"ros2: a ROS 2 bag is a folder with its metadata.yaml"),
+    ],
+)
+def test_a_bag_that_cannot_be_read_is_named(tmp_path, name, content, error):
+    """A damaged file, an unfinished ROS 1 recording, a .mcap copied without its metadata.yaml."""
+    path = tmp_path / name
+    path.parent.mkdir(exist_ok=True)
+    path.write_bytes(content)
+    with pytest.raises(RecordingError, match=error):
+        BagRecording(path, "/left", "/right", "/pose", CALIB)
+
+
+def test_a_truncated_ros1_bag_is_named(tmp_path):
+    """rosbag record killed: the end of the file (the index) is missing."""
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        _stereo(bag, [1.0, 1.05])
+    path.write_bytes(path.read_bytes()[:3000])
+    with pytest.raises(RecordingError, match=r"b.bag: not a readable ROS 1 or ROS 2 bag"):
+        BagRecording(path, "/left", "/right", "/pose", CALIB)
