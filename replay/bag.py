@@ -1,7 +1,7 @@
 """ROS 1 (``.bag``) and ROS 2 (``.db3``, ``.mcap`` folders) recordings, read with ``rosbags``
 (no ROS install).
 
-* images: ``sensor_msgs/Image`` (mono8, mono16, bgr8, rgb8, bgra8, rgba8) or
+* images: ``sensor_msgs/Image`` (mono8/16, bgr8, rgb8, bgra8, rgba8, YUV 4:2:2, Bayer 8/16) or
   ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics;
 * calibration: a ``StereoCalibration`` from files, or the two ``sensor_msgs/CameraInfo``
   topics (the first message of each);
@@ -32,16 +32,33 @@ from replay.poses import quaternion_matrix
 from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
-_CHANNELS = {
-    "mono8": (np.uint8, 1),
-    "8uc1": (np.uint8, 1),
-    "mono16": (np.uint16, 1),
-    "16uc1": (np.uint16, 1),
-    "bgr8": (np.uint8, 3),
-    "rgb8": (np.uint8, 3),
-    "bgra8": (np.uint8, 4),
-    "rgba8": (np.uint8, 4),
+# sensor_msgs/image_encodings read (lower case): (pixel type, values a pixel, conversion to gray or BGR)
+_ENCODINGS: dict[str, tuple[type, int, Any]] = {
+    "mono8": (np.uint8, 1, None),
+    "8uc1": (np.uint8, 1, None),
+    "mono16": (np.uint16, 1, None),
+    "16uc1": (np.uint16, 1, None),
+    "bgr8": (np.uint8, 3, None),
+    "8uc3": (np.uint8, 3, None),  # cv_bridge's BGR
+    "rgb8": (np.uint8, 3, cv2.COLOR_RGB2BGR),
+    "bgra8": (np.uint8, 4, None),
+    "8uc4": (np.uint8, 4, None),
+    "rgba8": (np.uint8, 4, cv2.COLOR_RGBA2BGRA),
+    "bgr16": (np.uint16, 3, None),
+    "rgb16": (np.uint16, 3, cv2.COLOR_RGB2BGR),
+    # YUV 4:2:2, two bytes a pixel: the gray image is the luma Y, at byte 1 (UYVY) or 0 (YUYV)
+    "yuv422": (np.uint8, 2, ("luma", 1)),  # UYVY, usb_cam's and image_encodings' "yuv422"
+    "uyvy": (np.uint8, 2, ("luma", 1)),
+    "yuv422_yuy2": (np.uint8, 2, ("luma", 0)),  # YUYV
+    "yuyv": (np.uint8, 2, ("luma", 0)),
 }
+# Bayer mosaics, demosaiced to gray; OpenCV names a pattern by its second row's middle pixels
+_BAYER = {"rggb": cv2.COLOR_BayerBG2GRAY, "bggr": cv2.COLOR_BayerRG2GRAY,
+          "gbrg": cv2.COLOR_BayerGR2GRAY, "grbg": cv2.COLOR_BayerGB2GRAY}  # fmt: skip
+for _pattern, _code in _BAYER.items():
+    _ENCODINGS[f"bayer_{_pattern}8"] = (np.uint8, 1, _code)
+    _ENCODINGS[f"bayer_{_pattern}16"] = (np.uint16, 1, _code)
+ENCODINGS = tuple(_ENCODINGS)
 
 
 _IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -80,9 +97,11 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
             raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
         return image
     encoding = str(msg.encoding).lower()
-    if encoding not in _CHANNELS:
-        raise RecordingError(f"{where}: image encoding {msg.encoding!r} is not supported")
-    dtype, channels = _CHANNELS[encoding]
+    if encoding not in _ENCODINGS:
+        raise RecordingError(
+            f"{where}: image encoding {msg.encoding!r} is not supported (supported: {', '.join(ENCODINGS)})"
+        )
+    dtype, channels, convert = _ENCODINGS[encoding]
     row = np.asarray(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
     pixels = row[:, : msg.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
     if np.dtype(dtype).itemsize > 1 and bool(msg.is_bigendian):
@@ -92,8 +111,10 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
         if channels > 1
         else pixels.reshape(msg.height, msg.width)
     )
-    if encoding.startswith("rgb"):
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if channels == 3 else cv2.COLOR_RGBA2BGRA)
+    if isinstance(convert, tuple):  # ("luma", byte of Y)
+        return np.ascontiguousarray(image[:, :, convert[1]])
+    if convert is not None:
+        image = cv2.cvtColor(image, convert)
     return image
 
 

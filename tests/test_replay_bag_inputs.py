@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from replay.asl import RecordingError
 from replay.bag import BagRecording
+from replay.frames import to_gray8
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402
@@ -218,3 +220,70 @@ def test_a_truncated_ros1_bag_is_named(tmp_path):
     path.write_bytes(path.read_bytes()[:3000])
     with pytest.raises(RecordingError, match=r"b.bag: not a readable ROS 1 or ROS 2 bag"):
         BagRecording(path, "/left", "/right", "/pose", CALIB)
+
+
+def _colour() -> np.ndarray:
+    """A smooth BGR picture (so that a demosaiced mosaic matches its gray closely)."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    return np.dstack([40 + 6 * xx, 60 + 9 * yy, 220 - 5 * xx - 3 * yy]).astype(np.uint8)
+
+
+def _mosaic(bgr: np.ndarray, pattern: str) -> np.ndarray:
+    """The Bayer mosaic a sensor with ``pattern`` (first two rows, e.g. rggb) records of ``bgr``."""
+    out = np.zeros(bgr.shape[:2], bgr.dtype)
+    for n, colour in enumerate(pattern):
+        out[n // 2 :: 2, n % 2 :: 2] = bgr[n // 2 :: 2, n % 2 :: 2, "bgr".index(colour)]
+    return out
+
+
+def _yuv422(bgr: np.ndarray, uyvy: bool) -> np.ndarray:
+    yuv = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV)
+    packed = np.zeros((H, W * 2), np.uint8)
+    y, u, v = yuv[..., 0], yuv[:, ::2, 1], yuv[:, ::2, 2]
+    if uyvy:
+        packed[:, 1::2], packed[:, 0::4], packed[:, 2::4] = y, u, v
+    else:
+        packed[:, 0::2], packed[:, 1::4], packed[:, 3::4] = y, u, v
+    return packed
+
+
+@pytest.mark.parametrize(
+    "encoding",
+    ["yuv422", "uyvy", "yuv422_yuy2", "yuyv", "bayer_rggb8", "bayer_bggr8", "bayer_gbrg8", "bayer_grbg8",
+     "bayer_rggb16", "8UC3", "rgb8"],
+)  # fmt: skip
+def test_yuv_and_bayer_images_give_their_gray(tmp_path, encoding):
+    """usb_cam's YUV 4:2:2 (UYVY or YUYV) gives its luma; an industrial camera's Bayer mosaic is
+    demosaiced with its own pattern (OpenCV names patterns one row lower: RGGB is its BayerBG)."""
+    bgr = _colour()
+    gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
+    if encoding.startswith("bayer"):
+        data = _mosaic(bgr, encoding[6:10])
+        if encoding.endswith("16"):
+            data = data.astype(np.uint16) * 257
+    elif encoding in ("yuv422", "uyvy", "yuv422_yuy2", "yuyv"):
+        data = _yuv422(bgr, uyvy=encoding in ("yuv422", "uyvy"))
+    else:
+        data = bgr[..., ::-1] if encoding == "rgb8" else bgr
+    path = _bag(tmp_path, 2)
+    with DriverBag(path, 2) as bag:
+        for t in (1.0, 1.05):
+            for topic in ("/left", "/right"):
+                bag.raw_image(topic, t, encoding, np.ascontiguousarray(data).tobytes())
+            bag.pose("/pose", t, [0, 0, 1], [1, 0, 0, 0])
+    pairs = list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+    assert len(pairs) == 2
+    got = to_gray8(pairs[0].left).astype(int)
+    error = np.abs(got - gray)[2:-2, 2:-2]  # a demosaic's borders are approximate
+    assert error.mean() < 1.0 and error.max() <= 3, (encoding, error.mean(), error.max())
+
+
+def test_an_unsupported_encoding_lists_the_supported_ones(tmp_path):
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        for topic in ("/left", "/right"):
+            bag.raw_image(topic, 1.0, "32FC1", np.zeros(H * W * 4, np.uint8).tobytes())
+        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    with pytest.raises(RecordingError, match=r"/left: image encoding '32FC1' is not supported "
+                       r"\(supported: mono8, 8uc1, mono16, .*yuv422, .*bayer_rggb8"):  # fmt: skip
+        list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
