@@ -102,8 +102,15 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
             f"{where}: image encoding {msg.encoding!r} is not supported (supported: {', '.join(ENCODINGS)})"
         )
     dtype, channels, convert = _ENCODINGS[encoding]
-    row = np.asarray(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
-    pixels = row[:, : msg.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
+    row_bytes = msg.width * channels * np.dtype(dtype).itemsize
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height:
+        raise RecordingError(
+            f"{where}: a {msg.width}x{msg.height} {msg.encoding} image needs step >= {row_bytes} and "
+            f"height * step bytes of data; it has step {msg.step} and {data.size} bytes"
+        )
+    row = data[: msg.step * msg.height].reshape(msg.height, msg.step)
+    pixels = row[:, :row_bytes].copy().view(dtype)
     if np.dtype(dtype).itemsize > 1 and bool(msg.is_bigendian):
         pixels = pixels.byteswap()
     image = (
@@ -216,6 +223,7 @@ class BagRecording:
         stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
+        first: dict[str, np.ndarray] = {}  # each camera's first image
         with _open_reader(self.path) as reader:
             conns = self._connections(reader)
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
@@ -236,6 +244,8 @@ class BagRecording:
                         rotations.append(found[2])
                 else:
                     stamps[role].append(_stamp(msg))
+                    if role not in first:  # read now: a bad image is an error before anything starts
+                        first[role] = decode_image(msg, conn.topic)
         for role in self.topics:
             if not (stamps[role] if role in stamps else role in infos):
                 what = "no messages"
@@ -249,6 +259,14 @@ class BagRecording:
         if calibration is None:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
         self.calibration = calibration
+        size = getattr(calibration, "image_size", None)
+        for role in ("left", "right"):
+            h, w = first[role].shape[:2]
+            if size is not None and (w, h) != tuple(size):
+                raise RecordingError(
+                    f"{path}: topic {self.topics[role]}: images are {w}x{h}, the calibration "
+                    f"({calibration.source}) is for {size[0]}x{size[1]}"
+                )
         order = np.argsort(stamps["pose"])
         self.pose_stamps = np.asarray(stamps["pose"])[order]
         self.pose_positions = np.asarray(positions)[order]

@@ -287,3 +287,23 @@ def test_an_unsupported_encoding_lists_the_supported_ones(tmp_path):
     with pytest.raises(RecordingError, match=r"/left: image encoding '32FC1' is not supported "
                        r"\(supported: mono8, 8uc1, mono16, .*yuv422, .*bayer_rggb8"):  # fmt: skip
         list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+
+
+def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(tmp_path):
+    """Before, a calibration for other images, or an Image whose data is shorter than height * step,
+    failed with a ValueError traceback once the map server and agent were running."""
+    from swarm.formats.calibration_formats import load_stereo_calibration
+
+    euroc = Path(__file__).resolve().parent / "data" / "euroc_mini" / "mav0"
+    calib = load_stereo_calibration(euroc / "cam0/sensor.yaml", euroc / "cam1/sensor.yaml")
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        _stereo(bag, [1.0, 1.05])
+        bag.raw_image("/short", 1.0, "mono16", np.zeros(H * W * 2 - 5, np.uint8).tobytes(), step=2 * W)
+    with pytest.raises(
+        RecordingError, match=r"topic /left: images are 16x12, the calibration .* is for 752x480"
+    ):
+        BagRecording(path, "/left", "/right", "/pose", calib)
+    with pytest.raises(RecordingError, match=r"/short: a 16x12 mono16 image needs step >= 32 and "
+                       r"height \* step bytes of data; it has step 32 and 379 bytes"):  # fmt: skip
+        BagRecording(path, "/short", "/right", "/pose", CALIB)
