@@ -59,6 +59,7 @@ for _pattern, _code in _BAYER.items():
     _ENCODINGS[f"bayer_{_pattern}8"] = (np.uint8, 1, _code)
     _ENCODINGS[f"bayer_{_pattern}16"] = (np.uint16, 1, _code)
 ENCODINGS = tuple(_ENCODINGS)
+_PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
 
 
 _IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -224,6 +225,7 @@ class BagRecording:
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
         first: dict[str, np.ndarray] = {}  # each camera's first image
+        peak = 0  # the brightest 16-bit pixel of the first images
         with _open_reader(self.path) as reader:
             conns = self._connections(reader)
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
@@ -244,8 +246,12 @@ class BagRecording:
                         rotations.append(found[2])
                 else:
                     stamps[role].append(_stamp(msg))
+                    image = None
                     if role not in first:  # read now: a bad image is an error before anything starts
-                        first[role] = decode_image(msg, conn.topic)
+                        image = first[role] = decode_image(msg, conn.topic)
+                    if first[role].dtype == np.uint16 and len(stamps[role]) <= _PEAK_IMAGES:
+                        image = decode_image(msg, conn.topic) if image is None else image
+                        peak = max(peak, int(image.max()))
         for role in self.topics:
             if not (stamps[role] if role in stamps else role in infos):
                 what = "no messages"
@@ -259,6 +265,10 @@ class BagRecording:
         if calibration is None:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
         self.calibration = calibration
+        # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
+        # and their top 8 bits would be black; the significant bits are those the brightest pixel
+        # of the first images needs, and every image is scaled to 8 bits by them.
+        self.pixel_bits = next(b for b in (8, 10, 12, 14, 16) if peak < 2**b) if peak else None
         size = getattr(calibration, "image_size", None)
         for role in ("left", "right"):
             h, w = first[role].shape[:2]
@@ -347,6 +357,9 @@ class BagRecording:
                 if ks is None:
                     continue
                 image = decode_image(reader.deserialize(raw, conn.msgtype), conn.topic)
+                if image.dtype == np.uint16:
+                    shift = (self.pixel_bits or 16) - 8
+                    image = np.minimum(image >> shift, 255).astype(np.uint8)
                 for k in ks:
                     found.setdefault(k, {})[role] = image
                 while nxt in found and len(found[nxt]) == 2:

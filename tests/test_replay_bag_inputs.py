@@ -307,3 +307,32 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
     with pytest.raises(RecordingError, match=r"/short: a 16x12 mono16 image needs step >= 32 and "
                        r"height \* step bytes of data; it has step 32 and 379 bytes"):  # fmt: skip
         BagRecording(path, "/short", "/right", "/pose", CALIB)
+
+
+@pytest.mark.parametrize(("scale", "bits"), [(16, 12), (4, 10), (257, 16)])
+@pytest.mark.parametrize("compressed", [False, True])
+def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bits, compressed):
+    """A 12-bit (or 10-bit) camera's mono16 holds 0..4095: its top 8 bits were a black image. The
+    brightest pixel of the first images sets the bits; full-range 16-bit keeps its top 8 bits."""
+    path = _bag(tmp_path, 2)
+    with DriverBag(path, 2) as bag:
+        for k, t in enumerate((1.0, 1.05)):
+            image = _gray(k).astype(np.uint16) * np.uint16(scale)
+            for topic in ("/left", "/right"):
+                if compressed:
+                    data = np.frombuffer(cv2.imencode(".png", image)[1].tobytes(), np.uint8)
+                    msg = bag.t["sensor_msgs/msg/CompressedImage"](
+                        header=bag.header(t), format="mono16; png compressed mono16", data=data
+                    )
+                    bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, t)
+                else:
+                    bag.raw_image(topic, t, "mono16", image.tobytes())
+            bag.pose("/pose", t, [0, 0, 1], [1, 0, 0, 0])
+    rec = BagRecording(path, "/left", "/right", "/pose", CALIB)
+    assert rec.pixel_bits == bits
+    pairs = list(rec.pairs())
+    assert len(pairs) == 2
+    for k, pair in enumerate(pairs):
+        assert np.array_equal(to_gray8(pair.left), _gray(k)) and np.array_equal(
+            to_gray8(pair.right), _gray(k)
+        )

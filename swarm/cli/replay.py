@@ -143,6 +143,9 @@ def _replay(args: argparse.Namespace, opener) -> int:
     except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
         return _fail(str(exc))
     calib = recording.calibration
+    bits = getattr(recording, "pixel_bits", None)
+    if bits is not None:
+        print(f"16-bit images: {bits} significant bits (scaled to 8 bits by {2 ** (bits - 8)})", flush=True)
     print(
         f"{len(recording)} pairs ({recording.matched.describe()}); rectified {calib.image_size[0]}x"
         f"{calib.image_size[1]}, fx {calib.fx:.1f} px, baseline {calib.baseline:.4f} m",
