@@ -167,8 +167,8 @@ def _camera_info(msg: Any, where: str) -> CameraInfo:
 def _bag_path(path: Path) -> Path:
     if not path.exists():
         raise RecordingError(f"{path}: no such bag")
-    if path.is_file() and path.suffix in (".db3", ".mcap"):
-        return path.parent  # a ROS 2 bag is its folder (metadata.yaml)
+    if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
+        return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
     return path
 
 

@@ -336,3 +336,20 @@ def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bit
         assert np.array_equal(to_gray8(pair.left), _gray(k)) and np.array_equal(
             to_gray8(pair.right), _gray(k)
         )
+
+
+@pytest.mark.parametrize("storage", ["SQLITE3", "MCAP"])
+def test_a_file_compressed_ros2_bag_is_read_from_its_zstd_file(tmp_path, storage):
+    """ros2 bag record --compression-mode file leaves run_0.db3.zstd (or .mcap.zstd) beside
+    metadata.yaml; naming that file, as one names a .db3, said 'Unrecognized storage format'."""
+    from rosbags.rosbag2 import writer
+
+    path = tmp_path / "run"
+    bag = DriverBag(tmp_path / "unused", 2)
+    bag.writer = writer.Writer(path, version=9, storage_plugin=getattr(writer.StoragePlugin, storage))
+    bag.writer.set_compression(writer.CompressionMode.FILE, writer.CompressionFormat.ZSTD)
+    with bag:
+        _stereo(bag, [1.0, 1.05])
+    (data,) = path.glob("*.zstd")
+    rec = BagRecording(data, "/left", "/right", "/pose", CALIB)
+    assert [p.t for p in rec.pairs()] == pytest.approx([1.0, 1.05])
