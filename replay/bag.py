@@ -133,17 +133,23 @@ def _children(msg: Any) -> list[str]:
     return [msg.child_frame_id] if hasattr(msg, "child_frame_id") else []
 
 
+_UNUSABLE_POSE = "unusable pose message (NaN, or a zero quaternion)"
+
+
+class _UnusablePose(ValueError):
+    """A pose message of the camera whose numbers are not a pose (a lost tracker's NaN, w = x = y = z = 0)."""
+
+
 def _pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, np.ndarray] | None:
     """(time, position, world_R_optical) of a pose message, or None if it is of another frame.
 
     TFMessage: its transform whose child_frame_id is ``child_frame``; Odometry and TransformStamped:
-    kept when ``child_frame`` is None or is their child_frame_id.
+    kept when ``child_frame`` is None or is their child_frame_id. Raises ``_UnusablePose``.
     """
     if hasattr(msg, "transforms"):
         for tf in msg.transforms:
             if tf.child_frame_id.lstrip("/") == (child_frame or "").lstrip("/"):
-                t, q = tf.transform.translation, tf.transform.rotation
-                return _stamp(tf), np.array([t.x, t.y, t.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
+                return _stamp(tf), *_position_rotation(tf.transform.translation, tf.transform.rotation)
         return None
     if child_frame and hasattr(msg, "child_frame_id"):
         if msg.child_frame_id.lstrip("/") != child_frame.lstrip("/"):
@@ -153,7 +159,15 @@ def _pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, np.ndar
     else:
         pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
         p, q = pose.position, pose.orientation
-    return _stamp(msg), np.array([p.x, p.y, p.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
+    return _stamp(msg), *_position_rotation(p, q)
+
+
+def _position_rotation(p: Any, q: Any) -> tuple[np.ndarray, np.ndarray]:
+    position = np.array([p.x, p.y, p.z], dtype=np.float64)
+    quat = np.array([q.w, q.x, q.y, q.z], dtype=np.float64)
+    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quat)) and np.linalg.norm(quat) > 1e-9):
+        raise _UnusablePose(_UNUSABLE_POSE)
+    return position, quaternion_matrix(*quat)
 
 
 def _camera_info(msg: Any, where: str) -> CameraInfo:
@@ -226,6 +240,7 @@ class BagRecording:
         children: set[str] = set()  # the pose topic's child frames, for the errors
         first: dict[str, np.ndarray] = {}  # each camera's first image
         peak = 0  # the brightest 16-bit pixel of the first images
+        unusable = 0  # pose messages of the camera that are not a pose, skipped
         with _open_reader(self.path) as reader:
             conns = self._connections(reader)
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
@@ -239,7 +254,11 @@ class BagRecording:
                 msg = reader.deserialize(raw, conn.msgtype)
                 if role == "pose":
                     children.update(_children(msg))
-                    found = _pose(msg, child_frame)
+                    try:
+                        found = _pose(msg, child_frame)
+                    except _UnusablePose:
+                        unusable += 1
+                        continue
                     if found is not None:
                         stamps["pose"].append(found[0])
                         positions.append(found[1])
@@ -254,7 +273,11 @@ class BagRecording:
                         peak = max(peak, int(image.max()))
         for role in self.topics:
             if not (stamps[role] if role in stamps else role in infos):
-                what = "no messages"
+                what = (
+                    "no messages"
+                    if role != "pose" or not unusable
+                    else f"every message is an {_UNUSABLE_POSE}"
+                )
                 if role == "pose" and children:
                     what = (
                         f"no messages with child_frame_id {child_frame!r}"
@@ -304,6 +327,8 @@ class BagRecording:
         )
         if not first.all():
             self.matched.dropped["duplicate left stamp"] += int((~first).sum())
+        if unusable:
+            self.matched.dropped[_UNUSABLE_POSE] += unusable
 
     def _connections(self, reader: Any) -> dict[str, list]:
         present = sorted({c.topic for c in reader.connections})
