@@ -96,6 +96,11 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
         image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
+        # image_transport's format is "ENCODING; png compressed [TARGET]": a Bayer image is
+        # compressed as its raw mosaic (no target), to be demosaiced here
+        original = str(msg.format).split(";")[0].strip().lower()
+        if original.startswith("bayer_") and original in _ENCODINGS and image.ndim == 2:
+            image = cv2.cvtColor(image, _ENCODINGS[original][2])
         return image
     encoding = str(msg.encoding).lower()
     if encoding not in _ENCODINGS:

@@ -378,3 +378,23 @@ def test_nan_or_zero_quaternion_poses_are_skipped_and_counted(tmp_path, ros):
     assert np.all(np.isfinite(rec.positions()))
     with pytest.raises(RecordingError, match=r"topic /lost: every message is an unusable pose message"):
         BagRecording(path, "/left", "/right", "/lost", CALIB)
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "grbg"])
+def test_a_png_compressed_bayer_image_is_demosaiced(tmp_path, pattern):
+    """image_transport's compressed PNG of a Bayer camera holds the raw mosaic, with the format
+    'bayer_rggb8; png compressed ': it was read as a gray image, the mosaic's checkerboard in it."""
+    bgr = _colour()
+    gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
+    data = np.frombuffer(cv2.imencode(".png", _mosaic(bgr, pattern))[1].tobytes(), np.uint8)
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        msg = bag.t["sensor_msgs/msg/CompressedImage"](
+            header=bag.header(1.0), format=f"bayer_{pattern}8; png compressed ", data=data
+        )
+        for topic in ("/left", "/right"):
+            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
+        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    (pair,) = BagRecording(path, "/left", "/right", "/pose", CALIB).pairs()
+    error = np.abs(to_gray8(pair.left).astype(int) - gray)[2:-2, 2:-2]
+    assert error.mean() < 1.0 and error.max() <= 3, (error.mean(), error.max())
