@@ -71,6 +71,20 @@ class DriverBag(BagWriter):
         )  # fmt: skip
         self.write(topic, "nav_msgs/msg/Odometry", msg, t)
 
+    def camera_info_binned(self, topic, t, size, k, d, r, p, binning=0, roi=(0, 0, 0, 0)) -> None:
+        """A CameraInfo as REP-104 has it: the calibrated (full) size, K and P, the binning and ROI."""
+        names = ("D", "K", "R", "P") if self.ros == 1 else ("d", "k", "r", "p")
+        arrays = [np.asarray(a, dtype=np.float64).reshape(-1) for a in (d, k, r, p)]
+        x, y, w, h = roi
+        roi = self.t["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=x, y_offset=y, height=h, width=w, do_rectify=False
+        )
+        msg = self.t["sensor_msgs/msg/CameraInfo"](
+            header=self.header(t), height=int(size[1]), width=int(size[0]), distortion_model="plumb_bob",
+            binning_x=binning, binning_y=binning, roi=roi, **dict(zip(names, arrays, strict=True)),
+        )  # fmt: skip
+        self.write(topic, "sensor_msgs/msg/CameraInfo", msg, t)
+
     def empty_topic(self, topic: str, msgtype: str) -> None:
         self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
 
@@ -398,3 +412,35 @@ def test_a_png_compressed_bayer_image_is_demosaiced(tmp_path, pattern):
     (pair,) = BagRecording(path, "/left", "/right", "/pose", CALIB).pairs()
     error = np.abs(to_gray8(pair.left).astype(int) - gray)[2:-2, 2:-2]
     assert error.mean() < 1.0 and error.max() <= 3, (error.mean(), error.max())
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, ros):
+    """A driver binning 2x2 publishes half-size images with the CameraInfo of the full sensor and
+    binning_x = binning_y = 2 (REP-104): it was refused as 'images are 376x240, the calibration is
+    for 752x480'. K and P are now scaled by the binning; a region of interest is refused by name."""
+    from replay.frames import make_frame, rectified_camera
+    from tests.test_replay_bag import _euroc_camera_infos
+
+    size, left, right = _euroc_camera_infos()
+    half = (size[0] // 2, size[1] // 2)
+    path = _bag(tmp_path, ros)
+    with DriverBag(path, ros) as bag:
+        bag.camera_info_binned("/left/camera_info", 1.0, size, *left, binning=2)
+        bag.camera_info_binned("/right/camera_info", 1.0, size, *right, binning=2)
+        bag.camera_info_binned("/roi/camera_info", 1.0, size, *right, roi=(8, 0, 640, 480))
+        for t in (1.0, 1.05):
+            for topic in ("/left", "/right"):
+                bag.raw_image(topic, t, "mono8", np.zeros(half[::-1], np.uint8).tobytes(), *half)
+            bag.pose("/pose", t, [0, 0, 1], [1, 0, 0, 0])
+    rec = BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/right/camera_info")
+    calib = rec.calibration
+    assert calib.image_size == half
+    assert calib.fx == pytest.approx(left[3][0, 0] / 2) and calib.cy == pytest.approx(left[3][1, 2] / 2)
+    assert calib.baseline == pytest.approx(-right[3][0, 3] / right[3][0, 0])
+    (pair, _) = rec.pairs()
+    frame = make_frame("r1", 0, pair, calib, rectified_camera(calib))
+    assert frame.left.shape == half[::-1]
+    with pytest.raises(RecordingError, match=r"/roi/camera_info: roi: images of a region of interest "
+                       r"\(640x480 at 8, 0 of 752x480\) are not supported"):  # fmt: skip
+        BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/roi/camera_info")
