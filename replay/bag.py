@@ -28,7 +28,7 @@ import numpy as np
 from replay.asl import RecordingError
 from replay.frames import RecordedPair
 from replay.matching import Matched, match_stamps
-from replay.poses import quaternion_matrix
+from replay.poses import interpolate_pose, quaternion_matrix
 from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
@@ -59,6 +59,7 @@ for _pattern, _code in _BAYER.items():
     _ENCODINGS[f"bayer_{_pattern}8"] = (np.uint8, 1, _code)
     _ENCODINGS[f"bayer_{_pattern}16"] = (np.uint16, 1, _code)
 ENCODINGS = tuple(_ENCODINGS)
+POSE_GAP_S = 0.2  # poses at most this far apart are interpolated between, for an image between them
 _PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
 
 
@@ -339,6 +340,7 @@ class BagRecording:
         self.left_stamps = left_sorted[first]
         self._left_message = ordered["left"][first]  # message number of each left stamp
         self._right_message = ordered["right"]
+        self._interpolate_poses(tolerance_s)
         self.matched: Matched = match_stamps(
             self.left_stamps,
             {"right image": np.asarray(stamps["right"])[ordered["right"]], "pose": self.pose_stamps},
@@ -348,6 +350,34 @@ class BagRecording:
             self.matched.dropped["duplicate left stamp"] += int((~first).sum())
         if unusable:
             self.matched.dropped[_UNUSABLE_POSE] += unusable
+
+    def _interpolate_poses(self, tolerance_s: float) -> None:
+        """Add a pose at each left stamp with none within the tolerance but one on each side at most
+        ``POSE_GAP_S`` apart (odometry or /tf slower than the camera), interpolated between them."""
+        stamps, positions, rotations = self.pose_stamps, self.pose_positions, self.pose_rotations
+        self.interpolated_poses = 0
+        if stamps.size < 2:
+            return
+        after = np.clip(np.searchsorted(stamps, self.left_stamps), 1, stamps.size - 1)
+        t0, t1 = stamps[after - 1], stamps[after]
+        near = np.minimum(np.abs(self.left_stamps - t0), np.abs(self.left_stamps - t1)) <= tolerance_s
+        inside = (t0 <= self.left_stamps) & (self.left_stamps <= t1) & (t1 - t0 <= POSE_GAP_S)
+        rows = np.flatnonzero(~near & inside)
+        if rows.size == 0:
+            return
+        new_p, new_r = [], []
+        for row in rows:
+            j = after[row]
+            s = (self.left_stamps[row] - stamps[j - 1]) / (stamps[j] - stamps[j - 1])
+            p, r = interpolate_pose(s, positions[j - 1], rotations[j - 1], positions[j], rotations[j])
+            new_p.append(p)
+            new_r.append(r)
+        all_stamps = np.concatenate([stamps, self.left_stamps[rows]])
+        order = np.argsort(all_stamps, kind="stable")
+        self.pose_stamps = all_stamps[order]
+        self.pose_positions = np.concatenate([positions, np.asarray(new_p)])[order]
+        self.pose_rotations = np.concatenate([rotations, np.asarray(new_r)])[order]
+        self.interpolated_poses = int(rows.size)
 
     def _connections(self, reader: Any) -> dict[str, list]:
         present = sorted({c.topic for c in reader.connections})

@@ -444,3 +444,29 @@ def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, r
     with pytest.raises(RecordingError, match=r"/roi/camera_info: roi: images of a region of interest "
                        r"\(640x480 at 8, 0 of 752x480\) are not supported"):  # fmt: skip
         BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/roi/camera_info")
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_poses_slower_than_the_camera_are_interpolated(tmp_path, ros):
+    """10 Hz odometry (or /tf) with a 20 Hz camera: every other image had no pose within 10 ms
+    and was dropped. Between two poses at most 0.2 s apart, the pose is now interpolated; images
+    before the first pose, after the last, or across a gap stay dropped."""
+    from replay.poses import quaternion_matrix
+
+    path = _bag(tmp_path, ros)
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    with DriverBag(path, ros) as bag:
+        for k, t in enumerate([0.95, 1.0, 1.05, 1.1, 1.15, 1.5, 1.55]):
+            bag.image("/left", t, _gray(k))
+            bag.image("/right", t, _gray(k))
+        bag.pose("/odom", 1.0, [0, 0, 1], [1, 0, 0, 0])
+        bag.pose("/odom", 1.1, [2, 0, 1], [c, 0, 0, s])  # turned 90 degrees about z
+        bag.pose("/odom", 1.5, [2, 0, 1], [c, 0, 0, s])
+    rec = BagRecording(path, "/left", "/right", "/odom", CALIB)
+    assert rec.matched.describe() == "4 kept, dropped: 3 no pose within 0.01"
+    assert rec.interpolated_poses == 1
+    pairs = list(rec.pairs())
+    assert [p.t for p in pairs] == pytest.approx([1.0, 1.05, 1.1, 1.5])
+    assert np.allclose(pairs[1].position, [1, 0, 1])
+    half = quaternion_matrix(np.cos(np.pi / 8), 0, 0, np.sin(np.pi / 8))  # 45 degrees about z
+    assert np.allclose(pairs[1].world_R_optical, half)

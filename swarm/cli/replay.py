@@ -143,6 +143,9 @@ def _replay(args: argparse.Namespace, opener) -> int:
     except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
         return _fail(str(exc))
     calib = recording.calibration
+    interpolated = getattr(recording, "interpolated_poses", 0)
+    if interpolated:
+        print(f"{interpolated} poses interpolated between the pose topic's messages", flush=True)
     bits = getattr(recording, "pixel_bits", None)
     if bits is not None:
         print(f"16-bit images: {bits} significant bits (scaled to 8 bits by {2 ** (bits - 8)})", flush=True)
