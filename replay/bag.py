@@ -351,6 +351,19 @@ class BagRecording:
             self.matched.dropped["duplicate left stamp"] += int((~first).sum())
         if unusable:
             self.matched.dropped[_UNUSABLE_POSE] += unusable
+        if len(self.matched.reference) == 0:  # often topics stamped by different clocks
+            spans = {
+                "left": self.left_stamps,
+                "right": np.asarray(stamps["right"]),
+                "pose": np.asarray(stamps["pose"]),
+            }
+            shown = ", ".join(
+                f"{self.topics[role]} {arr.min():.3f} .. {arr.max():.3f}" for role, arr in spans.items()
+            )
+            raise RecordingError(
+                f"{path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
+                f"{shown}: are the topics stamped by one clock?"
+            )
 
     def _interpolate_poses(self, tolerance_s: float) -> None:
         """Add a pose at each left stamp with none within the tolerance but one on each side at most

@@ -470,3 +470,19 @@ def test_poses_slower_than_the_camera_are_interpolated(tmp_path, ros):
     assert np.allclose(pairs[1].position, [1, 0, 1])
     half = quaternion_matrix(np.cos(np.pi / 8), 0, 0, np.sin(np.pi / 8))  # 45 degrees about z
     assert np.allclose(pairs[1].world_R_optical, half)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_topics_stamped_by_different_clocks_show_their_time_spans(tmp_path, ros):
+    """A motion-capture PC stamping poses with its own clock (or sim time against wall time):
+    nothing matches, and the error shows each topic's stamps so that the offset is seen."""
+    path = _bag(tmp_path, ros)
+    with DriverBag(path, ros) as bag:
+        for k, t in enumerate([1000.0, 1000.05]):
+            bag.image("/left", t, _gray(k))
+            bag.image("/right", t, _gray(k))
+            bag.pose("/mocap", t - 990.0, [0, 0, 1], [1, 0, 0, 0])
+    spans = r"/left 1000.000 .. 1000.050, /right 1000.000 .. 1000.050, /mocap 10.000 .. 10.050"
+    error = rf"\(0 kept, dropped: 2 no pose within 0.01\); header stamps \(s\): {spans}: are the topics"
+    with pytest.raises(RecordingError, match=rf"no pair left after matching {error} stamped by one clock\?"):
+        BagRecording(path, "/left", "/right", "/mocap", CALIB)
