@@ -1,21 +1,25 @@
 """ROS 1 (``.bag``) and ROS 2 (``.db3``, ``.mcap`` folders) recordings, read with ``rosbags``
 (no ROS install).
 
-* images: ``sensor_msgs/Image`` (mono8, mono16, bgr8, rgb8, bgra8, rgba8) or
+* images: ``sensor_msgs/Image`` (mono8/16, bgr8, rgb8, bgra8, rgba8, YUV 4:2:2, Bayer 8/16) or
   ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics;
 * calibration: a ``StereoCalibration`` from files, or the two ``sensor_msgs/CameraInfo``
   topics (the first message of each);
 * poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
   (the orientation turns camera vectors into world vectors): ``geometry_msgs/PoseStamped``,
-  ``nav_msgs/Odometry``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by ``child_frame``.
+  ``geometry_msgs/PoseWithCovarianceStamped``, ``nav_msgs/Odometry``,
+  ``geometry_msgs/TransformStamped``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by
+  ``child_frame`` (which also filters Odometry and TransformStamped by their child_frame_id).
 
-Times are the messages' header stamps; left, right and pose are matched within a tolerance
-and what was dropped is counted (``matched.describe()``).
+Times are the messages' header stamps (sorted); left, right and pose are matched within a
+tolerance, a pose between two slower ones is interpolated, and what was dropped is counted
+(``matched.describe()``). Each camera's first image is decoded when the bag is opened.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -25,20 +29,62 @@ import numpy as np
 from replay.asl import RecordingError
 from replay.frames import RecordedPair
 from replay.matching import Matched, match_stamps
-from replay.poses import quaternion_matrix
+from replay.poses import interpolate_pose, quaternion_matrix
 from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
-_CHANNELS = {
-    "mono8": (np.uint8, 1),
-    "8uc1": (np.uint8, 1),
-    "mono16": (np.uint16, 1),
-    "16uc1": (np.uint16, 1),
-    "bgr8": (np.uint8, 3),
-    "rgb8": (np.uint8, 3),
-    "bgra8": (np.uint8, 4),
-    "rgba8": (np.uint8, 4),
+# sensor_msgs/image_encodings read (lower case): (pixel type, values a pixel, conversion to gray or BGR)
+_ENCODINGS: dict[str, tuple[type, int, Any]] = {
+    "mono8": (np.uint8, 1, None),
+    "8uc1": (np.uint8, 1, None),
+    "mono16": (np.uint16, 1, None),
+    "16uc1": (np.uint16, 1, None),
+    "bgr8": (np.uint8, 3, None),
+    "8uc3": (np.uint8, 3, None),  # cv_bridge's BGR
+    "rgb8": (np.uint8, 3, cv2.COLOR_RGB2BGR),
+    "bgra8": (np.uint8, 4, None),
+    "8uc4": (np.uint8, 4, None),
+    "rgba8": (np.uint8, 4, cv2.COLOR_RGBA2BGRA),
+    "bgr16": (np.uint16, 3, None),
+    "rgb16": (np.uint16, 3, cv2.COLOR_RGB2BGR),
+    # YUV 4:2:2, two bytes a pixel: the gray image is the luma Y, at byte 1 (UYVY) or 0 (YUYV)
+    "yuv422": (np.uint8, 2, ("luma", 1)),  # UYVY, usb_cam's and image_encodings' "yuv422"
+    "uyvy": (np.uint8, 2, ("luma", 1)),
+    "yuv422_yuy2": (np.uint8, 2, ("luma", 0)),  # YUYV
+    "yuyv": (np.uint8, 2, ("luma", 0)),
 }
+# Bayer mosaics, demosaiced to gray; OpenCV names a pattern by its second row's middle pixels
+_BAYER = {"rggb": cv2.COLOR_BayerBG2GRAY, "bggr": cv2.COLOR_BayerRG2GRAY,
+          "gbrg": cv2.COLOR_BayerGR2GRAY, "grbg": cv2.COLOR_BayerGB2GRAY}  # fmt: skip
+for _pattern, _code in _BAYER.items():
+    _ENCODINGS[f"bayer_{_pattern}8"] = (np.uint8, 1, _code)
+    _ENCODINGS[f"bayer_{_pattern}16"] = (np.uint16, 1, _code)
+ENCODINGS = tuple(_ENCODINGS)
+POSE_GAP_S = 0.2  # poses at most this far apart are interpolated between, for an image between them
+_PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
+
+
+_IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+_POSE_TYPES = (
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/TransformStamped",
+    "tf2_msgs/msg/TFMessage",
+    "tf/msg/tfMessage",
+)
+_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
+ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
+    "left": _IMAGE_TYPES,
+    "right": _IMAGE_TYPES,
+    "pose": _POSE_TYPES,
+    "left_info": _INFO_TYPES,
+    "right_info": _INFO_TYPES,
+}
+
+
+def _type_name(msgtype: str) -> str:
+    return msgtype.replace("/msg/", "/")
 
 
 def _stamp(msg: Any) -> float:
@@ -52,13 +98,27 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
         image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
+        # image_transport's format is "ENCODING; png compressed [TARGET]": a Bayer image is
+        # compressed as its raw mosaic (no target), to be demosaiced here
+        original = str(msg.format).split(";")[0].strip().lower()
+        if original.startswith("bayer_") and original in _ENCODINGS and image.ndim == 2:
+            image = cv2.cvtColor(image, _ENCODINGS[original][2])
         return image
     encoding = str(msg.encoding).lower()
-    if encoding not in _CHANNELS:
-        raise RecordingError(f"{where}: image encoding {msg.encoding!r} is not supported")
-    dtype, channels = _CHANNELS[encoding]
-    row = np.asarray(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
-    pixels = row[:, : msg.width * channels * np.dtype(dtype).itemsize].copy().view(dtype)
+    if encoding not in _ENCODINGS:
+        raise RecordingError(
+            f"{where}: image encoding {msg.encoding!r} is not supported (supported: {', '.join(ENCODINGS)})"
+        )
+    dtype, channels, convert = _ENCODINGS[encoding]
+    row_bytes = msg.width * channels * np.dtype(dtype).itemsize
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height:
+        raise RecordingError(
+            f"{where}: a {msg.width}x{msg.height} {msg.encoding} image needs step >= {row_bytes} and "
+            f"height * step bytes of data; it has step {msg.step} and {data.size} bytes"
+        )
+    row = data[: msg.step * msg.height].reshape(msg.height, msg.step)
+    pixels = row[:, :row_bytes].copy().view(dtype)
     if np.dtype(dtype).itemsize > 1 and bool(msg.is_bigendian):
         pixels = pixels.byteswap()
     image = (
@@ -66,38 +126,111 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
         if channels > 1
         else pixels.reshape(msg.height, msg.width)
     )
-    if encoding.startswith("rgb"):
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if channels == 3 else cv2.COLOR_RGBA2BGRA)
+    if isinstance(convert, tuple):  # ("luma", byte of Y)
+        return np.ascontiguousarray(image[:, :, convert[1]])
+    if convert is not None:
+        image = cv2.cvtColor(image, convert)
     return image
 
 
+def _children(msg: Any) -> list[str]:
+    """The child_frame_id(s) a pose message carries (TFMessage, Odometry, TransformStamped)."""
+    if hasattr(msg, "transforms"):
+        return [tf.child_frame_id for tf in msg.transforms]
+    return [msg.child_frame_id] if hasattr(msg, "child_frame_id") else []
+
+
+_UNUSABLE_POSE = "unusable pose message (NaN, or a zero quaternion)"
+
+
+class _UnusablePose(ValueError):
+    """A pose message of the camera whose numbers are not a pose (a lost tracker's NaN, w = x = y = z = 0)."""
+
+
 def _pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """(time, position, world_R_optical) of a PoseStamped / Odometry / TFMessage, or None."""
+    """(time, position, world_R_optical) of a pose message, or None if it is of another frame.
+
+    TFMessage: its transform whose child_frame_id is ``child_frame``; Odometry and TransformStamped:
+    kept when ``child_frame`` is None or is their child_frame_id. Raises ``_UnusablePose``.
+    """
     if hasattr(msg, "transforms"):
         for tf in msg.transforms:
             if tf.child_frame_id.lstrip("/") == (child_frame or "").lstrip("/"):
-                t, q = tf.transform.translation, tf.transform.rotation
-                return _stamp(tf), np.array([t.x, t.y, t.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
+                return _stamp(tf), *_position_rotation(tf.transform.translation, tf.transform.rotation)
         return None
-    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    p, q = pose.position, pose.orientation
-    return _stamp(msg), np.array([p.x, p.y, p.z]), quaternion_matrix(q.w, q.x, q.y, q.z)
+    if child_frame and hasattr(msg, "child_frame_id"):
+        if msg.child_frame_id.lstrip("/") != child_frame.lstrip("/"):
+            return None
+    if hasattr(msg, "transform"):  # TransformStamped (e.g. vicon_bridge, motion capture)
+        p, q = msg.transform.translation, msg.transform.rotation
+    else:
+        pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+        p, q = pose.position, pose.orientation
+    return _stamp(msg), *_position_rotation(p, q)
+
+
+def _position_rotation(p: Any, q: Any) -> tuple[np.ndarray, np.ndarray]:
+    position = np.array([p.x, p.y, p.z], dtype=np.float64)
+    quat = np.array([q.w, q.x, q.y, q.z], dtype=np.float64)
+    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quat)) and np.linalg.norm(quat) > 1e-9):
+        raise _UnusablePose(_UNUSABLE_POSE)
+    return position, quaternion_matrix(*quat)
 
 
 def _camera_info(msg: Any, where: str) -> CameraInfo:
+    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
+    in the message, and says how the images were binned; a binned camera's are scaled to them."""
     data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
     data["distortion_model"] = msg.distortion_model
     for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
         data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
+    roi = msg.roi
+    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
+        raise RecordingError(
+            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
+            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
+        )
+    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
+    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
+        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
+        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
+        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
+        data["width"], data["height"] = data["width"] // bx, data["height"] // by
     return CameraInfo.from_dict(data, where)
 
 
 def _bag_path(path: Path) -> Path:
     if not path.exists():
         raise RecordingError(f"{path}: no such bag")
-    if path.is_file() and path.suffix in (".db3", ".mcap"):
-        return path.parent  # a ROS 2 bag is its folder (metadata.yaml)
+    if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
+        return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
     return path
+
+
+@contextmanager
+def _open_reader(path: Path) -> Iterator[Any]:
+    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise RecordingError(
+            f"{path}: a ROS 2 bag is a folder with its metadata.yaml beside the .db3 / .mcap files, and "
+            "there is none ('ros2 bag reindex FOLDER' writes it)"
+        )
+    if path.suffix == ".active":
+        raise RecordingError(
+            f"{path}: an unfinished ROS 1 recording (rosbag record was stopped before it closed the bag): "
+            "'rosbag reindex' it and rename it to .bag"
+        )
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except (AnyReaderError, OSError) as exc:
+        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
 
 
 class BagRecording:
@@ -115,8 +248,6 @@ class BagRecording:
         child_frame: str | None = None,
         tolerance_s: float = 0.01,
     ) -> None:
-        from rosbags.highlevel import AnyReader
-
         self.path = _bag_path(Path(path))
         self.topics = {"left": left, "right": right, "pose": pose}
         if calibration is None:
@@ -125,10 +256,13 @@ class BagRecording:
                                      "camera_info topics (--left-info, --right-info)")  # fmt: skip
             self.topics |= {"left_info": left_info, "right_info": right_info}
         self.child_frame = child_frame
-        self._reader_type = AnyReader
         stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
         positions, rotations, infos = [], [], {}
-        with AnyReader([self.path]) as reader:
+        children: set[str] = set()  # the pose topic's child frames, for the errors
+        first: dict[str, np.ndarray] = {}  # each camera's first image
+        peak = 0  # the brightest 16-bit pixel of the first images
+        unusable = 0  # pose messages of the camera that are not a pose, skipped
+        with _open_reader(self.path) as reader:
             conns = self._connections(reader)
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
                 role = next(r for r, cs in conns.items() if conn in cs)
@@ -140,41 +274,144 @@ class BagRecording:
                     continue
                 msg = reader.deserialize(raw, conn.msgtype)
                 if role == "pose":
-                    found = _pose(msg, child_frame)
+                    children.update(_children(msg))
+                    try:
+                        found = _pose(msg, child_frame)
+                    except _UnusablePose:
+                        unusable += 1
+                        continue
                     if found is not None:
                         stamps["pose"].append(found[0])
                         positions.append(found[1])
                         rotations.append(found[2])
                 else:
                     stamps[role].append(_stamp(msg))
+                    image = None
+                    if role not in first:  # read now: a bad image is an error before anything starts
+                        image = first[role] = decode_image(msg, conn.topic)
+                    if first[role].dtype == np.uint16 and len(stamps[role]) <= _PEAK_IMAGES:
+                        image = decode_image(msg, conn.topic) if image is None else image
+                        peak = max(peak, int(image.max()))
         for role in self.topics:
-            if role in stamps and not stamps[role]:
-                extra = f" with child_frame_id {child_frame!r}" if role == "pose" and child_frame else ""
-                raise RecordingError(f"{path}: topic {self.topics[role]}: no messages{extra}")
+            if not (stamps[role] if role in stamps else role in infos):
+                what = (
+                    "no messages"
+                    if role != "pose" or not unusable
+                    else f"every message is an {_UNUSABLE_POSE}"
+                )
+                if role == "pose" and children:
+                    what = (
+                        f"no messages with child_frame_id {child_frame!r}"
+                        if child_frame
+                        else "give --child-frame, the left camera's child_frame_id"
+                    ) + f" (child frames: {', '.join(sorted(children))})"
+                raise RecordingError(f"{path}: topic {self.topics[role]}: {what}")
         if calibration is None:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
         self.calibration = calibration
+        # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
+        # and their top 8 bits would be black; the significant bits are those the brightest pixel
+        # of the first images needs, and every image is scaled to 8 bits by them.
+        self.pixel_bits = next(b for b in (8, 10, 12, 14, 16) if peak < 2**b) if peak else None
+        size = getattr(calibration, "image_size", None)
+        for role in ("left", "right"):
+            h, w = first[role].shape[:2]
+            if size is not None and (w, h) != tuple(size):
+                raise RecordingError(
+                    f"{path}: topic {self.topics[role]}: images are {w}x{h}, the calibration "
+                    f"({calibration.source}) is for {size[0]}x{size[1]}"
+                )
         order = np.argsort(stamps["pose"])
         self.pose_stamps = np.asarray(stamps["pose"])[order]
         self.pose_positions = np.asarray(positions)[order]
         self.pose_rotations = np.asarray(rotations)[order]
-        self.left_stamps = np.asarray(stamps["left"])
-        right_stamps = np.asarray(stamps["right"])
-        for role, arr in (("left", self.left_stamps), ("right", right_stamps)):
-            if np.any(np.diff(arr) < 0):
-                raise RecordingError(f"{path}: topic {self.topics[role]}: header stamps go back in time")
+        # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
+        # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
+        ordered = {}
+        for role in ("left", "right"):
+            arr = np.asarray(stamps[role])
+            if arr.size > 1 and np.all(arr == arr[0]):
+                raise RecordingError(
+                    f"{path}: topic {self.topics[role]}: all {arr.size} messages have the header stamp "
+                    f"{arr[0]:.9f} (the driver does not stamp its images)"
+                )
+            ordered[role] = np.argsort(arr, kind="stable")
+        left_sorted = np.asarray(stamps["left"])[ordered["left"]]
+        first = np.r_[True, np.diff(left_sorted) > 0]
+        self.left_stamps = left_sorted[first]
+        self._left_message = ordered["left"][first]  # message number of each left stamp
+        self._right_message = ordered["right"]
+        self._interpolate_poses(tolerance_s)
         self.matched: Matched = match_stamps(
-            self.left_stamps, {"right image": right_stamps, "pose": self.pose_stamps}, tolerance_s
+            self.left_stamps,
+            {"right image": np.asarray(stamps["right"])[ordered["right"]], "pose": self.pose_stamps},
+            tolerance_s,
         )
+        if not first.all():
+            self.matched.dropped["duplicate left stamp"] += int((~first).sum())
+        if unusable:
+            self.matched.dropped[_UNUSABLE_POSE] += unusable
+        if len(self.matched.reference) == 0:  # often topics stamped by different clocks
+            spans = {
+                "left": self.left_stamps,
+                "right": np.asarray(stamps["right"]),
+                "pose": np.asarray(stamps["pose"]),
+            }
+            shown = ", ".join(
+                f"{self.topics[role]} {arr.min():.3f} .. {arr.max():.3f}" for role, arr in spans.items()
+            )
+            raise RecordingError(
+                f"{path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
+                f"{shown}: are the topics stamped by one clock?"
+            )
+
+    def _interpolate_poses(self, tolerance_s: float) -> None:
+        """Add a pose at each left stamp with none within the tolerance but one on each side at most
+        ``POSE_GAP_S`` apart (odometry or /tf slower than the camera), interpolated between them."""
+        stamps, positions, rotations = self.pose_stamps, self.pose_positions, self.pose_rotations
+        self.interpolated_poses = 0
+        if stamps.size < 2:
+            return
+        after = np.clip(np.searchsorted(stamps, self.left_stamps), 1, stamps.size - 1)
+        t0, t1 = stamps[after - 1], stamps[after]
+        near = np.minimum(np.abs(self.left_stamps - t0), np.abs(self.left_stamps - t1)) <= tolerance_s
+        inside = (t0 <= self.left_stamps) & (self.left_stamps <= t1) & (t1 - t0 <= POSE_GAP_S)
+        rows = np.flatnonzero(~near & inside)
+        if rows.size == 0:
+            return
+        new_p, new_r = [], []
+        for row in rows:
+            j = after[row]
+            s = (self.left_stamps[row] - stamps[j - 1]) / (stamps[j] - stamps[j - 1])
+            p, r = interpolate_pose(s, positions[j - 1], rotations[j - 1], positions[j], rotations[j])
+            new_p.append(p)
+            new_r.append(r)
+        all_stamps = np.concatenate([stamps, self.left_stamps[rows]])
+        order = np.argsort(all_stamps, kind="stable")
+        self.pose_stamps = all_stamps[order]
+        self.pose_positions = np.concatenate([positions, np.asarray(new_p)])[order]
+        self.pose_rotations = np.concatenate([rotations, np.asarray(new_r)])[order]
+        self.interpolated_poses = int(rows.size)
 
     def _connections(self, reader: Any) -> dict[str, list]:
         present = sorted({c.topic for c in reader.connections})
         conns = {}
+        roles: dict[str, str] = {}
         for role, topic in self.topics.items():
+            if topic in roles:
+                raise RecordingError(f"{self.path}: topic {topic} is given as both {roles[topic]} and {role}")
+            roles[topic] = role
             found = [c for c in reader.connections if c.topic == topic]
             if not found:
                 raise RecordingError(f"{self.path}: topic {topic} ({role}) is not in the bag "
                                      f"(topics: {', '.join(present)})")  # fmt: skip
+            for conn in found:
+                if conn.msgtype not in ROLE_TYPES[role]:
+                    wanted = ", ".join(_type_name(t) for t in ROLE_TYPES[role])
+                    raise RecordingError(
+                        f"{self.path}: topic {topic} ({role}) is a {_type_name(conn.msgtype)}; "
+                        f"the {role} topic must be one of {wanted}"
+                    )
             conns[role] = found
         return conns
 
@@ -187,12 +424,16 @@ class BagRecording:
     def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]:
         """Matched pairs in time order (the bag is read once more, keeping only the pairs asked)."""
         stop = len(self) if count is None else min(len(self), start + count)
-        want_left = {int(i): k for k, i in enumerate(self.matched.reference[start:stop], start)}
-        want_right = {int(j): k for k, j in enumerate(self.matched.others["right image"][start:stop], start)}
+        # message number on each topic -> the pairs it is in (a right image can serve two left ones)
+        want: dict[str, dict[int, list[int]]] = {"left": {}, "right": {}}
+        for k in range(start, stop):
+            i, j = self.matched.reference[k], self.matched.others["right image"][k]
+            want["left"].setdefault(int(self._left_message[i]), []).append(k)
+            want["right"].setdefault(int(self._right_message[j]), []).append(k)
         found: dict[int, dict[str, np.ndarray]] = {}
         counts = {"left": 0, "right": 0}
         nxt = start
-        with self._reader_type([self.path]) as reader:
+        with _open_reader(self.path) as reader:
             conns = {
                 r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
             }
@@ -200,12 +441,15 @@ class BagRecording:
                 role = "left" if conn in conns["left"] else "right"
                 n = counts[role]
                 counts[role] += 1
-                k = (want_left if role == "left" else want_right).get(n)
-                if k is None:
+                ks = want[role].get(n)
+                if ks is None:
                     continue
-                found.setdefault(k, {})[role] = decode_image(
-                    reader.deserialize(raw, conn.msgtype), conn.topic
-                )
+                image = decode_image(reader.deserialize(raw, conn.msgtype), conn.topic)
+                if image.dtype == np.uint16:
+                    shift = (self.pixel_bits or 16) - 8
+                    image = np.minimum(image >> shift, 255).astype(np.uint8)
+                for k in ks:
+                    found.setdefault(k, {})[role] = image
                 while nxt in found and len(found[nxt]) == 2:
                     p = self.matched.others["pose"][nxt]
                     t = float(self.left_stamps[self.matched.reference[nxt]])
@@ -216,3 +460,5 @@ class BagRecording:
                     nxt += 1
                 if nxt >= stop:
                     return
+        if nxt < stop:
+            raise RecordingError(f"{self.path}: pair {nxt} of {len(self)} was not found on the second read")

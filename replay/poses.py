@@ -35,6 +35,18 @@ def quaternion_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
     )
 
 
+def interpolate_pose(
+    s: float, p0: np.ndarray, r0: np.ndarray, p1: np.ndarray, r1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose a fraction ``s`` (0..1) of the way from (p0, r0) to (p1, r1): straight line, and
+    rotation about the one axis turning r0 into r1 (the rotations' slerp)."""
+    import cv2
+
+    turn, _ = cv2.Rodrigues(np.asarray(r0, dtype=np.float64).T @ np.asarray(r1, dtype=np.float64))
+    step, _ = cv2.Rodrigues(turn * s)
+    return (1 - s) * np.asarray(p0, dtype=np.float64) + s * np.asarray(p1, dtype=np.float64), r0 @ step
+
+
 def ypr_of(world_R_body: np.ndarray) -> tuple[float, float, float]:
     """(yaw, pitch, roll) with world_R_body = Rz(yaw) Ry(pitch) Rx(roll)."""
     r = world_R_body

@@ -65,15 +65,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "bag",
         help="a ROS 1 .bag or ROS 2 bag (.db3/.mcap), read with rosbags (no ROS install)",
         description="Replay two image topics (sensor_msgs/Image or CompressedImage) with the left camera's "
-        "pose (geometry_msgs/PoseStamped, nav_msgs/Odometry, or /tf with --child-frame; the pose of the "
+        "pose (geometry_msgs/PoseStamped or PoseWithCovarianceStamped, nav_msgs/Odometry, "
+        "geometry_msgs/TransformStamped, or /tf with --child-frame; the pose of the "
         "left camera's optical frame in a z-up world). Calibration from files (--calib-left/--calib-right) "
         "or from CameraInfo topics (--left-info/--right-info).",
     )
     bag.add_argument("bag", type=Path, help="a .bag file, or a ROS 2 bag folder / its .db3 or .mcap file")
     bag.add_argument("--left", required=True, help="left image topic")
     bag.add_argument("--right", required=True, help="right image topic")
-    bag.add_argument("--pose", required=True, help="pose topic (PoseStamped, Odometry, or /tf)")
-    bag.add_argument("--child-frame", help="with --pose /tf: the child_frame_id of the left camera")
+    bag.add_argument(
+        "--pose", required=True, help="pose topic (PoseStamped, Odometry, TransformStamped, or /tf)"
+    )
+    bag.add_argument(
+        "--child-frame",
+        help="the child_frame_id of the left camera: needed with --pose /tf, a filter for Odometry "
+        "and TransformStamped",
+    )
     bag.add_argument("--left-info", help="left sensor_msgs/CameraInfo topic")
     bag.add_argument("--right-info", help="right sensor_msgs/CameraInfo topic")
     bag.add_argument("--calib-left", type=Path, help="calibration file (any form of docs/stereo.md)")
@@ -167,6 +174,12 @@ def _replay(args: argparse.Namespace, opener) -> int:
     except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
         return _fail(str(exc))
     calib = recording.calibration
+    interpolated = getattr(recording, "interpolated_poses", 0)
+    if interpolated:
+        print(f"{interpolated} poses interpolated between the pose topic's messages", flush=True)
+    bits = getattr(recording, "pixel_bits", None)
+    if bits is not None:
+        print(f"16-bit images: {bits} significant bits (scaled to 8 bits by {2 ** (bits - 8)})", flush=True)
     print(
         f"{len(recording)} pairs ({recording.matched.describe()}); rectified {calib.image_size[0]}x"
         f"{calib.image_size[1]}, fx {calib.fx:.1f} px, baseline {calib.baseline:.4f} m",
