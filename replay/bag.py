@@ -23,43 +23,16 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from replay.asl import RecordingError
 from replay.frames import RecordedPair
+from replay.image_messages import decode_image
 from replay.matching import Matched, match_stamps
 from replay.poses import interpolate_pose, quaternion_matrix
 from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
-# sensor_msgs/image_encodings read (lower case): (pixel type, values a pixel, conversion to gray or BGR)
-_ENCODINGS: dict[str, tuple[type, int, Any]] = {
-    "mono8": (np.uint8, 1, None),
-    "8uc1": (np.uint8, 1, None),
-    "mono16": (np.uint16, 1, None),
-    "16uc1": (np.uint16, 1, None),
-    "bgr8": (np.uint8, 3, None),
-    "8uc3": (np.uint8, 3, None),  # cv_bridge's BGR
-    "rgb8": (np.uint8, 3, cv2.COLOR_RGB2BGR),
-    "bgra8": (np.uint8, 4, None),
-    "8uc4": (np.uint8, 4, None),
-    "rgba8": (np.uint8, 4, cv2.COLOR_RGBA2BGRA),
-    "bgr16": (np.uint16, 3, None),
-    "rgb16": (np.uint16, 3, cv2.COLOR_RGB2BGR),
-    # YUV 4:2:2, two bytes a pixel: the gray image is the luma Y, at byte 1 (UYVY) or 0 (YUYV)
-    "yuv422": (np.uint8, 2, ("luma", 1)),  # UYVY, usb_cam's and image_encodings' "yuv422"
-    "uyvy": (np.uint8, 2, ("luma", 1)),
-    "yuv422_yuy2": (np.uint8, 2, ("luma", 0)),  # YUYV
-    "yuyv": (np.uint8, 2, ("luma", 0)),
-}
-# Bayer mosaics, demosaiced to gray; OpenCV names a pattern by its second row's middle pixels
-_BAYER = {"rggb": cv2.COLOR_BayerBG2GRAY, "bggr": cv2.COLOR_BayerRG2GRAY,
-          "gbrg": cv2.COLOR_BayerGR2GRAY, "grbg": cv2.COLOR_BayerGB2GRAY}  # fmt: skip
-for _pattern, _code in _BAYER.items():
-    _ENCODINGS[f"bayer_{_pattern}8"] = (np.uint8, 1, _code)
-    _ENCODINGS[f"bayer_{_pattern}16"] = (np.uint16, 1, _code)
-ENCODINGS = tuple(_ENCODINGS)
 POSE_GAP_S = 0.2  # poses at most this far apart are interpolated between, for an image between them
 _PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
 
@@ -90,47 +63,6 @@ def _type_name(msgtype: str) -> str:
 def _stamp(msg: Any) -> float:
     stamp = msg.header.stamp
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
-
-
-def decode_image(msg: Any, where: str) -> np.ndarray:
-    """A uint8/uint16 image from a sensor_msgs Image or CompressedImage message."""
-    if hasattr(msg, "format"):  # CompressedImage
-        image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
-        # image_transport's format is "ENCODING; png compressed [TARGET]": a Bayer image is
-        # compressed as its raw mosaic (no target), to be demosaiced here
-        original = str(msg.format).split(";")[0].strip().lower()
-        if original.startswith("bayer_") and original in _ENCODINGS and image.ndim == 2:
-            image = cv2.cvtColor(image, _ENCODINGS[original][2])
-        return image
-    encoding = str(msg.encoding).lower()
-    if encoding not in _ENCODINGS:
-        raise RecordingError(
-            f"{where}: image encoding {msg.encoding!r} is not supported (supported: {', '.join(ENCODINGS)})"
-        )
-    dtype, channels, convert = _ENCODINGS[encoding]
-    row_bytes = msg.width * channels * np.dtype(dtype).itemsize
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height:
-        raise RecordingError(
-            f"{where}: a {msg.width}x{msg.height} {msg.encoding} image needs step >= {row_bytes} and "
-            f"height * step bytes of data; it has step {msg.step} and {data.size} bytes"
-        )
-    row = data[: msg.step * msg.height].reshape(msg.height, msg.step)
-    pixels = row[:, :row_bytes].copy().view(dtype)
-    if np.dtype(dtype).itemsize > 1 and bool(msg.is_bigendian):
-        pixels = pixels.byteswap()
-    image = (
-        pixels.reshape(msg.height, msg.width, channels)
-        if channels > 1
-        else pixels.reshape(msg.height, msg.width)
-    )
-    if isinstance(convert, tuple):  # ("luma", byte of Y)
-        return np.ascontiguousarray(image[:, :, convert[1]])
-    if convert is not None:
-        image = cv2.cvtColor(image, convert)
-    return image
 
 
 def _children(msg: Any) -> list[str]:
