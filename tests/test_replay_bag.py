@@ -158,3 +158,21 @@ def test_calibration_for_another_image_size_is_refused_before_the_run(tmp_path, 
     rec = BagRecording(bag, "/cam0/image_raw", "/cam1/image_raw", "/cam0/pose", load_stereo_calibration(rig))
     _fit_image_size(rec, 0)
     assert rec.calibration.image_size == (752, 480) and rec.calibration.baseline == 0.11
+
+
+def test_calibration_files_and_info_topics_together_are_refused(tmp_path, capsys) -> None:
+    """Both a --calib-left file and --left-info topics: one error line, before anything starts."""
+    from swarm.cli import main
+
+    bag = tmp_path / "euroc.bag"
+    _write_euroc_bag(bag, 1)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("fx: 436.2\nfy: 436.2\ncx: 364.4\ncy: 256.8\nbaseline: 0.11\n")
+    topics = ["--left", "/cam0/image_raw", "--right", "/cam1/image_raw", "--pose", "/cam0/pose"]
+    info = ["--left-info", "/cam0/camera_info", "--right-info", "/cam1/camera_info"]
+    out = tmp_path / "run"
+    rc = main(["replay", "bag", str(bag), *topics, *info, "--calib-left", str(rig), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "either as files (--calib-left, --calib-right) or as CameraInfo topics" in err
+    assert not out.exists()

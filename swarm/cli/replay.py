@@ -111,9 +111,15 @@ def _open_asl(args: argparse.Namespace):
 def _open_bag(args: argparse.Namespace):
     from replay.bag import BagRecording
     from swarm.formats.calibration_formats import load_stereo_calibration
+    from swarm.formats.stereo_calibration import CalibrationError
 
     calib = None
     if args.calib_left is not None:
+        if args.left_info or args.right_info:  # which calibration would be meant is anyone's guess
+            raise CalibrationError(
+                "give the calibration either as files (--calib-left, --calib-right) or as CameraInfo "
+                "topics (--left-info, --right-info), not both"
+            )
         calib = load_stereo_calibration(args.calib_left, args.calib_right)
     return BagRecording(
         args.bag, args.left, args.right, args.pose, calib, args.left_info, args.right_info, args.child_frame,
