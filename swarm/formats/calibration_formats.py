@@ -6,7 +6,8 @@
   ROS 1's ``K D R P``). The right camera's ``P[0][3]`` is ``-fx * baseline``.
 * EuRoC / Kalibr: a pair of ASL ``sensor.yaml`` files (``intrinsics [fu, fv, cu, cv]``,
   ``distortion_coefficients``, ``T_BS`` the camera's pose in the body) or one Kalibr
-  ``camchain.yaml`` (``cam0``, ``cam1`` with ``T_cn_cnm1``); radial-tangential distortion.
+  ``camchain.yaml`` (``cam0``, ``cam1`` with ``T_cn_cnm1``); radial-tangential or equidistant
+  (fisheye, ``cv2.fisheye``) distortion, as in ROS camera_info.
 * Middlebury ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``doffs``, ``baseline`` in mm,
   ``ndisp``): a rectified rig.
 * OpenCV files (``K1 D1 K2 D2 R T``, plus ``E F R1 R2 P1 P2 Q``): ``swarm.formats.stereo_calibration``.
@@ -22,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
@@ -32,10 +32,16 @@ from swarm.formats.stereo_calibration import (
     StereoCalibration,
     calibration_from_dict,
     rectify_stereo,
+    undistort_rectify_map,
 )
 
 #: ROS distortion models OpenCV's pinhole model reads as they are.
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "none", "")
+#: A camera_info pair whose baseline comes out shorter (m) wrote the baseline alone in P[0][3].
+MIN_BASELINE_M = 0.003
+#: The equidistant (Kannala-Brandt) fisheye model's names, ROS's and Kalibr's: four coefficients,
+#: rectified with ``cv2.fisheye``.
+FISHEYE_MODELS = ("equidistant", "fisheye")
 
 
 def _read_yaml(path: Path) -> Any:
@@ -100,10 +106,10 @@ class CameraInfo:
                 f"{source}: image_width, image_height: must be positive integers (got {width!r}, {height!r})"
             )
         model = str(data.get("distortion_model", "plumb_bob") or "")
-        if model not in PINHOLE_MODELS:
+        if model not in PINHOLE_MODELS + FISHEYE_MODELS:
             raise CalibrationError(
                 f"{source}: distortion_model: {model!r} is not supported "
-                f"(use one of plumb_bob, rational_polynomial)"
+                f"(use one of plumb_bob, rational_polynomial, equidistant)"
             )
         k = _numbers(_field(data, source, "camera_matrix", "k", "K"), 9, source, "camera_matrix").reshape(
             3, 3
@@ -112,7 +118,7 @@ class CameraInfo:
             raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
         d = _numbers(
             _field(data, source, "distortion_coefficients", "d", "D"),
-            (0, 4, 5, 8, 12, 14),
+            4 if model in FISHEYE_MODELS else (0, 4, 5, 8, 12, 14),
             source,
             "distortion_coefficients",
         )
@@ -157,6 +163,11 @@ def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalib
         raise CalibrationError(
             f"{right.source}: projection_matrix: baseline {baseline:g} m is implausible (millimetres?)"
         )
+    if baseline < MIN_BASELINE_M:
+        raise CalibrationError(
+            f"{right.source}: projection_matrix: P[0][3] = {right.p[0, 3]:g} gives a baseline of "
+            f"{baseline * 1e3:.3g} mm; P[0][3] is -fx * baseline (pixels x metres), not the baseline alone"
+        )
     size = (left.width, left.height)
     rectified = all(
         not np.any(info.d) and np.allclose(info.r, np.eye(3)) and np.allclose(info.k, info.p[:, :3])
@@ -165,8 +176,10 @@ def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalib
     maps = None
     if not rectified:
         maps = RectificationMaps(
-            cv2.initUndistortRectifyMap(left.k, left.d, left.r, left.p[:, :3], size, cv2.CV_16SC2),
-            cv2.initUndistortRectifyMap(right.k, right.d, right.r, right.p[:, :3], size, cv2.CV_16SC2),
+            *(
+                undistort_rectify_map(c.k, c.d, c.r, c.p, size, c.distortion_model in FISHEYE_MODELS)
+                for c in (left, right)
+            )
         )
     return StereoCalibration(
         fx=float(left.p[0, 0]),
@@ -187,13 +200,15 @@ def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalib
 
 @dataclass(frozen=True)
 class KalibrCamera:
-    """A raw camera: K (3x3), radtan D, size (w, h), and its pose ``T_BS`` (4x4) in a body frame."""
+    """A raw camera: K (3x3), D (radtan, or equidistant with ``fisheye``), size (w, h), and its pose
+    ``T_BS`` (4x4) in a body frame."""
 
     k: np.ndarray
     d: np.ndarray
     size: tuple[int, int]
     body_from_camera: np.ndarray
     source: str
+    fisheye: bool = False  # equidistant distortion (4 coefficients), else radial-tangential
 
     @classmethod
     def from_dict(cls, data: Any, source: str, pose_field: str = "T_BS") -> KalibrCamera:
@@ -208,13 +223,14 @@ class KalibrCamera:
         if fu <= 0 or fv <= 0:
             raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
         model = str(data.get("distortion_model", "radial-tangential"))
-        if model not in ("radial-tangential", "radtan", "plumb_bob", "none"):
+        fisheye = model in FISHEYE_MODELS
+        if model not in ("radial-tangential", "radtan", "plumb_bob", "none") and not fisheye:
             raise CalibrationError(
-                f"{source}: distortion_model: {model!r} is not supported (radial-tangential only)"
+                f"{source}: distortion_model: {model!r} is not supported (radial-tangential or equidistant)"
             )
         d = _numbers(
             _field(data, source, "distortion_coefficients", "distortion_coeffs"),
-            (0, 4, 5),
+            4 if fisheye else (0, 4, 5),
             source,
             "distortion_coefficients",
         )
@@ -224,7 +240,7 @@ class KalibrCamera:
         if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
             raise CalibrationError(f"{source}: {pose_field}: the rotation part is not a rotation matrix")
         k = np.array([[fu, 0, cu], [0, fv, cv], [0, 0, 1]])
-        return cls(k, d, (int(w), int(h)), pose, source)
+        return cls(k, d, (int(w), int(h)), pose, source, fisheye)
 
     @classmethod
     def load(cls, path: str | Path) -> KalibrCamera:
@@ -241,10 +257,14 @@ def stereo_from_kalibr(
     source = source or f"{left.source} + {right.source}"
     if left.size != right.size:
         raise CalibrationError(f"{right.source}: resolution: {right.size}, the left camera is {left.size}")
+    if left.fisheye != right.fisheye:
+        raise CalibrationError(
+            f"{right.source}: distortion_model: one camera is equidistant (fisheye), the other is not"
+        )
     right_from_left = np.linalg.inv(right.body_from_camera) @ left.body_from_camera  # X1 = R X0 + T
     return rectify_stereo(
         left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source,
-        extrinsics=extrinsics,
+        extrinsics=extrinsics, fisheye=left.fisheye,
     )  # fmt: skip
 
 

@@ -216,23 +216,33 @@ def rectify_stereo(
     alpha: float = 0.0,
     notes: tuple[str, ...] = (),
     extrinsics: str = "T",
+    fisheye: bool = False,
 ) -> StereoCalibration:
-    """Rectify a raw stereo pair's calibration (OpenCV's X2 = R X1 + T, metres, radtan distortion).
+    """Rectify a raw stereo pair's calibration (OpenCV's X2 = R X1 + T, metres).
 
-    ``k1``, ``k2`` are 3x3 camera matrices, ``d1``, ``d2`` OpenCV distortion vectors, ``size``
-    is (width, height). Raises CalibrationError naming ``extrinsics``, the file's field(s) the
-    translation comes from, for a baseline in millimetres, vertical or swapped rigs.
+    ``k1``, ``k2`` are 3x3 camera matrices, ``d1``, ``d2`` OpenCV distortion vectors
+    (radial-tangential), or with ``fisheye`` the four coefficients of the equidistant model
+    (``cv2.fisheye``, Kalibr's and ROS's ``equidistant``); ``size`` is (width, height). Raises
+    CalibrationError naming ``extrinsics``, the file's field(s) the translation comes from, for a
+    baseline in millimetres, vertical or swapped rigs.
     """
-    t = np.asarray(translation, dtype=np.float64).reshape(3)
+    t = np.ascontiguousarray(translation, dtype=np.float64).reshape(3)
     if not np.linalg.norm(t) <= MAX_BASELINE_M:
         raise CalibrationError(
             f"{source}: {extrinsics}: the cameras are {np.linalg.norm(t):g} m apart; must be in metres "
             "(millimetres?)"
         )
     swapped = "T[0] < 0 with X2 = R X1 + T" if extrinsics == "T" else "are the two cameras swapped?"
-    r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
-        k1, d1, k2, d2, size, rotation, t.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha
-    )
+    if fisheye:  # cv2.fisheye wants contiguous float64 arrays
+        k1, k2, rotation = (np.ascontiguousarray(a, dtype=np.float64) for a in (k1, k2, rotation))
+        d1, d2 = (np.asarray(d, dtype=np.float64).reshape(4, 1) for d in (d1, d2))
+        r1, r2, p1, p2, _q = cv2.fisheye.stereoRectify(
+            k1, d1, k2, d2, size, rotation, t.reshape(3, 1), cv2.CALIB_ZERO_DISPARITY
+        )
+    else:
+        r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
+            k1, d1, k2, d2, size, rotation, t.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha
+        )
     if abs(p2[1, 3]) > abs(p2[0, 3]):
         raise CalibrationError(
             f"{source}: {extrinsics}: the cameras are displaced vertically; only side-by-side rigs work"
@@ -245,8 +255,8 @@ def rectify_stereo(
         )
     if not all(math.isfinite(v) for v in (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2], baseline)):
         raise CalibrationError(f"{source}: K1, K2, R, T: rectification failed (non-finite projection)")
-    left = cv2.initUndistortRectifyMap(k1, d1, r1, p1, size, cv2.CV_16SC2)
-    right = cv2.initUndistortRectifyMap(k2, d2, r2, p2, size, cv2.CV_16SC2)
+    left = undistort_rectify_map(k1, d1, r1, p1, size, fisheye)
+    right = undistort_rectify_map(k2, d2, r2, p2, size, fisheye)
     return StereoCalibration(
         fx=float(p1[0, 0]),
         fy=float(p1[1, 1]),
@@ -260,3 +270,17 @@ def rectify_stereo(
         source=source,
         notes=notes,
     )
+
+
+def undistort_rectify_map(
+    k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray, size: tuple[int, int], fisheye: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's fixed-point remap tables (CV_16SC2) taking a raw image to the rectified camera ``p``
+    (3x3 or 3x4) turned by ``r``: ``cv2.initUndistortRectifyMap``, or its ``cv2.fisheye`` form for
+    the equidistant model (``d``: 4 coefficients)."""
+    k, r, p = (np.ascontiguousarray(a, dtype=np.float64) for a in (k, r, np.asarray(p)[:, :3]))
+    if fisheye:
+        return cv2.fisheye.initUndistortRectifyMap(
+            k, np.asarray(d, np.float64).reshape(4, 1), r, p, size, cv2.CV_16SC2
+        )
+    return cv2.initUndistortRectifyMap(k, d, r, p, size, cv2.CV_16SC2)
