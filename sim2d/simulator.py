@@ -253,6 +253,8 @@ class Simulator:
             if now - report[0] >= self.progress_every_s:
                 self._log_progress(ticks - report[1], now - report[0])
                 report = (now, ticks)
+        if ticks > report[1]:  # the last stretch, however short (a run may end within a second)
+            self._log_progress(ticks - report[1], time.monotonic() - report[0])
         return SimSummary(
             ticks=self.seq,
             sim_time_s=self.time,
