@@ -18,7 +18,7 @@ tolerance, a pose between two slower ones is interpolated, and what was dropped 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -166,7 +166,12 @@ def _open_reader(path: Path) -> Iterator[Any]:
 
 
 class BagRecording:
-    """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses."""
+    """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses.
+
+    ``calibration``: a ``StereoCalibration``, or a function of the images' (width, height)
+    returning one (for a file that states no image size), or None for the CameraInfo topics
+    ``left_info`` and ``right_info``.
+    """
 
     def __init__(
         self,
@@ -174,7 +179,7 @@ class BagRecording:
         left: str,
         right: str,
         pose: str,
-        calibration: StereoCalibration | None = None,
+        calibration: StereoCalibration | Callable[[tuple[int, int]], StereoCalibration] | None = None,
         left_info: str | None = None,
         right_info: str | None = None,
         child_frame: str | None = None,
@@ -240,6 +245,8 @@ class BagRecording:
                 raise RecordingError(f"{path}: topic {self.topics[role]}: {what}")
         if calibration is None:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
+        elif callable(calibration):  # a loader that needs the images' (width, height)
+            calibration = calibration(first["left"].shape[1::-1])
         self.calibration = calibration
         # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
         # and their top 8 bits would be black; the significant bits are those the brightest pixel

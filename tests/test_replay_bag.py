@@ -176,3 +176,38 @@ def test_calibration_files_and_info_topics_together_are_refused(tmp_path, capsys
     assert rc == 2, err
     assert "either as files (--calib-left, --calib-right) or as CameraInfo topics" in err
     assert not out.exists()
+
+
+def test_opencv_stereo_calib_files_without_a_size_take_the_bags_image_size(tmp_path) -> None:
+    """OpenCV's stereo_calib sample writes intrinsics.yml + extrinsics.yml with no image size:
+    `swarm replay bag --calib-left intrinsics.yml --calib-right extrinsics.yml` takes the bag's
+    752x480 and rectifies as the EuRoC sensor.yaml pair does."""
+    import argparse
+
+    import yaml
+
+    from swarm.cli.replay import _open_bag
+    from swarm.formats.calibration_formats import KalibrCamera
+
+    bag = tmp_path / "euroc.bag"
+    _write_euroc_bag(bag, 1)
+    cam0, cam1 = (KalibrCamera.load(EUROC / f"mav0/cam{i}/sensor.yaml") for i in (0, 1))
+    right_from_left = np.linalg.inv(cam1.body_from_camera) @ cam0.body_from_camera
+    (tmp_path / "intrinsics.yml").write_text(
+        yaml.safe_dump(
+            {"M1": cam0.k.tolist(), "D1": cam0.d.tolist(), "M2": cam1.k.tolist(), "D2": cam1.d.tolist()}
+        )
+    )
+    (tmp_path / "extrinsics.yml").write_text(
+        yaml.safe_dump({"R": right_from_left[:3, :3].tolist(), "T": right_from_left[:3, 3].tolist()})
+    )
+    args = argparse.Namespace(
+        bag=bag, left="/cam0/image_raw", right="/cam1/image_raw", pose="/cam0/pose", left_info=None,
+        right_info=None, child_frame=None, tolerance=0.01, calib_left=tmp_path / "intrinsics.yml",
+        calib_right=tmp_path / "extrinsics.yml",
+    )  # fmt: skip
+    recording = _open_bag(args)
+    want = load_stereo_calibration(EUROC / "mav0/cam0/sensor.yaml", EUROC / "mav0/cam1/sensor.yaml")
+    assert recording.calibration.image_size == (752, 480)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+        assert getattr(recording.calibration, field) == pytest.approx(getattr(want, field), rel=1e-9)
