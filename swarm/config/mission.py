@@ -1,10 +1,7 @@
 """The whole mission file: its sections together (``swarm.config.models``), and what the roles
 ask of it: each robot's rig and sensor model, the sensor reach, file paths, H_th, and the
-mission as YAML for run folders.
-
-Rigs: the top-level ``rig`` is the default; ``rigs`` holds named variants (each a set of
-overrides of the default rig); a robot's ``rig`` is a name from ``rigs``, a path to a
-rig YAML file (overrides too) or an inline mapping of overrides.
+mission as YAML for run folders. How a robot's rig is found (the default ``rig``, named
+``rigs``, files, inline overrides): the package's docstring, ``swarm.config``.
 """
 
 from __future__ import annotations
