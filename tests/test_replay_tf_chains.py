@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
+from replay.asl import RecordingError
 from replay.bag import BagRecording
 
 pytest.importorskip("rosbags")
@@ -144,3 +145,100 @@ def test_dynamic_transforms_are_interpolated_at_the_image_stamps(tmp_path, ros):
         want = _expected(pair.t, odom_times, base_times)
         assert np.allclose(pair.position, want[:3, 3], rtol=0, atol=1e-6)
         assert np.allclose(pair.world_R_optical, want[:3, :3], rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_the_cameras_own_transform_on_tf_is_read_as_before(tmp_path, ros):
+    """world -> cam0_optical on /tf (10 Hz, turning, one NaN sample), other frames on /tf and
+    /tf_static: the poses, the interpolation and the counts are those of the same poses as a
+    PoseStamped topic (whose reading this change leaves alone), as they were before chains."""
+    path = _bag(tmp_path, ros)
+    images = [0.95, 1.0, 1.03, 1.05, 1.1, 1.15, 1.2, 1.5, 1.55]
+    poses = [(1.0, (0, 0, 1), (1, 0, 0, 0)), (1.1, (2, 0, 1), (0.5**0.5, 0, 0, 0.5**0.5)),
+             (1.2, (float("nan"), 0, 1), (1, 0, 0, 0)), (1.3, (2, 1, 1), (0.5, 0.5, 0.5, 0.5)),
+             (1.5, (2, 0, 1), (0.5**0.5, 0, 0.5**0.5, 0))]  # fmt: skip
+    with BagWriter(path, ros) as bag:
+        bag.transforms("/tf_static", 0.9, [("base_link", "camera_link", *MOUNT)], latched=True)
+        _stereo(bag, images)
+        for t, xyz, q in poses:
+            bag.transforms(
+                "/tf", t, [("odom", "base_link", (t, 0, 0), (1, 0, 0, 0)), ("world", "cam0_optical", xyz, q)]
+            )
+            bag.pose("/pose", t, xyz, q)
+    rec = BagRecording(path, "/left", "/right", "/tf", CALIB, child_frame="cam0_optical")
+    want = BagRecording(path, "/left", "/right", "/pose", CALIB)
+    assert rec.pose_frames == "cam0_optical in world (the root of its tree): world -> cam0_optical"
+    assert rec.matched.describe() == want.matched.describe()
+    assert "1 unusable pose message" in rec.matched.describe()
+    assert rec.interpolated_poses == want.interpolated_poses == 4  # 1.03, 1.05, 1.15, 1.2
+    assert np.array_equal(rec.pose_stamps, want.pose_stamps)
+    assert np.array_equal(rec.pose_positions, want.pose_positions)
+    assert np.array_equal(rec.pose_rotations, want.pose_rotations)
+    assert np.array_equal(rec.matched.others["pose"], want.matched.others["pose"])
+
+
+def _write_tree(path: Path, ros: int, extra=(), static_extra=()) -> None:
+    """The chain map -> odom -> base_link (/tf) => camera_link => camera_optical (/tf_static), and
+    ``extra`` transforms on /tf, ``static_extra`` on /tf_static."""
+    one = ((0, 0, 0), (1, 0, 0, 0))
+    with BagWriter(path, ros) as bag:
+        static = [("base_link", "camera_link", *MOUNT), ("camera_link", "camera_optical", (0, 0, 0), OPTICAL)]
+        bag.transforms("/tf_static", 0.5, static + [(p, c, *one) for p, c in static_extra], latched=True)
+        _stereo(bag, [1.0, 1.05])
+        for t in (1.0, 1.05):
+            chain = [("map", "odom", *_odom(t)), ("odom", "base_link", *_base(t))]
+            bag.transforms("/tf", t, chain + [(p, c, *one) for p, c in extra])
+            bag.pose("/pose", t, *one)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_trees_that_do_not_give_the_cameras_pose_are_named(tmp_path, ros):
+    """A child frame not in the tree, a world frame not above it, a frame with two parents, a cycle,
+    a transform on both topics: one error naming the frames, when the bag is opened."""
+    where = r"topic /tf \+ /tf_static: "
+    cases = {
+        "missing": ({}, {"child_frame": "cam9"}, r"frame 'cam9' is not in the transform tree "
+                    r"\(frames: base_link, camera_link, camera_optical, map, odom\)"),
+        "not above": ({"extra": [("map", "gps")]}, {"world_frame": "gps"}, r"frame 'gps' is not an "
+                      r"ancestor of 'camera_optical' \(its ancestors: camera_link, base_link, odom, map\)"),
+        "two parents": ({"extra": [("map", "base_link")]}, {}, r"frame 'base_link' has two parents, "
+                        r"'map' and 'odom' \(tf allows one\)"),
+        "cycle": ({"extra": [("camera_optical", "map")]}, {}, r"the transforms make a cycle: camera_optical "
+                  r"-> map -> odom -> base_link -> camera_link -> camera_optical"),
+        "both topics": ({"static_extra": [("odom", "base_link")]}, {}, r"transform odom -> base_link is on "
+                        r"both /tf and /tf_static"),
+        "root": ({}, {"child_frame": "/map"}, r"frame 'map' has no parent: it is a root, not a camera"),
+    }  # fmt: skip
+    for name, (tree, options, error) in cases.items():
+        path = _bag(tmp_path / name, ros)
+        path.parent.mkdir()
+        _write_tree(path, ros, **tree)
+        options = {"child_frame": "camera_optical", **options}
+        with pytest.raises(RecordingError, match=where + error):
+            BagRecording(path, "/left", "/right", "/tf", CALIB, **options)
+    path = _bag(tmp_path / "missing", ros)
+    with pytest.raises(
+        RecordingError,
+        match=r"--tf-static /static is not in the bag \(topics: /left, /pose, /right, /tf, /tf_static\)",
+    ):
+        BagRecording(path, "/left", "/right", "/tf", CALIB, child_frame="camera_optical", tf_static="/static")
+    with pytest.raises(RecordingError, match=r"--world-frame and --tf-static are for a /tf pose topic"):
+        BagRecording(path, "/left", "/right", "/pose", CALIB, world_frame="map")
+
+
+def test_swarm_replay_bag_names_a_bad_world_frame_before_anything_starts(tmp_path, capsys):
+    from swarm.cli import main
+
+    bag = tmp_path / "b.bag"
+    _write_tree(bag, 1)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("fx: 10\nfy: 10\ncx: 4\ncy: 4\nbaseline: 0.1\n")
+    out = tmp_path / "run"
+    args = ["replay", "bag", str(bag), "--left", "/left", "--right", "/right", "--pose", "/tf",
+            "--calib-left", str(rig), "--child-frame", "camera_optical", "--world-frame", "base",
+            "--out", str(out)]  # fmt: skip
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "b.bag: topic /tf + /tf_static: frame 'base' is not an ancestor of 'camera_optical'" in err
+    assert not out.exists()
