@@ -242,3 +242,44 @@ def test_swarm_replay_bag_names_a_bad_world_frame_before_anything_starts(tmp_pat
     assert err.count("\n") == 1, err
     assert "b.bag: topic /tf + /tf_static: frame 'base' is not an ancestor of 'camera_optical'" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_euroc_with_its_camera_on_a_tf_chain_gives_the_asl_poses(tmp_path, ros):
+    """The EuRoC excerpt with cam0's ground truth split as a robot publishes it: world -> odom ->
+    body on /tf at each image, body => cam0 (its sensor.yaml T_BS) once on /tf_static. The replayed
+    poses are the ASL replay's."""
+    from replay.asl import AslRecording
+    from swarm.formats.calibration_formats import KalibrCamera
+
+    asl = AslRecording(EUROC)
+    body_T_cam = KalibrCamera.load(EUROC / "mav0/cam0/sensor.yaml").body_from_camera
+    world_T_odom = _matrix((1.0, 2.0, 0.0), _quat(Rotation.from_euler("z", 30, degrees=True).as_matrix()))
+    gt = np.loadtxt(EUROC / "mav0/cam0_groundtruth/data.csv", delimiter=",", skiprows=1)
+    path = _bag(tmp_path, ros)
+    with BagWriter(path, ros) as bag:
+        mount = (body_T_cam[:3, 3], _quat(body_T_cam[:3, :3]))
+        for k, pair in enumerate(asl.pairs()):
+            if k == 0:
+                bag.transforms("/tf_static", pair.t, [("body", "cam0", *mount)], latched=True)
+            bag.image("/cam0/image_raw", pair.t, pair.left)
+            bag.image("/cam1/image_raw", pair.t, pair.right)
+            row = gt[np.argmin(np.abs(gt[:, 0] * 1e-9 - pair.t))]
+            w, x, y, z = row[4:8]  # camera-from-world: its conjugate turns camera vectors into the world's
+            world_T_cam = _matrix(row[1:4], (w, -x, -y, -z))
+            odom_T_body = np.linalg.inv(world_T_odom) @ world_T_cam @ np.linalg.inv(body_T_cam)
+            bag.transforms(
+                "/tf",
+                pair.t,
+                [
+                    ("world", "odom", world_T_odom[:3, 3], _quat(world_T_odom[:3, :3])),
+                    ("odom", "body", odom_T_body[:3, 3], _quat(odom_T_body[:3, :3])),
+                ],
+            )
+    rec = BagRecording(path, "/cam0/image_raw", "/cam1/image_raw", "/tf", CALIB, child_frame="cam0")
+    assert rec.pose_frames == "cam0 in world (the root of its tree): world -> odom -> body => cam0"
+    assert len(rec) == len(asl) and rec.matched.describe() == f"{len(asl)} kept"
+    for got, want in zip(rec.pairs(), asl.pairs(), strict=True):
+        assert got.t == pytest.approx(want.t, abs=1e-6)
+        assert np.allclose(got.position, want.position, rtol=0, atol=1e-6)
+        assert np.allclose(got.world_R_optical, want.world_R_optical, rtol=0, atol=1e-6)
