@@ -8,8 +8,9 @@
 * poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
   (the orientation turns camera vectors into world vectors): ``geometry_msgs/PoseStamped``,
   ``geometry_msgs/PoseWithCovarianceStamped``, ``nav_msgs/Odometry``,
-  ``geometry_msgs/TransformStamped``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by
-  ``child_frame`` (which also filters Odometry and TransformStamped by their child_frame_id).
+  ``geometry_msgs/TransformStamped`` (these two filtered by ``child_frame``), or
+  ``tf2_msgs/TFMessage`` (``/tf``, with ``/tf_static``): the transforms on the path from
+  ``world_frame`` down to ``child_frame``, composed (``replay.tf_tree``).
 
 Times are the messages' header stamps (sorted); left, right and pose are matched within a
 tolerance, a pose between two slower ones is interpolated, and what was dropped is counted
