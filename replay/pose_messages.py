@@ -48,14 +48,12 @@ def message_pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, 
 
 
 def add_transforms(tree: TfTree, msg: Any, static: bool) -> None:
-    """Each transform of a TFMessage into ``tree`` (one that is not a transform is counted)."""
+    """Each transform of a TFMessage into ``tree``."""
     for tf in msg.transforms:
-        try:
-            p, r = position_rotation(tf.transform.translation, tf.transform.rotation)
-        except UnusablePose:
-            tree.add_unusable(tf.header.frame_id, tf.child_frame_id, static)
-            continue
-        tree.add(tf.header.frame_id, tf.child_frame_id, stamp(tf), p, r, static)
+        p, q = tf.transform.translation, tf.transform.rotation
+        tree.add(
+            tf.header.frame_id, tf.child_frame_id, stamp(tf), (p.x, p.y, p.z), (q.w, q.x, q.y, q.z), static
+        )
 
 
 def position_rotation(p: Any, q: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -16,12 +16,13 @@ Frame ids are compared without a leading '/' (ROS 1's ``/base_link`` is ``base_l
 
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
-from replay.poses import interpolate_pose
+from replay.poses import interpolate_pose, quaternion_matrix
 
 
 class TfError(ValueError):
@@ -35,33 +36,46 @@ def frame_name(frame: str) -> str:
 
 @dataclass
 class Edge:
-    """The transforms ``parent -> child`` of one kind (static or dynamic), in the order added."""
+    """The transforms ``parent -> child`` of one kind (static or dynamic), in the order added.
+
+    Kept as their numbers (8 a transform: stamp, translation, quaternion w x y z), which a
+    robot's dozens of joint frames at 50 Hz need, and turned into rotations when first asked
+    (once every transform is added).
+    """
 
     parent: str
     child: str
     static: bool
-    stamps: list[float] = field(default_factory=list)
-    positions: list[np.ndarray] = field(default_factory=list)
-    rotations: list[np.ndarray] = field(default_factory=list)
-    unusable: int = 0  # samples that were not a transform (NaN, a zero quaternion), left out
+    numbers: array = field(default_factory=lambda: array("d"), repr=False)
+
+    @cached_property
+    def _usable(self) -> tuple[list[float], list[np.ndarray], list[np.ndarray], int]:
+        rows = np.array(self.numbers, dtype=np.float64).reshape(-1, 8)
+        ok = np.all(np.isfinite(rows), axis=1) & (np.linalg.norm(rows[:, 4:], axis=1) > 1e-9)
+        kept = rows[ok]
+        rotations = [quaternion_matrix(*row[4:]) for row in kept]
+        return kept[:, 0].tolist(), [row[1:4].copy() for row in kept], rotations, int((~ok).sum())
+
+    def samples(self) -> tuple[list[float], list[np.ndarray], list[np.ndarray]]:
+        """(stamps, translations, rotations) in the order added, without the unusable ones."""
+        return self._usable[:3]
+
+    @property
+    def unusable(self) -> int:
+        """Transforms whose numbers are not one (NaN, a zero quaternion), left out."""
+        return self._usable[3]
 
     @cached_property
     def _sorted(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        order = np.argsort(self.stamps, kind="stable")
-        return (
-            np.asarray(self.stamps)[order],
-            np.asarray(self.positions)[order],
-            np.asarray(self.rotations)[order],
-        )
-
-    def samples(self) -> tuple[list[float], list[np.ndarray], list[np.ndarray]]:
-        """(stamps, translations, rotations) in the order added."""
-        return self.stamps, self.positions, self.rotations
+        stamps, positions, rotations = (np.asarray(v) for v in self.samples())
+        order = np.argsort(stamps, kind="stable")
+        return stamps[order], positions[order], rotations[order]
 
     def at(self, t: float, tolerance: float, gap: float) -> tuple[np.ndarray, np.ndarray, bool] | None:
         """(translation, rotation, interpolated) of this edge at time ``t``, or None if it has none."""
-        if self.static:
-            return self.positions[-1], self.rotations[-1], False
+        if self.static:  # its latest value
+            _, positions, rotations = self.samples()
+            return positions[-1], rotations[-1], False
         stamps, positions, rotations = self._sorted
         j = int(np.searchsorted(stamps, t))  # stamps[j - 1] < t <= stamps[j]
         if j < stamps.size and stamps[j] == t:
@@ -100,7 +114,7 @@ class Chain:
     def stamps(self) -> np.ndarray:
         """Every stamp of the chain's dynamic transforms, or of its static ones if all are (sorted)."""
         dynamic = [e for e in self.edges if not e.static]
-        stamps = [t for e in dynamic or self.edges for t in e.stamps]
+        stamps = [t for e in dynamic or self.edges for t in e.samples()[0]]
         return np.sort(np.asarray(stamps, dtype=np.float64))
 
     def describe(self) -> str:
@@ -147,18 +161,11 @@ class TfTree:
             self._edges[key] = Edge(*key)
         return self._edges[key]
 
-    def add(
-        self, parent: str, child: str, stamp: float, position: np.ndarray, rotation: np.ndarray, static: bool
-    ) -> None:
-        """A transform parent -> child (``X_parent = rotation X_child + position``) at ``stamp``."""
-        edge = self._edge(parent, child, static)
-        edge.stamps.append(float(stamp))
-        edge.positions.append(np.asarray(position, dtype=np.float64))
-        edge.rotations.append(np.asarray(rotation, dtype=np.float64))
-
-    def add_unusable(self, parent: str, child: str, static: bool) -> None:
-        """A transform parent -> child whose numbers are not a transform: counted, left out."""
-        self._edge(parent, child, static).unusable += 1
+    def add(self, parent: str, child: str, stamp: float, xyz, wxyz, static: bool) -> None:
+        """A transform parent -> child at ``stamp``: X_parent = R X_child + ``xyz``, with R the
+        rotation of the quaternion ``wxyz`` (w, x, y, z); one of NaN or a zero quaternion is counted
+        as unusable and left out."""
+        self._edge(parent, child, static).numbers.extend((stamp, *xyz, *wxyz))
 
     @property
     def frames(self) -> list[str]:
@@ -198,7 +205,7 @@ class TfTree:
             if edge.parent in path:
                 cycle = " -> ".join([edge.parent, *reversed(path[path.index(edge.parent) :])])
                 raise TfError(f"the transforms make a cycle: {cycle}")
-            if not edge.stamps:
+            if not edge.samples()[0]:
                 raise TfError(f"every transform {edge} is unusable (NaN, or a zero quaternion)")
             path.append(edge.parent)
             edges.append(edge)
