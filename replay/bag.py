@@ -8,8 +8,9 @@
 * poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
   (the orientation turns camera vectors into world vectors): ``geometry_msgs/PoseStamped``,
   ``geometry_msgs/PoseWithCovarianceStamped``, ``nav_msgs/Odometry``,
-  ``geometry_msgs/TransformStamped``, or ``tf2_msgs/TFMessage`` (``/tf``) filtered by
-  ``child_frame`` (which also filters Odometry and TransformStamped by their child_frame_id).
+  ``geometry_msgs/TransformStamped`` (these two filtered by ``child_frame``), or
+  ``tf2_msgs/TFMessage`` (``/tf``, with ``/tf_static``): the transforms on the path from
+  ``world_frame`` down to ``child_frame``, composed (``replay.tf_tree``).
 
 Times are the messages' header stamps (sorted); left, right and pose are matched within a
 tolerance, a pose between two slower ones is interpolated, and what was dropped is counted
@@ -25,11 +26,13 @@ from typing import Any
 
 import numpy as np
 
+from replay import pose_messages as pm
 from replay.asl import RecordingError
 from replay.frames import RecordedPair
 from replay.image_messages import decode_image
 from replay.matching import Matched, match_stamps
-from replay.poses import interpolate_pose, quaternion_matrix
+from replay.poses import interpolate_pose
+from replay.tf_tree import Chain, TfError, TfTree
 from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
@@ -43,8 +46,7 @@ _POSE_TYPES = (
     "geometry_msgs/msg/PoseWithCovarianceStamped",
     "nav_msgs/msg/Odometry",
     "geometry_msgs/msg/TransformStamped",
-    "tf2_msgs/msg/TFMessage",
-    "tf/msg/tfMessage",
+    *pm.TF_TYPES,
 )
 _INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
 ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
@@ -58,55 +60,6 @@ ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and R
 
 def _type_name(msgtype: str) -> str:
     return msgtype.replace("/msg/", "/")
-
-
-def _stamp(msg: Any) -> float:
-    stamp = msg.header.stamp
-    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
-
-
-def _children(msg: Any) -> list[str]:
-    """The child_frame_id(s) a pose message carries (TFMessage, Odometry, TransformStamped)."""
-    if hasattr(msg, "transforms"):
-        return [tf.child_frame_id for tf in msg.transforms]
-    return [msg.child_frame_id] if hasattr(msg, "child_frame_id") else []
-
-
-_UNUSABLE_POSE = "unusable pose message (NaN, or a zero quaternion)"
-
-
-class _UnusablePose(ValueError):
-    """A pose message of the camera whose numbers are not a pose (a lost tracker's NaN, w = x = y = z = 0)."""
-
-
-def _pose(msg: Any, child_frame: str | None) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """(time, position, world_R_optical) of a pose message, or None if it is of another frame.
-
-    TFMessage: its transform whose child_frame_id is ``child_frame``; Odometry and TransformStamped:
-    kept when ``child_frame`` is None or is their child_frame_id. Raises ``_UnusablePose``.
-    """
-    if hasattr(msg, "transforms"):
-        for tf in msg.transforms:
-            if tf.child_frame_id.lstrip("/") == (child_frame or "").lstrip("/"):
-                return _stamp(tf), *_position_rotation(tf.transform.translation, tf.transform.rotation)
-        return None
-    if child_frame and hasattr(msg, "child_frame_id"):
-        if msg.child_frame_id.lstrip("/") != child_frame.lstrip("/"):
-            return None
-    if hasattr(msg, "transform"):  # TransformStamped (e.g. vicon_bridge, motion capture)
-        p, q = msg.transform.translation, msg.transform.rotation
-    else:
-        pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-        p, q = pose.position, pose.orientation
-    return _stamp(msg), *_position_rotation(p, q)
-
-
-def _position_rotation(p: Any, q: Any) -> tuple[np.ndarray, np.ndarray]:
-    position = np.array([p.x, p.y, p.z], dtype=np.float64)
-    quat = np.array([q.w, q.x, q.y, q.z], dtype=np.float64)
-    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quat)) and np.linalg.norm(quat) > 1e-9):
-        raise _UnusablePose(_UNUSABLE_POSE)
-    return position, quaternion_matrix(*quat)
 
 
 def _camera_info(msg: Any, where: str) -> CameraInfo:
@@ -184,6 +137,8 @@ class BagRecording:
         right_info: str | None = None,
         child_frame: str | None = None,
         tolerance_s: float = 0.01,
+        world_frame: str | None = None,
+        tf_static: str | None = None,
     ) -> None:
         self.path = _bag_path(Path(path))
         self.topics = {"left": left, "right": right, "pose": pose}
@@ -193,6 +148,7 @@ class BagRecording:
                                      "camera_info topics (--left-info, --right-info)")  # fmt: skip
             self.topics |= {"left_info": left_info, "right_info": right_info}
         self.child_frame = child_frame
+        self.pose_frames: str | None = None  # a /tf pose: its chain of frames, for the summary
         stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
@@ -200,7 +156,10 @@ class BagRecording:
         peak = 0  # the brightest 16-bit pixel of the first images
         unusable = 0  # pose messages of the camera that are not a pose, skipped
         with _open_reader(self.path) as reader:
-            conns = self._connections(reader)
+            conns = self._connections(reader, tf_static)
+            tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
+            if tree is None and (world_frame or tf_static):
+                raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
             for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
                 role = next(r for r, cs in conns.items() if conn in cs)
                 if role in ("left_info", "right_info"):
@@ -210,11 +169,14 @@ class BagRecording:
                         )
                     continue
                 msg = reader.deserialize(raw, conn.msgtype)
-                if role == "pose":
-                    children.update(_children(msg))
+                if tree is not None and role in ("pose", "tf_static"):  # edges of the transform tree
+                    children.update(pm.child_frames(msg) if role == "pose" else ())
+                    pm.add_transforms(tree, msg, static=role == "tf_static")
+                elif role == "pose":
+                    children.update(pm.child_frames(msg))
                     try:
-                        found = _pose(msg, child_frame)
-                    except _UnusablePose:
+                        found = pm.message_pose(msg, child_frame)
+                    except pm.UnusablePose:
                         unusable += 1
                         continue
                     if found is not None:
@@ -222,19 +184,27 @@ class BagRecording:
                         positions.append(found[1])
                         rotations.append(found[2])
                 else:
-                    stamps[role].append(_stamp(msg))
+                    stamps[role].append(pm.stamp(msg))
                     image = None
                     if role not in first:  # read now: a bad image is an error before anything starts
                         image = first[role] = decode_image(msg, conn.topic)
                     if first[role].dtype == np.uint16 and len(stamps[role]) <= _PEAK_IMAGES:
                         image = decode_image(msg, conn.topic) if image is None else image
                         peak = max(peak, int(image.max()))
+        chain = None
+        if tree is not None:  # /tf: the camera's chain of transforms, world first
+            chain = self._chain(tree, children, world_frame)
+            if chain.direct:  # its own transforms, world -> camera: read as they are
+                stamps["pose"], positions, rotations = (list(v) for v in chain.edges[0].samples())
+            else:
+                stamps["pose"] = list(chain.stamps())
+            unusable = chain.unusable
         for role in self.topics:
             if not (stamps[role] if role in stamps else role in infos):
                 what = (
                     "no messages"
                     if role != "pose" or not unusable
-                    else f"every message is an {_UNUSABLE_POSE}"
+                    else f"every message is an {pm.UNUSABLE_POSE}"
                 )
                 if role == "pose" and children:
                     what = (
@@ -260,10 +230,6 @@ class BagRecording:
                     f"{path}: topic {self.topics[role]}: images are {w}x{h}, the calibration "
                     f"({calibration.source}) is for {size[0]}x{size[1]}"
                 )
-        order = np.argsort(stamps["pose"])
-        self.pose_stamps = np.asarray(stamps["pose"])[order]
-        self.pose_positions = np.asarray(positions)[order]
-        self.pose_rotations = np.asarray(rotations)[order]
         # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
         # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
         ordered = {}
@@ -280,7 +246,17 @@ class BagRecording:
         self.left_stamps = left_sorted[first]
         self._left_message = ordered["left"][first]  # message number of each left stamp
         self._right_message = ordered["right"]
-        self._interpolate_poses(tolerance_s)
+        if chain is None or chain.direct:
+            order = np.argsort(stamps["pose"])
+            self.pose_stamps = np.asarray(stamps["pose"])[order]
+            self.pose_positions = np.asarray(positions)[order]
+            self.pose_rotations = np.asarray(rotations)[order]
+            self._interpolate_poses(tolerance_s)
+        else:  # each left image's pose, composed along the chain at its stamp
+            rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = chain.poses_at(
+                self.left_stamps, tolerance_s, POSE_GAP_S
+            )
+            self.pose_stamps = self.left_stamps[rows]
         self.matched: Matched = match_stamps(
             self.left_stamps,
             {"right image": np.asarray(stamps["right"])[ordered["right"]], "pose": self.pose_stamps},
@@ -289,7 +265,7 @@ class BagRecording:
         if not first.all():
             self.matched.dropped["duplicate left stamp"] += int((~first).sum())
         if unusable:
-            self.matched.dropped[_UNUSABLE_POSE] += unusable
+            self.matched.dropped[pm.UNUSABLE_POSE] += unusable
         if len(self.matched.reference) == 0:  # often topics stamped by different clocks
             spans = {
                 "left": self.left_stamps,
@@ -332,7 +308,21 @@ class BagRecording:
         self.pose_rotations = np.concatenate([rotations, np.asarray(new_r)])[order]
         self.interpolated_poses = int(rows.size)
 
-    def _connections(self, reader: Any) -> dict[str, list]:
+    def _chain(self, tree: TfTree, children: set[str], world_frame: str | None) -> Chain:
+        """The left camera's chain in the transform tree of the /tf pose topic (and /tf_static)."""
+        where = f"{self.path}: topic {self.topics['pose']}" + (f" + {self._static}" if self._static else "")
+        if not self.child_frame:
+            what = "no messages" if not children else "give --child-frame, the left camera's child_frame_id"
+            raise RecordingError(f"{where}: {what} (child frames: {', '.join(sorted(children))})")
+        try:
+            chain = tree.chain(self.child_frame, world_frame)
+        except TfError as exc:
+            raise RecordingError(f"{where}: {exc}") from None
+        how = "--world-frame" if world_frame else "the root of its tree"
+        self.pose_frames = f"{chain.child} in {chain.world} ({how}): {chain.describe()}"
+        return chain
+
+    def _connections(self, reader: Any, tf_static: str | None) -> dict[str, list]:
         present = sorted({c.topic for c in reader.connections})
         conns = {}
         roles: dict[str, str] = {}
@@ -352,6 +342,19 @@ class BagRecording:
                         f"the {role} topic must be one of {wanted}"
                     )
             conns[role] = found
+        self._static = None  # the /tf_static topic read with a /tf pose topic
+        static = tf_static or "/tf_static"
+        if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) and static != self.topics["pose"]:
+            found = [c for c in reader.connections if c.topic == static]
+            if tf_static and not found:
+                raise RecordingError(f"{self.path}: --tf-static {tf_static} is not in the bag "
+                                     f"(topics: {', '.join(present)})")  # fmt: skip
+            for conn in found:
+                if conn.msgtype not in pm.TF_TYPES:
+                    raise RecordingError(f"{self.path}: topic {conn.topic} (tf_static) is a "
+                                         f"{_type_name(conn.msgtype)}, not a tf2_msgs/TFMessage")  # fmt: skip
+            if found:
+                self._static, conns["tf_static"] = found[0].topic, found
         return conns
 
     def __len__(self) -> int:

@@ -39,9 +39,22 @@ class BagWriter:
         kwargs = {"seq": 0} if self.ros == 1 else {}
         return self.t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame, **kwargs)
 
-    def write(self, topic: str, msgtype: str, msg, t: float) -> None:
+    def write(self, topic: str, msgtype: str, msg, t: float, latched: bool = False) -> None:
+        """``latched``: a latched topic (ROS 1) / transient-local QoS (ROS 2), as /tf_static is."""
         if topic not in self.conns:
-            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
+            kwargs = {}
+            if latched and self.ros == 1:
+                kwargs = {"latching": 1}
+            elif latched:
+                from rosbags import interfaces as q
+
+                never = q.QosTime(2147483647, 4294967295)
+                qos = q.Qos(
+                    q.QosHistory.KEEP_LAST, 1, q.QosReliability.RELIABLE, q.QosDurability.TRANSIENT_LOCAL,
+                    never, never, q.QosLiveliness.AUTOMATIC, never, False,
+                )  # fmt: skip
+                kwargs = {"offered_qos_profiles": [qos]}
+            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store, **kwargs)
         raw = (
             self.store.serialize_ros1(msg, msgtype)
             if self.ros == 1
@@ -74,6 +87,30 @@ class BagWriter:
             m["geometry_msgs/msg/PoseStamped"](header=self.header(t, "world"), pose=pose),
             t,
         )
+
+    def transforms(self, topic: str, t: float, transforms, latched: bool = False) -> None:
+        """A tf2_msgs/TFMessage of (parent, child, xyz, quat_wxyz) transforms, each stamped ``t``
+        (X_parent = R X_child + xyz); ``latched`` as /tf_static is recorded."""
+        if "tf2_msgs/msg/TFMessage" not in self.t:  # not in rosbags' ROS 1 store: a recorded bag has it
+            from rosbags.typesys import get_types_from_msg
+
+            msgdef = "geometry_msgs/TransformStamped[] transforms"
+            self.store.register(get_types_from_msg(msgdef, "tf2_msgs/msg/TFMessage"))
+            self.t = self.store.types
+        m = self.t
+        stamped = []
+        for parent, child, xyz, (w, x, y, z) in transforms:
+            transform = m["geometry_msgs/msg/Transform"](
+                translation=m["geometry_msgs/msg/Vector3"](x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2])),
+                rotation=m["geometry_msgs/msg/Quaternion"](x=float(x), y=float(y), z=float(z), w=float(w)),
+            )
+            stamped.append(
+                m["geometry_msgs/msg/TransformStamped"](
+                    header=self.header(t, parent), child_frame_id=child, transform=transform
+                )
+            )
+        msg = m["tf2_msgs/msg/TFMessage"](transforms=stamped)
+        self.write(topic, "tf2_msgs/msg/TFMessage", msg, t, latched)
 
     def camera_info(self, topic: str, t: float, size, k, d, r, p) -> None:
         """A sensor_msgs/CameraInfo (plumb_bob): 3x3 ``k`` and ``r``, 3x4 ``p``, distortion ``d``."""

@@ -66,8 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a ROS 1 .bag or ROS 2 bag (.db3/.mcap), read with rosbags (no ROS install)",
         description="Replay two image topics (sensor_msgs/Image or CompressedImage) with the left camera's "
         "pose (geometry_msgs/PoseStamped or PoseWithCovarianceStamped, nav_msgs/Odometry, "
-        "geometry_msgs/TransformStamped, or /tf with --child-frame; the pose of the "
-        "left camera's optical frame in a z-up world). Calibration from files (--calib-left/--calib-right) "
+        "geometry_msgs/TransformStamped, or /tf with --child-frame, whose chain of transforms from the "
+        "world (with /tf_static's) is composed; the pose of the left camera's optical frame in a z-up "
+        "world). Calibration from files (--calib-left/--calib-right) "
         "or from CameraInfo topics (--left-info/--right-info).",
     )
     bag.add_argument("bag", type=Path, help="a .bag file, or a ROS 2 bag folder / its .db3 or .mcap file")
@@ -78,8 +79,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     bag.add_argument(
         "--child-frame",
-        help="the child_frame_id of the left camera: needed with --pose /tf, a filter for Odometry "
-        "and TransformStamped",
+        help="the child_frame_id of the left camera (its optical frame): needed with --pose /tf, a "
+        "filter for Odometry and TransformStamped",
+    )
+    bag.add_argument(
+        "--world-frame",
+        help="with --pose /tf: the frame the camera's pose is in, one of its ancestors (default: the "
+        "root of its tree, e.g. map or odom)",
+    )
+    bag.add_argument(
+        "--tf-static",
+        metavar="TOPIC",
+        help="with --pose /tf: the static transforms' topic (default /tf_static, when in the bag)",
     )
     bag.add_argument("--left-info", help="left sensor_msgs/CameraInfo topic")
     bag.add_argument("--right-info", help="right sensor_msgs/CameraInfo topic")
@@ -126,7 +137,7 @@ def _open_bag(args: argparse.Namespace):
         calib = functools.partial(_load_for_size, load_stereo_calibration, args.calib_left, args.calib_right)
     return BagRecording(
         args.bag, args.left, args.right, args.pose, calib, args.left_info, args.right_info, args.child_frame,
-        args.tolerance,
+        args.tolerance, world_frame=args.world_frame, tf_static=args.tf_static,
     )  # fmt: skip
 
 
@@ -187,6 +198,9 @@ def _replay(args: argparse.Namespace, opener) -> int:
     except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
         return _fail(str(exc))
     calib = recording.calibration
+    frames = getattr(recording, "pose_frames", None)
+    if frames:
+        print(f"poses: {frames}", flush=True)
     interpolated = getattr(recording, "interpolated_poses", 0)
     if interpolated:
         print(f"{interpolated} poses interpolated between the pose topic's messages", flush=True)
