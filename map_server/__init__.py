@@ -1,1 +1,3 @@
 """map_server package."""
+
+import swarm  # noqa: F401  (first: where Numba's cache goes, swarm.compiled_cache)
