@@ -80,11 +80,35 @@ def test_maxval_100_map_renders(site, capsys):
         (["agent", "--id", "r1", "--config", "{c}/lab.yaml", "--connect", "127.0.0.1:7461"], "--connect"),
         (["coordinator", "--config", "{c}/lab.yaml", "--connect", "tcp/127.0.0.1"], "--connect"),
         (["sim", "world", "{c}/lab.yaml", "--listen", "tpc/127.0.0.1:7461"], "--listen"),
+        (
+            [
+                "replay",
+                "asl",
+                "{c}/../tests/data/euroc_mini",
+                "--out",
+                "{d}/r",
+                "--connect",
+                "127.0.0.1:7461",
+            ],
+            "--connect",
+        ),
     ],
 )
 def test_endpoints_without_protocol_are_refused_with_the_fix(tmp_path, capsys, argv, option):
-    code, err = run(capsys, *(a.format(c=CONFIGS, d=tmp_path) for a in argv))
-    assert code == 2 and err.count("\n") == 1 and f"error: {option} " in err, err
+    argv = [a.format(c=CONFIGS, d=tmp_path) for a in argv]
+    code, err = run(capsys, *argv)
+    endpoint = argv[argv.index(option) + 1]
+    assert code == 2 and err.count("\n") == 1 and f"error: {option} {endpoint}: " in err, err
+
+
+def test_a_single_endpoint_option_is_checked_whole() -> None:
+    """`swarm replay --connect` takes one endpoint, not a list: it is checked as one string."""
+    from swarm.cli.main import endpoint_problems
+
+    assert endpoint_problems({"connect": "tcp/127.0.0.1:7461"}) == []
+    assert endpoint_problems({"connect": ["tcp/127.0.0.1:7461", "127.0.0.1:7"]}) == [
+        "--connect 127.0.0.1:7: an endpoint names its protocol: write tcp/127.0.0.1:7"
+    ]
 
 
 @pytest.mark.parametrize(

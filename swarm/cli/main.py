@@ -67,11 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         ):
             shown = " ".join(str(v) for v in values)
             return fail(f"--{dest.replace('_', '-')} {shown}: must be finite numbers")
-    for option in ("listen", "connect"):
-        for endpoint in getattr(args, option, None) or []:
-            problem = endpoint_problem(endpoint)
-            if problem:
-                return fail(f"--{option} {endpoint}: {problem}")
+    problems = endpoint_problems(vars(args))
+    if problems:
+        return fail(problems[0])
     try:
         return int(args.run(args) or 0)
     except InputError as exc:  # a user's file or value: FILE: FIELD: what, never a traceback
@@ -80,6 +78,19 @@ def main(argv: list[str] | None = None) -> int:
         if type(exc).__module__.startswith("zenoh"):  # e.g. a port in use: no Rust traceback
             return fail(f"Zenoh: {zenoh_message(exc)}")
         raise
+
+
+def endpoint_problems(options: dict) -> list[str]:
+    """``--listen``/``--connect OPTION: why`` for each malformed endpoint among ``options`` (the
+    parsed arguments): one endpoint (``swarm replay --connect``) or a list (repeatable options)."""
+    problems = []
+    for option in ("listen", "connect"):
+        given = options.get(option) or []
+        for endpoint in [given] if isinstance(given, str) else given:
+            problem = endpoint_problem(endpoint)
+            if problem:
+                problems.append(f"--{option} {endpoint}: {problem}")
+    return problems
 
 
 if __name__ == "__main__":
