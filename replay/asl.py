@@ -55,14 +55,19 @@ def _rows(path: Path, columns: int) -> list[list[str]]:
     return rows
 
 
-def _images(cam: Path) -> tuple[np.ndarray, list[Path]]:
+def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
+    """(stamps in ns, sorted; their image files; how many rows named a file that is not there)."""
     rows = _rows(cam / "data.csv", 2)
     try:
         stamps = np.array([int(float(r[0])) for r in rows], dtype=np.int64)
     except ValueError as exc:
         raise RecordingError(f"{cam / 'data.csv'}: timestamp column: {exc}") from None
-    order = np.argsort(stamps)
-    return stamps[order], [cam / "data" / rows[i][1] for i in order]
+    files = [cam / "data" / r[1] for r in rows]
+    present = np.array([f.is_file() for f in files], dtype=bool)
+    if not present.any():
+        raise RecordingError(f"{cam / 'data.csv'}: none of its {len(files)} image files is in {cam / 'data'}")
+    order = [i for i in np.argsort(stamps) if present[i]]
+    return stamps[order], [files[i] for i in order], int((~present).sum())
 
 
 @dataclass
@@ -124,12 +129,15 @@ class AslRecording:
         right = KalibrCamera.load(mav0 / "cam1" / "sensor.yaml")
         self.calibration: StereoCalibration = stereo_from_kalibr(left, right)
         self.poses = load_poses(mav0, left)
-        self.left_stamps, self.left_files = _images(mav0 / "cam0")
-        right_stamps, self.right_files = _images(mav0 / "cam1")
-        tol_ns = tolerance_s / NS
-        self.matched: Matched = match_stamps(
-            self.left_stamps, {"cam1 image": right_stamps, "pose": self.poses.stamps}, tol_ns
-        )
+        self.left_stamps, self.left_files, left_missing = _images(mav0 / "cam0")
+        right_stamps, self.right_files, right_missing = _images(mav0 / "cam1")
+        # matched in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"
+        others = {"cam1 image": right_stamps * NS, "pose": self.poses.stamps * NS}
+        self.matched: Matched = match_stamps(self.left_stamps * NS, others, tolerance_s)
+        # rows of data.csv whose image file is not there (a partial copy) are left out and counted
+        for cam, missing in (("cam0", left_missing), ("cam1", right_missing)):
+            if missing:
+                self.matched.dropped[f"{cam} image file missing"] += missing
 
     def __len__(self) -> int:
         return len(self.matched.reference)

@@ -179,3 +179,46 @@ def test_asl_csv_files_saved_by_excel_load(tmp_path):
     path.write_bytes(path.read_bytes().replace(b"#timestamp", b"#\xb5timestamp"))
     with pytest.raises(RecordingError, match=r"cam0/data.csv: not UTF-8 text"):
         AslRecording(copy)
+
+
+def test_an_image_file_missing_from_a_copy_leaves_its_pair_out_and_counts_it(tmp_path):
+    """A partial copy (data.csv lists a PNG that is not there): the other pairs replay, the missing
+    file is counted; with no image file at all the recording is refused naming the folder."""
+    import shutil
+
+    from replay.asl import AslRecording, RecordingError
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    (copy / "mav0/cam1/data/1403715275312143104.png").unlink()
+    rec = AslRecording(copy)
+    assert len(rec) == 3
+    assert (
+        rec.matched.describe() == "3 kept, dropped: 1 cam1 image file missing, 1 no cam1 image within 0.005"
+    )
+    assert len(list(rec.pairs())) == 3
+    for png in (copy / "mav0/cam0/data").glob("*.png"):
+        png.unlink()
+    with pytest.raises(RecordingError, match=r"cam0/data.csv: none of its 4 image files is in .*cam0/data"):
+        AslRecording(copy)
+
+
+def test_a_replay_that_fails_stops_its_agent(tmp_path, monkeypatch):
+    """However the replay ends (here a recording whose second image is unreadable), the agent and
+    server processes it started are stopped: no orphans."""
+    import shutil
+
+    from replay.asl import AslRecording, RecordingError
+    from swarm.mission import replay_run
+    from swarm.mission.replay_run import ReplayOptions, default_mission, run_replay
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    (copy / "mav0/cam1/data/1403715275312143104.png").write_bytes(b"not a png")
+    started = []
+    child = replay_run._child
+    monkeypatch.setattr(replay_run, "_child", lambda *a, **k: started.append(child(*a, **k)) or started[-1])
+    rec = AslRecording(copy)
+    with pytest.raises(RecordingError, match="1403715275312143104.png: missing or not a readable image"):
+        run_replay(rec, default_mission(rec), ReplayOptions(out=tmp_path / "run", quiet=True))
+    assert len(started) == 2 and all(p.poll() is not None for p in started)  # server and agent

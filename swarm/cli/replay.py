@@ -179,6 +179,8 @@ def _replay(args: argparse.Namespace, opener) -> int:
         return _fail(f"--frames {args.frames}: must be at least 1 (leave it out for all pairs)")
     if args.start < 0:
         return _fail(f"--start {args.start}: must be 0 or more (the first pair is 0)")
+    if not args.tolerance > 0:
+        return _fail(f"--tolerance {args.tolerance:g}: must be > 0 (seconds)")
     try:
         recording = opener(args)
         if len(recording) == 0:

@@ -142,6 +142,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
              *(["--zenoh-config", str(options.agent_zenoh_config)] if options.agent_zenoh_config else [])],
             out / f"agent-{options.robot}.log",
         )  # fmt: skip
+        procs.append(agent)  # stopped below however the replay ends
         publisher = FramePublisher(session, name, options.robot)
         if not publisher.wait_for_agent(AGENT_START_S):
             raise RuntimeError(
