@@ -171,3 +171,17 @@ def test_an_infinite_default_stays_allowed():
     from swarm.cli.main import _infinite_defaults, build_parser
 
     assert "max_depth" in _infinite_defaults(build_parser())  # swarm stereo depth: inf = no limit
+
+
+def test_an_out_folder_that_is_a_file_is_one_error_line(tmp_path, capsys) -> None:
+    taken = tmp_path / "taken"
+    taken.write_text("")
+    euroc = Path(__file__).resolve().parent / "data" / "euroc_mini"
+    code, err = run(capsys, "replay", "asl", str(euroc), "--out", str(taken))
+    assert code == 2 and err.strip() == f"swarm: error: {taken}: File exists", err
+
+
+def test_a_depth_image_given_as_a_map_is_refused_naming_it(tmp_path, capsys) -> None:
+    np.save(tmp_path / "depth.npy", np.zeros((4, 4), np.float32))
+    code, err = run(capsys, "map", "info", str(tmp_path / "depth.npy"))
+    assert code == 2 and "depth.npy: a single array of shape (4, 4) (.npy), not a map file" in err, err

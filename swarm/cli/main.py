@@ -74,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.run(args) or 0)
     except InputError as exc:  # a user's file or value: FILE: FIELD: what, never a traceback
         return fail(str(exc))
+    except OSError as exc:  # a path the user gave that cannot be used (--out an existing file, ...)
+        if exc.filename is None:
+            raise
+        return fail(f"{exc.filename}: {exc.strerror}")
     except Exception as exc:
         if type(exc).__module__.startswith("zenoh"):  # e.g. a port in use: no Rust traceback
             return fail(f"Zenoh: {zenoh_message(exc)}")

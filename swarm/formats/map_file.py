@@ -54,7 +54,7 @@ def load_map(path: str | Path) -> CoverageMap:
     """Read a map written by :func:`save_map` (or any npz with the docs/design.md keys)."""
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with _npz(path) as data:
             if all(k in data.files for k in SNAPSHOT_KEYS) and "mu" not in data.files:
                 return _load_snapshot(data, path)
             missing = [k for k in REQUIRED_KEYS if k not in data.files]
@@ -100,10 +100,22 @@ def _sensor(data, path: Path) -> SensorModel:
 def is_store_snapshot(path: str | Path) -> bool:
     """True when ``path`` is a map server's ``snapshot.npz`` rather than a map file."""
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with _npz(path) as data:
             return all(k in data.files for k in SNAPSHOT_KEYS) and "mu" not in data.files
     except (OSError, ValueError):
         return False
+
+
+def _npz(path: Path):
+    """``np.load`` of an ``.npz`` archive; a single array (``.npy``, e.g. a depth image from
+    ``swarm stereo depth``) is refused naming the file (MapFileError, a ValueError)."""
+    data = np.load(path, allow_pickle=False)
+    if isinstance(data, np.ndarray):
+        raise MapFileError(
+            f"{path}: a single array of shape {data.shape} (.npy), not a map file "
+            f"(.npz holding {', '.join(REQUIRED_KEYS)})"
+        )
+    return data
 
 
 def _load_snapshot(data, path: Path) -> CoverageMap:

@@ -184,9 +184,24 @@ class TeamMonitor:
 def _child(args: list[str], log_path: Path) -> subprocess.Popen:
     log = open(log_path, "w")  # noqa: SIM115 (kept open for the child's lifetime)
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen(
+    child = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", *args], stdout=log, stderr=subprocess.STDOUT, env=env
     )
+    child.log_path = log_path  # for why_it_exited
+    return child
+
+
+def why_it_exited(child: subprocess.Popen) -> str:
+    """``exited with code N``, with the last ``error:`` line of the child's log when it has one
+    (``swarm: error: FILE: FIELD: ...``), so that the user need not open the log."""
+    reason = f"exited with code {child.returncode}"
+    log_path = getattr(child, "log_path", None)
+    try:
+        lines = Path(log_path).read_text(errors="replace").splitlines() if log_path else []
+    except OSError:
+        lines = []
+    errors = [line.strip() for line in lines if "error:" in line]
+    return f"{reason}: {errors[-1]}" if errors else f"{reason} (see {Path(log_path).name})"
 
 
 def _stop(procs: list[subprocess.Popen], timeout: float = 10.0) -> None:
@@ -359,7 +374,7 @@ def _wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if server.poll() is not None:
-            raise RuntimeError(f"the map server exited with code {server.returncode} (see server.log)")
+            raise RuntimeError(f"the map server {why_it_exited(server)}")
         try:
             client.stats()
             return

@@ -58,6 +58,8 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         sharing = mission.sharing.model_copy(update={"share_min_bits": args.share_min_bits})
         mission = mission.model_copy(update={"sharing": sharing})
     try:
+        if args.max_time is not None and not args.max_time > 0:
+            raise ConfigError(f"--max-time {args.max_time:g}: must be > 0 (simulated seconds)")
         fraction = getattr(args, "observable_threshold", None)
         if fraction is not None and not 0.0 <= fraction <= 1.0:
             raise ConfigError(f"--observable-threshold must be in [0, 1] (got {fraction})")
