@@ -311,6 +311,14 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 last_print = now
                 known = float(np.mean(monitor.cmap.known_mask()))
                 states = " ".join(f"{r}:{monitor.states.get(r, '-')}" for r in mission.robot_ids)
+                if monitor.sim_time == 0.0 and reason == "running":  # the world waits for every agent
+                    print(
+                        f"[{now - started:6.1f} s] starting: the world waits for the agents of "
+                        f"{', '.join(mission.robot_ids)} (a first run compiles their kernels into "
+                        "Numba's cache, a minute or two)",
+                        flush=True,
+                    )
+                    continue
                 print(
                     f"[{now - started:6.1f} s] sim t={monitor.sim_time:7.1f} s  H={h:,.0f} bits "
                     f"(H_th {threshold:,.0f})  known {known:5.1%}  {states}",
