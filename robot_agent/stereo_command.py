@@ -91,7 +91,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _fail(message: str) -> int:
-    print(f"swarm stereo depth: error: {message}", file=sys.stderr)
+    for line in str(message).splitlines() or [""]:  # one prefixed line per problem
+        print(f"swarm stereo depth: error: {line}", file=sys.stderr)
     return 2
 
 
@@ -117,6 +118,17 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.png is not None and args.png.suffix.lower() != ".png":
         return _fail(f"--png {args.png}: the picture is a PNG; name it {args.png.with_suffix('.png').name}")
+    option_problems = []
+    if args.min_depth is not None and not args.min_depth > 0:
+        option_problems.append(f"--min-depth {args.min_depth:g}: must be > 0 (metres)")
+    if not args.max_depth > (args.min_depth or 0.0):
+        option_problems.append(f"--max-depth {args.max_depth:g}: must be beyond --min-depth (metres)")
+    if not (args.block_size >= 1 and args.block_size % 2 == 1):
+        option_problems.append(f"--block-size {args.block_size}: must be odd and >= 1 (pixels)")
+    if not 0 < args.scale <= 1:
+        option_problems.append(f"--scale {args.scale:g}: must be in (0, 1]")
+    if option_problems:
+        return _fail("\n".join(option_problems))
     try:
         left = _read_image(args.left, "left")
         right = _read_image(args.right, "right")
@@ -142,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
         if min_depth is None and calib.ndisp:
             # The file's disparity range: the nearest depth whose disparity is ndisp.
             min_depth = calib.fx * calib.baseline / (calib.ndisp + calib.disparity_offset)
-        matcher = StereoMatcher.for_rig(calib, min_depth or DEFAULT_MIN_DEPTH, args.max_depth, **options)
+        min_depth = DEFAULT_MIN_DEPTH if min_depth is None else min_depth
+        matcher = StereoMatcher.for_rig(calib, min_depth, args.max_depth, **options)
         depth = matcher.depth(left, right, calib)
     except (CalibrationError, ValueError) as exc:
         return _fail(str(exc))

@@ -64,3 +64,24 @@ def test_every_option_of_every_command_explains_itself():
 
     walk(build_parser(), "swarm")
     assert not missing, missing
+
+
+def test_stereo_depth_options_out_of_range_are_named_one_per_line(pair_files, capsys):  # noqa: F811
+    """--min-depth 0 was taken as the default; every bad option is named as the user wrote it."""
+    d, _ = pair_files
+    argv = [
+        str(d / "left.png"),
+        str(d / "right.png"),
+        "--calib",
+        str(d / "calib.yaml"),
+        "--out",
+        str(d / "o.npy"),
+    ]
+    rc = cli([*argv, "--min-depth", "0", "--block-size", "4", "--scale", "3"])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 2 and err == [
+        "swarm stereo depth: error: --min-depth 0: must be > 0 (metres)",
+        "swarm stereo depth: error: --block-size 4: must be odd and >= 1 (pixels)",
+        "swarm stereo depth: error: --scale 3: must be in (0, 1]",
+    ]
+    assert not (d / "o.npy").exists()

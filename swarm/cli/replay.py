@@ -109,7 +109,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _fail(message: str) -> int:
-    print(f"swarm replay: error: {message}", file=sys.stderr)
+    for line in str(message).splitlines() or [""]:  # one prefixed line per problem
+        print(f"swarm replay: error: {line}", file=sys.stderr)
     return 2
 
 
