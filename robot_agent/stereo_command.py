@@ -79,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scale",
         type=float,
         default=1.0,
-        help="match at this fraction of the image size (0.5: about 6x faster, fewer edge pixels right)",
+        help="match at this fraction of the image size (0.5: about 4-5x faster, fewer edge pixels right)",
     )
     parser.add_argument(
         "--refine-subpixel",
