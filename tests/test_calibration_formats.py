@@ -507,3 +507,13 @@ def test_camera_info_with_the_baseline_alone_in_p03_is_refused(tmp_path):
         CalibrationError, match=r"right.yaml: projection_matrix: P\[0\]\[3\] = -0.12.* gives a baseline"
     ):
         load_stereo_calibration(left, right)
+
+
+def test_a_yaml_syntax_error_is_one_line_with_its_place(tmp_path):
+    (tmp_path / "bad.yaml").write_text("fx: 1\nfy: [1, 2\ncx: 3\n")
+    with pytest.raises(CalibrationError) as info:
+        load_stereo_calibration(tmp_path / "bad.yaml")
+    assert str(info.value).endswith(
+        "bad.yaml: not valid YAML: expected ',' or ']', but got ':', at line 3, column 3"
+    )
+    assert "\n" not in str(info.value)

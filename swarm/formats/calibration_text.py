@@ -14,6 +14,7 @@ from typing import Any
 import yaml
 
 from swarm.formats.errors import CalibrationError
+from swarm.formats.yaml_file import yaml_problem
 
 
 def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> dict:
@@ -38,7 +39,7 @@ def read_calibration_yaml(path: Path) -> Any:
     try:
         documents = [d for d in yaml.load_all(text, Loader=_CalibLoader) if d is not None]
     except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+        raise CalibrationError(f"{path}: not valid YAML: {yaml_problem(exc)}") from None
 
     # ``rostopic echo`` / ``ros2 topic echo`` end each message with ``---``: messages that differ
     # only in their header (a camera_info echoed several times) are one calibration.

@@ -27,7 +27,16 @@ def read_yaml(path: Path, error: type[ValueError], *, finite: bool = True) -> ob
     except UnicodeDecodeError as e:
         raise error(f"{path}: not a text file (byte {e.start} is not UTF-8)") from e
     except yaml.YAMLError as e:
-        raise error(f"{path}: not valid YAML: {' '.join(str(e).split())}") from e
+        raise error(f"{path}: not valid YAML: {yaml_problem(e)}") from e
     if finite:
         refuse_non_finite(data, path, error)
     return data
+
+
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """PyYAML's error on one line: ``what, at line L, column C`` (1-based), else its text joined."""
+    problem = getattr(exc, "problem", None)
+    mark = getattr(exc, "problem_mark", None)
+    if problem and mark is not None:
+        return f"{problem}, at line {mark.line + 1}, column {mark.column + 1}"
+    return " ".join(str(exc).split())
