@@ -3,6 +3,8 @@ OpenCV files with stereoRectify's extra outputs."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -517,3 +519,13 @@ def test_a_yaml_syntax_error_is_one_line_with_its_place(tmp_path):
         "bad.yaml: not valid YAML: expected ',' or ']', but got ':', at line 3, column 3"
     )
     assert "\n" not in str(info.value)
+
+
+def test_a_misspelt_field_of_a_sensor_yaml_is_pointed_at(tmp_path):
+    euroc = Path(__file__).resolve().parent / "data" / "euroc_mini" / "mav0"
+    text = (euroc / "cam0/sensor.yaml").read_text().replace("intrinsics:", "intrinsic:")
+    (tmp_path / "sensor.yaml").write_text(text)
+    with pytest.raises(
+        CalibrationError, match=r"intrinsics: required field is missing \(is intrinsic a misspelling"
+    ):
+        load_stereo_calibration(tmp_path / "sensor.yaml", euroc / "cam1/sensor.yaml")

@@ -30,7 +30,8 @@ from robot_agent.stereo import StereoMatcher, to_gray
 from robot_agent.subpixel import refine_disparity
 from swarm.bench import timed_seconds
 from swarm.config.models import DEFAULT_MIN_DEPTH
-from swarm.formats.calibration_formats import load_middlebury, load_stereo_calibration
+from swarm.formats.calibration_formats import load_stereo_calibration
+from swarm.formats.middlebury_calib import load_middlebury
 from swarm.formats.stereo_calibration import StereoCalibration
 
 #: The issue's quality target: valid fraction and share of valid pixels within 5 % of the true depth.

@@ -18,14 +18,15 @@ names the file and the field.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from swarm.formats.calibration_schema import field_value, numbers, whole_number
 from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
+from swarm.formats.middlebury_calib import load_middlebury
 from swarm.formats.stereo_calibration import (
     CalibrationError,
     RectificationMaps,
@@ -46,36 +47,6 @@ FISHEYE_MODELS = ("equidistant", "fisheye")
 
 def _read_yaml(path: Path) -> Any:
     return read_calibration_yaml(path)
-
-
-def _whole(value: Any) -> Any:
-    """``value`` as an int when it is a whole float (some tools write ``image_width: 640.0``)."""
-    if isinstance(value, float) and value.is_integer():
-        return int(value)
-    return value
-
-
-def _numbers(value: Any, count: int | tuple[int, ...], source: str, field: str) -> np.ndarray:
-    if isinstance(value, dict) and "data" in value:
-        value = value["data"]
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"{source}: {field}: must be a list of numbers") from None
-    counts = (count,) if isinstance(count, int) else count
-    if arr.size not in counts:
-        want = " or ".join(str(c) for c in counts)
-        raise CalibrationError(f"{source}: {field}: must have {want} numbers, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
-        raise CalibrationError(f"{source}: {field}: holds NaN or inf")
-    return arr
-
-
-def _field(data: dict, source: str, *names: str) -> Any:
-    for name in names:
-        if name in data:
-            return data[name]
-    raise CalibrationError(f"{source}: {names[0]}: required field is missing")
 
 
 # -- ROS camera_info -----------------------------------------------------------------------
@@ -99,8 +70,8 @@ class CameraInfo:
         """From a camera_info YAML mapping or a CameraInfo message's fields (ROS 1 or 2 names)."""
         if not isinstance(data, dict):
             raise CalibrationError(f"{source}: expected a camera_info mapping, got {type(data).__name__}")
-        width = _whole(_field(data, source, "image_width", "width"))
-        height = _whole(_field(data, source, "image_height", "height"))
+        width = whole_number(field_value(data, source, "image_width", "width"))
+        height = whole_number(field_value(data, source, "image_height", "height"))
         if not (isinstance(width, int) and isinstance(height, int) and width > 0 and height > 0):
             raise CalibrationError(
                 f"{source}: image_width, image_height: must be positive integers (got {width!r}, {height!r})"
@@ -111,24 +82,24 @@ class CameraInfo:
                 f"{source}: distortion_model: {model!r} is not supported "
                 f"(use one of plumb_bob, rational_polynomial, equidistant)"
             )
-        k = _numbers(_field(data, source, "camera_matrix", "k", "K"), 9, source, "camera_matrix").reshape(
+        k = numbers(field_value(data, source, "camera_matrix", "k", "K"), 9, source, "camera_matrix").reshape(
             3, 3
         )
         if k[0, 0] <= 0 or k[1, 1] <= 0:
             raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
-        d = _numbers(
-            _field(data, source, "distortion_coefficients", "d", "D"),
+        d = numbers(
+            field_value(data, source, "distortion_coefficients", "d", "D"),
             4 if model in FISHEYE_MODELS else (0, 4, 5, 8, 12, 14),
             source,
             "distortion_coefficients",
         )
-        r = _numbers(
+        r = numbers(
             data.get("rectification_matrix", data.get("r", data.get("R", np.eye(3)))),
             9,
             source,
             "rectification_matrix",
         )
-        p = _numbers(_field(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
+        p = numbers(field_value(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
         p = p.reshape(3, 4)
         if p[0, 0] <= 0 or p[1, 1] <= 0:
             raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
@@ -219,7 +190,7 @@ class KalibrCamera:
             raise CalibrationError(
                 f"{source}: camera_model: {camera_model!r} is not supported (pinhole only)"
             )
-        fu, fv, cu, cv = _numbers(_field(data, source, "intrinsics"), 4, source, "intrinsics")
+        fu, fv, cu, cv = numbers(field_value(data, source, "intrinsics"), 4, source, "intrinsics")
         if fu <= 0 or fv <= 0:
             raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
         model = str(data.get("distortion_model", "radial-tangential"))
@@ -228,14 +199,14 @@ class KalibrCamera:
             raise CalibrationError(
                 f"{source}: distortion_model: {model!r} is not supported (radial-tangential or equidistant)"
             )
-        d = _numbers(
-            _field(data, source, "distortion_coefficients", "distortion_coeffs"),
+        d = numbers(
+            field_value(data, source, "distortion_coefficients", "distortion_coeffs"),
             4 if fisheye else (0, 4, 5),
             source,
             "distortion_coefficients",
         )
-        w, h = _numbers(_field(data, source, "resolution"), 2, source, "resolution")
-        pose = _numbers(_field(data, source, pose_field), 16, source, pose_field).reshape(4, 4)
+        w, h = numbers(field_value(data, source, "resolution"), 2, source, "resolution")
+        pose = numbers(field_value(data, source, pose_field), 16, source, pose_field).reshape(4, 4)
         rot = pose[:3, :3]
         if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
             raise CalibrationError(f"{source}: {pose_field}: the rotation part is not a rotation matrix")
@@ -276,79 +247,12 @@ def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
     identity = {"T_BS": np.eye(4).tolist()}
     left = KalibrCamera.from_dict({**data["cam0"], **identity}, f"{source}: cam0")
     right_dict = dict(data["cam1"])
-    right_from_left = _numbers(
-        _field(right_dict, f"{source}: cam1", "T_cn_cnm1"), 16, source, "cam1.T_cn_cnm1"
+    right_from_left = numbers(
+        field_value(right_dict, f"{source}: cam1", "T_cn_cnm1"), 16, source, "cam1.T_cn_cnm1"
     )
     right_dict["T_BS"] = np.linalg.inv(right_from_left.reshape(4, 4)).tolist()
     right = KalibrCamera.from_dict(right_dict, f"{source}: cam1")
     return stereo_from_kalibr(left, right, source, "cam1.T_cn_cnm1")
-
-
-# -- Middlebury calib.txt ------------------------------------------------------------------
-
-_MATRIX = re.compile(r"^\[(.*)\]$")
-
-
-def load_middlebury(path: str | Path) -> StereoCalibration:
-    """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres, ``ndisp`` kept."""
-    path = Path(path)
-    source = str(path)
-    lines = read_calibration_text(path).splitlines()
-    values: dict[str, str] = {}
-    for line in lines:
-        if "=" in line:
-            key, value = line.split("=", 1)
-            values[key.strip()] = value.strip()
-
-    if "cam0" not in values:  # e.g. the ost.txt beside ROS camera_calibration's left/right.yaml
-        raise CalibrationError(
-            f"{source}: cam0: required field is missing (a .txt calibration is read as a Middlebury "
-            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1]; of ROS camera_calibration's output give "
-            "left.yaml and right.yaml, not ost.txt)"
-        )
-
-    def matrix(name: str) -> np.ndarray:
-        match = _MATRIX.match(values.get(name, ""))
-        if match is None:
-            raise CalibrationError(f"{source}: {name}: expected [f 0 cx; 0 f cy; 0 0 1]")
-        rows = [r.split() for r in match.group(1).split(";")]
-        return _numbers(rows if all(len(r) == 3 for r in rows) else [], 9, source, name).reshape(3, 3)
-
-    def number(name: str, default: float | None = None) -> float:
-        if name not in values:
-            if default is not None:
-                return default
-            raise CalibrationError(f"{source}: {name}: required field is missing")
-        try:
-            return float(values[name])
-        except ValueError:
-            raise CalibrationError(f"{source}: {name}: not a number (got {values[name]!r})") from None
-
-    cam0, cam1 = matrix("cam0"), matrix("cam1")
-    baseline_mm = number("baseline")
-    if not baseline_mm > 0:
-        raise CalibrationError(f"{source}: baseline: must be > 0 (millimetres), got {baseline_mm:g}")
-    doffs = number("doffs", cam1[0, 2] - cam0[0, 2])
-    if abs(doffs - (cam1[0, 2] - cam0[0, 2])) > 0.01:
-        raise CalibrationError(
-            f"{source}: doffs: {doffs:g} is not cam1 cx - cam0 cx = {cam1[0, 2] - cam0[0, 2]:g}"
-        )
-    size = None
-    if "width" in values and "height" in values:
-        size = (int(number("width")), int(number("height")))
-    ndisp = int(number("ndisp")) if "ndisp" in values else None
-    return StereoCalibration(
-        fx=float(cam0[0, 0]),
-        fy=float(cam0[1, 1]),
-        cx=float(cam0[0, 2]),
-        cy=float(cam0[1, 2]),
-        baseline=baseline_mm / 1000.0,
-        cx_right=float(cam1[0, 2]),
-        image_size=size,
-        source=source,
-        ndisp=ndisp,
-        notes=(f"{source}: baseline {baseline_mm:g} mm read as {baseline_mm / 1000:g} m",),
-    )
 
 
 # -- one entry point -------------------------------------------------------------------------

@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
 
+from swarm.formats.errors import CalibrationError
+
 #: A baseline or translation above this many metres is taken for a unit mistake (millimetres).
 MAX_BASELINE_M = 5.0
 
@@ -189,3 +191,38 @@ def format_errors(exc: ValidationError, source: str) -> str:
         shown = "" if isinstance(got, dict | list) or err["type"] == "missing" else f" (got {got!r})"
         lines.append(f"{source}: {field}: {msg}{shown}")
     return "\n".join(lines)
+
+
+# -- plain field readers (camera_info, Kalibr, Middlebury forms) ----------------------------------
+
+
+def whole_number(value: Any) -> Any:
+    """``value`` as an int when it is a whole float (some tools write ``image_width: 640.0``)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+def numbers(value: Any, count: int | tuple[int, ...], source: str, field: str) -> np.ndarray:
+    if isinstance(value, dict) and "data" in value:
+        value = value["data"]
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{source}: {field}: must be a list of numbers") from None
+    counts = (count,) if isinstance(count, int) else count
+    if arr.size not in counts:
+        want = " or ".join(str(c) for c in counts)
+        raise CalibrationError(f"{source}: {field}: must have {want} numbers, got {arr.size}")
+    if not np.all(np.isfinite(arr)):
+        raise CalibrationError(f"{source}: {field}: holds NaN or inf")
+    return arr
+
+
+def field_value(data: dict, source: str, *names: str) -> Any:
+    for name in names:
+        if name in data:
+            return data[name]
+    near = difflib.get_close_matches(names[0], [str(k) for k in data], n=1, cutoff=0.75)
+    hint = f" (is {near[0]} a misspelling of it?)" if near else ""
+    raise CalibrationError(f"{source}: {names[0]}: required field is missing{hint}")

@@ -1,0 +1,78 @@
+"""Middlebury's ``calib.txt``: a rectified rig (``cam0``, ``cam1``, ``doffs``, ``baseline`` in
+millimetres, ``width``, ``height``, ``ndisp``), as the 2005-2021 stereo datasets give it."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from swarm.formats.calibration_schema import numbers
+from swarm.formats.calibration_text import read_calibration_text
+from swarm.formats.errors import CalibrationError
+from swarm.formats.stereo_calibration import StereoCalibration
+
+_MATRIX = re.compile(r"^\[(.*)\]$")
+
+
+def load_middlebury(path: str | Path) -> StereoCalibration:
+    """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres, ``ndisp`` kept."""
+    path = Path(path)
+    source = str(path)
+    lines = read_calibration_text(path).splitlines()
+    values: dict[str, str] = {}
+    for line in lines:
+        if "=" in line:
+            key, value = line.split("=", 1)
+            values[key.strip()] = value.strip()
+
+    if "cam0" not in values:  # e.g. the ost.txt beside ROS camera_calibration's left/right.yaml
+        raise CalibrationError(
+            f"{source}: cam0: required field is missing (a .txt calibration is read as a Middlebury "
+            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1]; of ROS camera_calibration's output give "
+            "left.yaml and right.yaml, not ost.txt)"
+        )
+
+    def matrix(name: str) -> np.ndarray:
+        match = _MATRIX.match(values.get(name, ""))
+        if match is None:
+            raise CalibrationError(f"{source}: {name}: expected [f 0 cx; 0 f cy; 0 0 1]")
+        rows = [r.split() for r in match.group(1).split(";")]
+        return numbers(rows if all(len(r) == 3 for r in rows) else [], 9, source, name).reshape(3, 3)
+
+    def number(name: str, default: float | None = None) -> float:
+        if name not in values:
+            if default is not None:
+                return default
+            raise CalibrationError(f"{source}: {name}: required field is missing")
+        try:
+            return float(values[name])
+        except ValueError:
+            raise CalibrationError(f"{source}: {name}: not a number (got {values[name]!r})") from None
+
+    cam0, cam1 = matrix("cam0"), matrix("cam1")
+    baseline_mm = number("baseline")
+    if not baseline_mm > 0:
+        raise CalibrationError(f"{source}: baseline: must be > 0 (millimetres), got {baseline_mm:g}")
+    doffs = number("doffs", cam1[0, 2] - cam0[0, 2])
+    if abs(doffs - (cam1[0, 2] - cam0[0, 2])) > 0.01:
+        raise CalibrationError(
+            f"{source}: doffs: {doffs:g} is not cam1 cx - cam0 cx = {cam1[0, 2] - cam0[0, 2]:g}"
+        )
+    size = None
+    if "width" in values and "height" in values:
+        size = (int(number("width")), int(number("height")))
+    ndisp = int(number("ndisp")) if "ndisp" in values else None
+    return StereoCalibration(
+        fx=float(cam0[0, 0]),
+        fy=float(cam0[1, 1]),
+        cx=float(cam0[0, 2]),
+        cy=float(cam0[1, 2]),
+        baseline=baseline_mm / 1000.0,
+        cx_right=float(cam1[0, 2]),
+        image_size=size,
+        source=source,
+        ndisp=ndisp,
+        notes=(f"{source}: baseline {baseline_mm:g} mm read as {baseline_mm / 1000:g} m",),
+    )
