@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from swarm.config import mission_from_map
 from swarm.formats.floor_plan import load_floor_plan
 
 FREE, WALL, UNKNOWN, GREY_WALL = 254, 0, 205, 120  # 120: p = 0.53, neither free nor occupied
@@ -65,3 +66,20 @@ def test_free_space_on_the_image_border_is_closed(tmp_path):
     assert not plan.contains(np.array([0.5, 3.5]))
     np.testing.assert_allclose(plan.lo, [-1.0, 2.0])  # the floor's extent is still the image's
     np.testing.assert_allclose(plan.hi, [2.0, 5.0])
+
+
+# -- where robots start --------------------------------------------------------------------
+
+
+def test_robots_start_in_the_largest_free_region(tmp_path):
+    """A speck of free cells in the middle of the map (a SLAM map's courtyard, Willow Garage's)
+    took the robots: the start nearest the middle was chosen whatever its region's size."""
+    image = np.full((100, 100), UNKNOWN)
+    image[2:30, 2:98] = WALL
+    image[3:29, 3:97] = FREE  # the building: a 9.4 m x 2.6 m hall at the top of the image
+    image[45:55, 45:55] = FREE  # a 1 m x 1 m free speck in the middle
+    image[95:97, 10:90] = WALL  # a lone wall: the known part of the map reaches y = 0.3
+    path = write_map(tmp_path, image)
+    mission = mission_from_map(path, robots=3)
+    starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
+    assert np.all(starts[:, 1] > 7.0), starts  # in the hall (y 7.1-9.7), not the speck (y 4.5-5.5)

@@ -160,9 +160,9 @@ def mission_from_map(
     """A mission over a ROS map: workspace = known part of the map x [0, wall_height + z_margin].
 
     Robots start in known free space with at least robot radius + 0.15 m clearance (unknown
-    cells count as obstacles), in the free region connected to ``start`` (default: the free
-    cell closest to the middle of the known part of the map), at least ``spacing`` metres
-    apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
+    cells count as obstacles), in the free region connected to ``start`` (default: the largest
+    free region, from its cell closest to the middle of the known part of the map), at least
+    ``spacing`` metres apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
     OBSERVABLE_FRACTION): the entropy of the voxels no sensor can ever observe + 16% of the
     observable prior, resolved by the simulator when the mission runs.
     """
@@ -190,11 +190,20 @@ def mission_from_map(
         raise ConfigError(f"{map_yaml}: no free space wide enough for a robot")
     ok_rows, ok_cols = np.nonzero(ok)
     centres = ros_map.to_world(ok_cols + 0.5, ok_rows + 0.5)
-    anchor = np.asarray(start if start is not None else (lo_xy + hi_xy) / 2, dtype=np.float64)
-    first = int(np.argmin(np.linalg.norm(centres - anchor, axis=1)))
-    seed = centres[first]
     labels, _ = ndimage.label(ok)
-    reachable = centres[labels[ok_rows, ok_cols] == labels[ok_rows[first], ok_cols[first]]]
+    region = labels[ok_rows, ok_cols]
+    if start is None:
+        # The largest free region: the one nearest the middle may be a pocket of a few
+        # cells (a SLAM map's free specks in a courtyard, Willow Garage's map).
+        largest = np.argmax(np.bincount(region)[1:]) + 1
+        candidates = np.flatnonzero(region == largest)
+        anchor = (lo_xy + hi_xy) / 2
+    else:
+        candidates = np.arange(len(centres))
+        anchor = np.asarray(start, dtype=np.float64)
+    first = candidates[int(np.argmin(np.linalg.norm(centres[candidates] - anchor, axis=1)))]
+    seed = centres[first]
+    reachable = centres[region == region[first]]
     chosen: list[np.ndarray] = []
     for p in reachable[np.argsort(np.linalg.norm(reachable - seed, axis=1))]:
         if all(np.linalg.norm(p - q) >= spacing for q in chosen):
@@ -202,7 +211,12 @@ def mission_from_map(
             if len(chosen) == robots:
                 break
     if len(chosen) < robots:
-        raise ConfigError(f"{map_yaml}: room for only {len(chosen)} robots {spacing:g} m apart")
+        area = len(reachable) * ros_map.resolution**2
+        raise ConfigError(
+            f"{map_yaml}: room for only {len(chosen)} robot(s) {spacing:g} m apart in the free region "
+            f"around ({seed[0]:.2f}, {seed[1]:.2f}) ({area:.1f} m^2 where a robot's centre fits); "
+            "ask for fewer robots"
+        )
 
     data = {
         "mission": name or _safe_name(map_yaml.stem),
