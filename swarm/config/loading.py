@@ -92,16 +92,35 @@ def check_mission(mission: Mission) -> None:
             fail("floor_plan", str(e))
         starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
         clearance = plan.clearance(starts)
+        radius = mission.robot.radius
         for i, robot in enumerate(mission.robots):
             at = f"({robot.start.x:g}, {robot.start.y:g})"
             if clearance[i] <= 0:
-                fail(f"robots[{i}].start", f"{at} lies inside a wall/box of the floor plan")
-            if clearance[i] < mission.robot.radius:
+                fail(
+                    f"robots[{i}].start",
+                    f"{at} lies inside a wall/box of the floor plan{_free_hint(plan, starts[i], radius)}",
+                )
+            if clearance[i] < radius:
                 fail(
                     f"robots[{i}].start",
                     f"{at} is {clearance[i]:.3f} m from a wall/box, closer than the robot "
-                    f"radius {mission.robot.radius:g} m",
+                    f"radius {radius:g} m{_free_hint(plan, starts[i], radius)}",
                 )
+            if plan.ros_map is not None:
+                (row, col), (rows, cols) = plan.ros_map.to_cell(starts[i]), plan.ros_map.shape
+                if not (0 <= row < rows and 0 <= col < cols):
+                    fail(
+                        f"robots[{i}].start",
+                        f"{at} is outside the image of {plan.ros_map.source}"
+                        f"{_free_hint(plan, starts[i], radius)}",
+                    )
+                if not plan.ros_map.free[row, col]:
+                    fail(
+                        f"robots[{i}].start",
+                        f"{at} is not on the mapped floor: the cell (row {rows - 1 - row}, column {col} of "
+                        f"{plan.ros_map.source.name}'s image) is unknown"
+                        f"{_free_hint(plan, starts[i], radius)}",
+                    )
 
     for i, a in enumerate(mission.robots):
         for b in mission.robots[:i]:
@@ -112,6 +131,22 @@ def check_mission(mission: Mission) -> None:
                     f"overlaps robot {b.id!r} (centres {gap:.3f} m apart, "
                     f"need {2 * mission.robot.radius:g} m)",
                 )
+
+
+def _free_hint(plan, xy: np.ndarray, radius: float) -> str:
+    """``; the nearest free point ...`` of a ROS-map floor plan where a robot of ``radius`` fits."""
+    from scipy import ndimage
+
+    ros_map = plan.ros_map
+    if ros_map is None:
+        return ""
+    clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
+    rows, cols = np.nonzero(clearance > radius + ros_map.resolution)
+    if rows.size == 0:
+        return f"; the map has no free space where a robot of radius {radius:g} m fits"
+    centres = ros_map.to_world(cols + 0.5, rows + 0.5)
+    best = centres[np.argmin(np.linalg.norm(centres - xy, axis=1))]
+    return f"; the nearest free point where the robot fits is ({best[0]:.2f}, {best[1]:.2f})"
 
 
 def _resolve_rig(mission: Mission, rig: str | dict | None, field: str) -> RigConfig:
