@@ -16,9 +16,42 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation
 
+#: The most voxels a simulated mission's workspace may hold. The map server, the coordinator
+#: and every agent each hold the whole map (8 bytes of belief per voxel, and more in the
+#: agents' caches), and the observable-voxel rays of H_th grow with the floor area: Nav2's
+#: depot (1.0 million voxels, 393 m^2 of reachable floor) takes 12 s of them on 2 cores,
+#: a 200 m x 200 m map at 0.1 m (75 million voxels) took more than 6 minutes before its
+#: first frame. 20 million voxels is about 9,000 m^2 of floor at 0.1 m and 2.2 m of height.
+MAX_SIM_VOXELS = 20_000_000
+
+
+def check_simulation_size(mission: Mission) -> None:
+    """Raise ConfigError naming the numbers when the workspace is too large to simulate here."""
+    grid = mission.workspace.grid()
+    if grid.size <= MAX_SIM_VOXELS:
+        return
+    ws = mission.workspace
+    nx, ny, nz = grid.shape
+    raise ConfigError(
+        f"{mission.source or '<mission>'}: workspace: x [{ws.lo[0]:g}, {ws.hi[0]:g}], y [{ws.lo[1]:g}, "
+        f"{ws.hi[1]:g}], z [{ws.lo[2]:g}, {ws.hi[2]:g}] m at {ws.voxel:g} m voxels is {nx:,} x {ny:,} x "
+        f"{nz:,} = {grid.size:,} voxels, more than the {MAX_SIM_VOXELS:,} a simulated mission takes "
+        f"(the map server, the coordinator and each agent would hold {8 * grid.size / 1e9:.1f} GB of "
+        "beliefs each, and setting up H_th would take many minutes); crop the map to the part to "
+        "explore (its image and origin), or write a mission with a smaller workspace or a coarser "
+        "workspace.voxel"
+    )
+
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
-    """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied."""
+    """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied;
+    refused when too large to simulate (``check_simulation_size``)."""
+    mission = _resolve_mission(args, default_config)
+    check_simulation_size(mission)
+    return mission
+
+
+def _resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
     if args.config and args.map:
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml, not both")
     if args.map:
