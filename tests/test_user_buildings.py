@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from swarm.config import ConfigError, mission_from_dict, mission_from_map
-from swarm.formats.floor_plan import load_floor_plan
+from swarm.formats.floor_plan import FloorPlanError, load_floor_plan
 from swarm.mission.simulated_mission import resolve_mission
 
 FREE, WALL, UNKNOWN, GREY_WALL = 254, 0, 205, 120  # 120: p = 0.53, neither free nor occupied
@@ -149,4 +149,22 @@ def test_a_map_too_large_to_simulate_is_refused_with_the_numbers(tmp_path):
     small[6:104, 6:104] = FREE
     assert resolve_mission(
         argparse.Namespace(config=None, map=str(write_map(tmp_path, small, 0.5)), robots=None), ""
+    )
+
+
+# -- map files moved between machines ----------------------------------------------------------
+
+
+def test_an_image_path_of_another_machine_says_the_image_beside_the_yaml(tmp_path):
+    """ROS 1 map_saver -f /home/me/maps/site writes the image's full path into the yaml; a map
+    copied to another machine with its image said only 'file not found'."""
+    image = np.full((20, 20), FREE)
+    path = write_map(tmp_path, image)
+    spec = yaml.safe_load(path.read_text())
+    path.write_text(yaml.safe_dump({**spec, "image": "/home/turtlebot/maps/map.pgm"}))
+    with pytest.raises(FloorPlanError) as e:
+        load_floor_plan(path)
+    assert str(e.value) == (
+        f"{path}: image: file not found: /home/turtlebot/maps/map.pgm; map.pgm lies beside the "
+        "map.yaml: write 'image: map.pgm'"
     )
