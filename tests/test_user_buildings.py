@@ -168,3 +168,24 @@ def test_an_image_path_of_another_machine_says_the_image_beside_the_yaml(tmp_pat
         f"{path}: image: file not found: /home/turtlebot/maps/map.pgm; map.pgm lies beside the "
         "map.yaml: write 'image: map.pgm'"
     )
+
+
+def test_the_reported_setup_time_of_h_th_includes_its_rays(tmp_path, monkeypatch):
+    """Willow Garage's map spent 25-108 s on H_th's observable-voxel rays and the line said
+    '(0.3 s)': the time counted only the sums after the rays."""
+    import time
+
+    from swarm.mission import threshold
+
+    path = write_map(tmp_path, np.pad(np.full((30, 30), FREE), 1, constant_values=WALL))
+    mission = mission_from_map(path)
+    threshold.resolve_threshold(mission)  # compiled kernels and tables ready
+    real = threshold.observable_mask_of
+
+    def slow(m):
+        time.sleep(1.0)
+        return real(m)
+
+    monkeypatch.setattr(threshold, "observable_mask_of", slow)
+    _, parts, _ = threshold.resolve_threshold(mission)
+    assert parts.seconds >= 1.0
