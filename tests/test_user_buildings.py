@@ -189,3 +189,19 @@ def test_the_reported_setup_time_of_h_th_includes_its_rays(tmp_path, monkeypatch
     monkeypatch.setattr(threshold, "observable_mask_of", slow)
     _, parts, _ = threshold.resolve_threshold(mission)
     assert parts.seconds >= 1.0
+
+
+def test_a_map_where_no_robot_fits_says_the_map_size_and_what_to_check(tmp_path):
+    """A resolution written in the wrong unit, or thresholds that leave no free cell, stopped
+    with 'no free space wide enough for a robot' and no figure to find the cause by."""
+    image = np.pad(np.full((38, 38), FREE), 1, constant_values=WALL)
+    with pytest.raises(ConfigError) as e:
+        mission_from_map(write_map(tmp_path, image, resolution=0.005))  # 5 mm: meant 5 cm
+    assert "the most the map offers is 0.095 m (40 x 40 cells at 0.005 m: 0.2 m x 0.2 m)" in str(e.value)
+    assert "check resolution" in str(e.value)
+    with pytest.raises(ConfigError) as e:
+        mission_from_map(write_map(tmp_path, np.full((40, 40), UNKNOWN)))
+    assert (
+        "the map has no free cells (40 x 40 cells at 0.1 m: 4 m x 4 m; 0 occupied, the rest unknown)"
+        in str(e.value)
+    )

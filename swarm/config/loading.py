@@ -209,8 +209,16 @@ def mission_from_map(
     body = RobotBodyConfig()
     ros_map = load_ros_map(map_yaml)
     known = ros_map.occupied | ros_map.free
+    rows_all, cols_all = ros_map.shape
+    size = (
+        f"{cols_all:,} x {rows_all:,} cells at {ros_map.resolution:g} m: "
+        f"{cols_all * ros_map.resolution:g} m x {rows_all * ros_map.resolution:g} m"
+    )
     if not ros_map.free.any():
-        raise ConfigError(f"{map_yaml}: the map has no free cells")
+        raise ConfigError(
+            f"{map_yaml}: the map has no free cells ({size}; {int(ros_map.occupied.sum()):,} occupied, "
+            "the rest unknown); check mode, negate, free_thresh and occupied_thresh against the image"
+        )
 
     rows, cols = np.nonzero(known)
     corners = ros_map.to_world(
@@ -222,7 +230,11 @@ def mission_from_map(
     clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
     ok = clearance > body.radius + 0.15
     if not ok.any():
-        raise ConfigError(f"{map_yaml}: no free space wide enough for a robot")
+        raise ConfigError(
+            f"{map_yaml}: no free space wide enough for a robot: a start needs {body.radius + 0.15:g} m "
+            f"from every wall and unknown cell, the most the map offers is {clearance.max():.3g} m ({size}); "
+            "check resolution (metres per cell)"
+        )
     ok_rows, ok_cols = np.nonzero(ok)
     centres = ros_map.to_world(ok_cols + 0.5, ok_rows + 0.5)
     labels, _ = ndimage.label(ok)
