@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
+from sim2d.observability import ObservabilityModel, reachable_floor
 from swarm.config import ConfigError, mission_from_dict, mission_from_map
 from swarm.formats.floor_plan import FloorPlanError, load_floor_plan
 from swarm.mission.simulated_mission import resolve_mission
@@ -205,3 +206,37 @@ def test_a_map_where_no_robot_fits_says_the_map_size_and_what_to_check(tmp_path)
         "the map has no free cells (40 x 40 cells at 0.1 m: 4 m x 4 m; 0 occupied, the rest unknown)"
         in str(e.value)
     )
+
+
+# -- fine maps ---------------------------------------------------------------------------------
+
+
+def test_walls_one_cell_thick_of_a_fine_map_keep_the_observable_floor_in(tmp_path):
+    """At 0.025 m per cell a one-cell wall is thinner than the 0.05 m floor raster of H_th's
+    observability model, which stepped over it: Willow Garage's map drawn at 0.025 m counted
+    4,005 m^2 of reachable floor instead of 796 m^2, so H_th asked for voxels no robot could see."""
+    image = np.pad(np.full((118, 158), FREE), 1, constant_values=WALL)  # 4 m x 3 m at 0.025 m
+    image[:, 81] = WALL  # a one-cell wall between x = 2.0375 and 2.0625: two closed rooms
+    path = write_map(tmp_path, image, resolution=0.025, origin=(0.0125, 0.0125, 0.0))
+    mission = mission_from_dict(
+        {
+            "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [4.1, 3.1, 2.2]},
+            "floor_plan": {"path": str(path)},
+            "robots": [{"id": "r1", "start": {"x": 1.0, "y": 1.5}}],
+        },
+        source=tmp_path / "site.yaml",
+    )
+    model = ObservabilityModel.for_mission(mission)
+    assert model.raster == 0.025
+    grid = mission.workspace.grid()
+    pad = model.max_range + model.raster
+    reach = reachable_floor(
+        mission.load_floor_plan(),
+        grid.lo[:2] - pad,
+        grid.hi[:2] + pad,
+        np.array([[1.0, 1.5]]),
+        0.18,
+        model.raster,
+    )
+    xs = grid.lo[0] - pad + (np.nonzero(reach)[0] + 0.5) * model.raster
+    assert xs.max() < 2.0  # the west room only
