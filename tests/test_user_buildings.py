@@ -15,7 +15,7 @@ import yaml
 from sim2d.observability import ObservabilityModel, reachable_floor
 from swarm.config import ConfigError, mission_from_dict, mission_from_map
 from swarm.formats.floor_plan import FloorPlanError, load_floor_plan
-from swarm.mission.simulated_mission import resolve_mission
+from swarm.mission.simulated_mission import confined_robots, resolve_mission
 
 FREE, WALL, UNKNOWN, GREY_WALL = 254, 0, 205, 120  # 120: p = 0.53, neither free nor occupied
 
@@ -93,7 +93,7 @@ def test_robots_start_in_the_largest_free_region(tmp_path):
 def mission_on(map_yaml: Path, x: float, y: float) -> dict:
     return {
         "mission": "site",
-        "workspace": {"lo": [-2.0, -2.0, 0.0], "hi": [6.0, 6.0, 2.2]},
+        "workspace": {"lo": [-2.0, -2.0, 0.0], "hi": [9.0, 6.0, 2.2]},
         "floor_plan": {"path": str(map_yaml)},
         "robots": [{"id": "r1", "start": {"x": x, "y": y}}],
     }
@@ -240,3 +240,21 @@ def test_walls_one_cell_thick_of_a_fine_map_keep_the_observable_floor_in(tmp_pat
     )
     xs = grid.lo[0] - pad + (np.nonzero(reach)[0] + 0.5) * model.raster
     assert xs.max() < 2.0  # the west room only
+
+
+def test_a_robot_shut_in_by_a_door_narrower_than_itself_is_warned_of(tmp_path):
+    """SLAM maps draw doors narrower than they are (frames, noise): a robot started behind one
+    mapped its room until max time, with nothing said."""
+    image = np.pad(np.full((38, 78), FREE), 1, constant_values=WALL)  # 8 m x 4 m at 0.1 m
+    image[:, 20] = WALL  # a store room x < 2.0 m ...
+    image[18:21, 20] = FREE  # ... behind a 0.3 m door; the robot is 0.36 m across
+    path = write_map(tmp_path, image)
+
+    def mission(x):
+        return mission_from_dict(mission_on(path, x, 2.0), source=tmp_path / "site.yaml")
+
+    (warning,) = confined_robots(mission(1.0))
+    assert (
+        warning.startswith("warning: r1 starts in a free region of 5.1 m^2") and "(0.36 m across)" in warning
+    )
+    assert confined_robots(mission(5.0)) == []

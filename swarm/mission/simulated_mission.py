@@ -43,6 +43,41 @@ def check_simulation_size(mission: Mission) -> None:
     )
 
 
+def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
+    """Warnings for robots that start in a pocket of a ROS map's floor: a free region (where the
+    robot's body fits, ``robot.radius`` from every wall and unknown cell) of less than ``share``
+    of the largest one, cut off by passages narrower than the robot (SLAM maps draw doors
+    narrower than they are). Empty for other floor plans."""
+    from scipy import ndimage
+
+    plan = mission.load_floor_plan()
+    ros_map = getattr(plan, "ros_map", None)
+    if ros_map is None:
+        return []
+    # Cell centres to the nearest non-free cell's centre, less half a cell: to its edge.
+    clearance = (ndimage.distance_transform_edt(ros_map.free) - 0.5) * ros_map.resolution
+    fits = clearance > mission.robot.radius
+    labels, count = ndimage.label(fits, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return []
+    cell_area = ros_map.resolution**2
+    areas = np.bincount(labels.ravel()) * cell_area
+    areas[0] = 0.0
+    largest = float(areas.max())
+    out = []
+    for robot in mission.robots:
+        row, col = ros_map.to_cell(np.array([robot.start.x, robot.start.y]))
+        inside = 0 <= row < fits.shape[0] and 0 <= col < fits.shape[1]
+        area = float(areas[labels[row, col]]) if inside else 0.0
+        if area < share * largest:
+            out.append(
+                f"warning: {robot.id} starts in a free region of {area:.1f} m^2 where its body fits, cut off "
+                f"from the largest ({largest:.1f} m^2) by passages narrower than the robot "
+                f"({2 * mission.robot.radius:g} m across): it will map only its own region"
+            )
+    return out
+
+
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
     """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied;
     refused when too large to simulate (``check_simulation_size``)."""
@@ -81,6 +116,8 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     except ConfigError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return 2
+    for warning in confined_robots(mission):
+        print(warning, file=sys.stderr, flush=True)
     out = args.out or Path("runs") / f"{mission.mission}-{args.strategy}-s{args.seed}"
     if args.seed:
         mission = mission.model_copy(update={"sim": mission.sim.model_copy(update={"seed": args.seed})})
