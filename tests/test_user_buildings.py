@@ -258,3 +258,14 @@ def test_a_robot_shut_in_by_a_door_narrower_than_itself_is_warned_of(tmp_path):
         warning.startswith("warning: r1 starts in a free region of 5.1 m^2") and "(0.36 m across)" in warning
     )
     assert confined_robots(mission(5.0)) == []
+
+
+def test_a_negative_robot_count_on_a_map_is_refused(tmp_path):
+    """``swarm sim run --map site.yaml --robots -1`` started a robot on every free spot 1 m
+    apart (17 processes on TurtleBot3's world map, hundreds on a building)."""
+    path = write_map(tmp_path, np.pad(np.full((60, 60), FREE), 1, constant_values=WALL))
+    with pytest.raises(ConfigError, match=r"robots: must be a whole number of at least 1 \(got -1\)"):
+        mission_from_map(path, robots=-1)
+    for robots in (-1, 0):
+        with pytest.raises(ConfigError, match=rf"--robots {robots}: must be at least 1"):
+            resolve_mission(argparse.Namespace(config=None, map=str(path), robots=robots), "")

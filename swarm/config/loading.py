@@ -206,6 +206,8 @@ def mission_from_map(
     from swarm.formats.floor_plan import load_ros_map
 
     map_yaml = Path(map_yaml)
+    if not (isinstance(robots, int) and robots >= 1):
+        raise ConfigError(f"{map_yaml}: robots: must be a whole number of at least 1 (got {robots!r})")
     body = RobotBodyConfig()
     ros_map = load_ros_map(map_yaml)
     known = ros_map.occupied | ros_map.free

@@ -90,6 +90,8 @@ def _resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
     if args.config and args.map:
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml, not both")
     if args.map:
+        if args.robots is not None and args.robots < 1:
+            raise ConfigError(f"--robots {args.robots}: must be at least 1")
         return mission_from_map(args.map, robots=args.robots or 1)
     path = args.config or Path(default_config)
     if not path.exists():
