@@ -269,3 +269,23 @@ def test_a_negative_robot_count_on_a_map_is_refused(tmp_path):
     for robots in (-1, 0):
         with pytest.raises(ConfigError, match=rf"--robots {robots}: must be at least 1"):
             resolve_mission(argparse.Namespace(config=None, map=str(path), robots=robots), "")
+
+
+def test_map_given_the_image_a_mission_or_a_floor_plan_says_what_it_wants(tmp_path):
+    """Users give --map the .pgm itself, or a mission or floor plan YAML: it said 'not a text
+    file (byte 52 is not UTF-8)' or 'image: is required', 'resolution: is required', ..."""
+    path = write_map(tmp_path, np.pad(np.full((60, 60), FREE), 1, constant_values=WALL))
+    with pytest.raises(
+        ConfigError, match=r"map\.pgm: a map image, .* give the map\.yaml that names this image"
+    ):
+        mission_from_map(tmp_path / "map.pgm")
+    mission = tmp_path / "site.yaml"
+    mission.write_text(yaml.safe_dump(mission_on(path, 3.0, 3.0)))
+    with pytest.raises(ConfigError, match=r"site\.yaml: a mission, .* run it as CONFIG, without --map"):
+        mission_from_map(mission)
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump({"walls": [{"points": [[0, 0], [4, 0]]}]}))
+    with pytest.raises(
+        ConfigError, match=r"plan\.yaml: a project floor plan, .* name it as floor_plan in a mission"
+    ):
+        mission_from_map(plan)

@@ -208,6 +208,7 @@ def mission_from_map(
     map_yaml = Path(map_yaml)
     if not (isinstance(robots, int) and robots >= 1):
         raise ConfigError(f"{map_yaml}: robots: must be a whole number of at least 1 (got {robots!r})")
+    _refuse_non_ros_map(map_yaml)
     body = RobotBodyConfig()
     ros_map = load_ros_map(map_yaml)
     known = ros_map.occupied | ros_map.free
@@ -282,6 +283,32 @@ def mission_from_map(
         ],
     }
     return mission_from_dict(data, source=map_yaml, base_dir=map_yaml.parent)
+
+
+_IMAGE_SUFFIXES = (".pgm", ".pbm", ".ppm", ".pnm", ".pam", ".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def _refuse_non_ros_map(path: Path) -> None:
+    """A ConfigError saying what ``path`` is and what to give instead, unless it is a map.yaml."""
+    expected = "a ROS map_server map.yaml (image:, resolution:, origin:)"
+    if path.suffix.lower() in _IMAGE_SUFFIXES:
+        raise ConfigError(
+            f"{path}: a map image, where {expected} is expected: give the map.yaml that names this image "
+            "(map_server and map_saver write one beside it)"
+        )
+    from swarm.formats.ros_map import is_ros_map
+
+    data = read_yaml(path, ConfigError)
+    if isinstance(data, dict) and not is_ros_map(data):
+        if "workspace" in data or "robots" in data:
+            raise ConfigError(
+                f"{path}: a mission, where {expected} is expected: run it as CONFIG, without --map"
+            )
+        if {"walls", "boxes", "bounds"} & set(data):
+            raise ConfigError(
+                f"{path}: a project floor plan, where {expected} is expected: name it as floor_plan "
+                "in a mission"
+            )
 
 
 def _safe_name(text: str) -> str:
