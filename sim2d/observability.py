@@ -10,7 +10,7 @@ The model, from the mission alone:
 
 - *Reachable floor*: the floor points whose clearance from every obstacle exceeds the
   robot's radius, in the connected free region of some robot's start (a raster of the
-  floor plan at ``raster`` m, its Euclidean distance transform).
+  floor plan at ``raster`` m, a ROS map's cell when finer, its Euclidean distance transform).
 - *Sensor poses*: the camera at ``camera_height`` above reachable floor points sampled
   every ``spacing`` m (one per ``spacing`` square, so narrow doors keep theirs), any yaw
   (robots turn on the spot), any elevation the camera can look along: its vertical field
@@ -46,6 +46,10 @@ from swarm.formats.floor_plan import FloorPlan
 from swarm.map.grid import Grid
 
 __all__ = ["ObservabilityModel", "observable_voxels", "reachable_floor", "sensor_positions"]
+
+
+#: The finest floor raster (m) ``ObservabilityModel.for_mission`` takes for a fine ROS map.
+MIN_RASTER = 0.01
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,12 @@ class ObservabilityModel:
         heights = {rig.camera_height for rig in rigs}
         if len(heights) != 1:
             raise ValueError(f"robots with different camera heights {sorted(heights)} are not supported")
+        # A floor raster coarser than a ROS map's cells misses walls one cell thick: at 0.025 m
+        # per cell, Willow Garage's map let the reachable floor leak from 796 to 4,005 m^2.
+        plan = mission.load_floor_plan()
+        ros_map = getattr(plan, "ros_map", None)
+        if ros_map is not None and ros_map.resolution < cls.raster:
+            overrides = {"raster": max(ros_map.resolution, MIN_RASTER), **overrides}
         params = dict(
             camera_height=heights.pop(),
             elevation_lo=max(lo, -math.pi / 2),

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from scipy import ndimage
 
 from swarm.formats.floor_plan import (
     FloorPlanError,
@@ -78,12 +79,17 @@ def test_ros_map_extent_and_walls():
     assert np.all(plan.heights == 2.0)
 
     image = cv2.imread(str(MAPS / "tb3_sandbox.pgm"), cv2.IMREAD_UNCHANGED)
-    occupied = (255 - image.astype(float)) / 255 > 0.65  # the yaml's occupied_thresh
+    p = (255 - image.astype(float)) / 255
+    free = p < 0.196  # the yaml's free_thresh
+    # Walls: the occupied cells (the yaml's occupied_thresh) and the unknown cells touching
+    # free ones (21 here: grey cells in the pillars and the hexagon's wall).
+    occupied = (p > 0.65) | (ndimage.binary_dilation(free, np.ones((3, 3), bool)) & ~free)
+    assert (occupied & ~(p > 0.65)).sum() == 21
     # Merged rectangles: far fewer bodies than cells, same area.
     area = sum(np.prod(q.max(axis=0) - q.min(axis=0)) for q in plan.quads)
     assert area == pytest.approx(occupied.sum() * 0.05**2)
     assert plan.count < occupied.sum() / 3
-    # Every cell centre is covered exactly when the image says occupied (row 0 = top = max y).
+    # Every cell centre is covered exactly when it is a wall (row 0 = top = max y).
     rows, cols = np.mgrid[0:384, 0:384]
     centres = np.stack([-10 + (cols + 0.5) * 0.05, -10 + (383 - rows + 0.5) * 0.05], axis=-1)
     window = (slice(120, 260), slice(120, 270))  # the arena

@@ -92,16 +92,35 @@ def check_mission(mission: Mission) -> None:
             fail("floor_plan", str(e))
         starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
         clearance = plan.clearance(starts)
+        radius = mission.robot.radius
         for i, robot in enumerate(mission.robots):
             at = f"({robot.start.x:g}, {robot.start.y:g})"
             if clearance[i] <= 0:
-                fail(f"robots[{i}].start", f"{at} lies inside a wall/box of the floor plan")
-            if clearance[i] < mission.robot.radius:
+                fail(
+                    f"robots[{i}].start",
+                    f"{at} lies inside a wall/box of the floor plan{_free_hint(plan, starts[i], radius)}",
+                )
+            if clearance[i] < radius:
                 fail(
                     f"robots[{i}].start",
                     f"{at} is {clearance[i]:.3f} m from a wall/box, closer than the robot "
-                    f"radius {mission.robot.radius:g} m",
+                    f"radius {radius:g} m{_free_hint(plan, starts[i], radius)}",
                 )
+            if plan.ros_map is not None:
+                (row, col), (rows, cols) = plan.ros_map.to_cell(starts[i]), plan.ros_map.shape
+                if not (0 <= row < rows and 0 <= col < cols):
+                    fail(
+                        f"robots[{i}].start",
+                        f"{at} is outside the image of {plan.ros_map.source}"
+                        f"{_free_hint(plan, starts[i], radius)}",
+                    )
+                if not plan.ros_map.free[row, col]:
+                    fail(
+                        f"robots[{i}].start",
+                        f"{at} is not on the mapped floor: the cell (row {rows - 1 - row}, column {col} of "
+                        f"{plan.ros_map.source.name}'s image) is unknown"
+                        f"{_free_hint(plan, starts[i], radius)}",
+                    )
 
     for i, a in enumerate(mission.robots):
         for b in mission.robots[:i]:
@@ -112,6 +131,22 @@ def check_mission(mission: Mission) -> None:
                     f"overlaps robot {b.id!r} (centres {gap:.3f} m apart, "
                     f"need {2 * mission.robot.radius:g} m)",
                 )
+
+
+def _free_hint(plan, xy: np.ndarray, radius: float) -> str:
+    """``; the nearest free point ...`` of a ROS-map floor plan where a robot of ``radius`` fits."""
+    from scipy import ndimage
+
+    ros_map = plan.ros_map
+    if ros_map is None:
+        return ""
+    clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
+    rows, cols = np.nonzero(clearance > radius + ros_map.resolution)
+    if rows.size == 0:
+        return f"; the map has no free space where a robot of radius {radius:g} m fits"
+    centres = ros_map.to_world(cols + 0.5, rows + 0.5)
+    best = centres[np.argmin(np.linalg.norm(centres - xy, axis=1))]
+    return f"; the nearest free point where the robot fits is ({best[0]:.2f}, {best[1]:.2f})"
 
 
 def _resolve_rig(mission: Mission, rig: str | dict | None, field: str) -> RigConfig:
@@ -160,9 +195,9 @@ def mission_from_map(
     """A mission over a ROS map: workspace = known part of the map x [0, wall_height + z_margin].
 
     Robots start in known free space with at least robot radius + 0.15 m clearance (unknown
-    cells count as obstacles), in the free region connected to ``start`` (default: the free
-    cell closest to the middle of the known part of the map), at least ``spacing`` metres
-    apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
+    cells count as obstacles), in the free region connected to ``start`` (default: the largest
+    free region, from its cell closest to the middle of the known part of the map), at least
+    ``spacing`` metres apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
     OBSERVABLE_FRACTION): the entropy of the voxels no sensor can ever observe + 16% of the
     observable prior, resolved by the simulator when the mission runs.
     """
@@ -171,11 +206,22 @@ def mission_from_map(
     from swarm.formats.floor_plan import load_ros_map
 
     map_yaml = Path(map_yaml)
+    if not (isinstance(robots, int) and robots >= 1):
+        raise ConfigError(f"{map_yaml}: robots: must be a whole number of at least 1 (got {robots!r})")
+    _refuse_non_ros_map(map_yaml)
     body = RobotBodyConfig()
     ros_map = load_ros_map(map_yaml)
     known = ros_map.occupied | ros_map.free
+    rows_all, cols_all = ros_map.shape
+    size = (
+        f"{cols_all:,} x {rows_all:,} cells at {ros_map.resolution:g} m: "
+        f"{cols_all * ros_map.resolution:g} m x {rows_all * ros_map.resolution:g} m"
+    )
     if not ros_map.free.any():
-        raise ConfigError(f"{map_yaml}: the map has no free cells")
+        raise ConfigError(
+            f"{map_yaml}: the map has no free cells ({size}; {int(ros_map.occupied.sum()):,} occupied, "
+            "the rest unknown); check mode, negate, free_thresh and occupied_thresh against the image"
+        )
 
     rows, cols = np.nonzero(known)
     corners = ros_map.to_world(
@@ -187,14 +233,27 @@ def mission_from_map(
     clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
     ok = clearance > body.radius + 0.15
     if not ok.any():
-        raise ConfigError(f"{map_yaml}: no free space wide enough for a robot")
+        raise ConfigError(
+            f"{map_yaml}: no free space wide enough for a robot: a start needs {body.radius + 0.15:g} m "
+            f"from every wall and unknown cell, the most the map offers is {clearance.max():.3g} m ({size}); "
+            "check resolution (metres per cell)"
+        )
     ok_rows, ok_cols = np.nonzero(ok)
     centres = ros_map.to_world(ok_cols + 0.5, ok_rows + 0.5)
-    anchor = np.asarray(start if start is not None else (lo_xy + hi_xy) / 2, dtype=np.float64)
-    first = int(np.argmin(np.linalg.norm(centres - anchor, axis=1)))
-    seed = centres[first]
     labels, _ = ndimage.label(ok)
-    reachable = centres[labels[ok_rows, ok_cols] == labels[ok_rows[first], ok_cols[first]]]
+    region = labels[ok_rows, ok_cols]
+    if start is None:
+        # The largest free region: the one nearest the middle may be a pocket of a few
+        # cells (a SLAM map's free specks in a courtyard, Willow Garage's map).
+        largest = np.argmax(np.bincount(region)[1:]) + 1
+        candidates = np.flatnonzero(region == largest)
+        anchor = (lo_xy + hi_xy) / 2
+    else:
+        candidates = np.arange(len(centres))
+        anchor = np.asarray(start, dtype=np.float64)
+    first = candidates[int(np.argmin(np.linalg.norm(centres[candidates] - anchor, axis=1)))]
+    seed = centres[first]
+    reachable = centres[region == region[first]]
     chosen: list[np.ndarray] = []
     for p in reachable[np.argsort(np.linalg.norm(reachable - seed, axis=1))]:
         if all(np.linalg.norm(p - q) >= spacing for q in chosen):
@@ -202,7 +261,12 @@ def mission_from_map(
             if len(chosen) == robots:
                 break
     if len(chosen) < robots:
-        raise ConfigError(f"{map_yaml}: room for only {len(chosen)} robots {spacing:g} m apart")
+        area = len(reachable) * ros_map.resolution**2
+        raise ConfigError(
+            f"{map_yaml}: room for only {len(chosen)} robot(s) {spacing:g} m apart in the free region "
+            f"around ({seed[0]:.2f}, {seed[1]:.2f}) ({area:.1f} m^2 where a robot's centre fits); "
+            "ask for fewer robots"
+        )
 
     data = {
         "mission": name or _safe_name(map_yaml.stem),
@@ -219,6 +283,32 @@ def mission_from_map(
         ],
     }
     return mission_from_dict(data, source=map_yaml, base_dir=map_yaml.parent)
+
+
+_IMAGE_SUFFIXES = (".pgm", ".pbm", ".ppm", ".pnm", ".pam", ".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def _refuse_non_ros_map(path: Path) -> None:
+    """A ConfigError saying what ``path`` is and what to give instead, unless it is a map.yaml."""
+    expected = "a ROS map_server map.yaml (image:, resolution:, origin:)"
+    if path.suffix.lower() in _IMAGE_SUFFIXES:
+        raise ConfigError(
+            f"{path}: a map image, where {expected} is expected: give the map.yaml that names this image "
+            "(map_server and map_saver write one beside it)"
+        )
+    from swarm.formats.ros_map import is_ros_map
+
+    data = read_yaml(path, ConfigError)
+    if isinstance(data, dict) and not is_ros_map(data):
+        if "workspace" in data or "robots" in data:
+            raise ConfigError(
+                f"{path}: a mission, where {expected} is expected: run it as CONFIG, without --map"
+            )
+        if {"walls", "boxes", "bounds"} & set(data):
+            raise ConfigError(
+                f"{path}: a project floor plan, where {expected} is expected: name it as floor_plan "
+                "in a mission"
+            )
 
 
 def _safe_name(text: str) -> str:

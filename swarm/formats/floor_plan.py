@@ -285,9 +285,28 @@ def merge_cells(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
     return rects
 
 
+def wall_cells(ros_map: RosMap) -> tuple[np.ndarray, int]:
+    """The cells that become walls, on the map grown by one cell on every side, and that margin.
+
+    The occupied cells, and the unknown ones touching a free cell: they close the edge of
+    the mapped floor, so that robots stay on it. SLAM maps often leave a building's outline
+    unknown (glass, gaps the laser never saw, walls drawn in grey as in Willow Garage's map).
+    Outside the image counts as unknown, so free cells on the image's border are closed too.
+    Unknown cells farther in are open floor that no robot reaches.
+    """
+    free = np.pad(ros_map.free, 1)
+    near_free = free.copy()
+    near_free[1:] |= free[:-1]
+    near_free[:-1] |= free[1:]
+    near_free[:, 1:] |= near_free[:, :-1].copy()
+    near_free[:, :-1] |= near_free[:, 1:].copy()
+    return np.pad(ros_map.occupied, 1) | (near_free & ~free), 1
+
+
 def plan_from_ros_map(ros_map: RosMap, wall_height: float = DEFAULT_WALL_HEIGHT) -> FloorPlan:
-    """Extrude the occupied cells of a ROS map to ``wall_height``, merged into rectangles."""
-    rects = np.asarray(merge_cells(ros_map.occupied), dtype=np.float64).reshape(-1, 4)
+    """Extrude the walls of a ROS map (``wall_cells``) to ``wall_height``, merged into rectangles."""
+    walls, margin = wall_cells(ros_map)
+    rects = np.asarray(merge_cells(walls), dtype=np.float64).reshape(-1, 4) - margin
     r0, c0, r1, c1 = rects.T
     corners = np.stack(
         [

@@ -119,6 +119,9 @@ def load_ros_map(path: str | Path) -> RosMap:
     image_path = user_path(spec.image, path.parent)
     if not image_path.exists():
         where = "" if Path(spec.image).expanduser().is_absolute() else " (taken from the map.yaml's folder)"
+        beside = path.parent / Path(spec.image).name
+        if beside.is_file():  # a map saved with a full path on another machine, copied with its image
+            where += f"; {beside.name} lies beside the map.yaml: write 'image: {beside.name}'"
         raise FloorPlanError(f"{path}: image: file not found: {image_path}{where}")
     try:
         image = read_map_image(image_path)

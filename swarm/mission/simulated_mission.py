@@ -16,12 +16,82 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation
 
+#: The most voxels a simulated mission's workspace may hold. The map server, the coordinator
+#: and every agent each hold the whole map (8 bytes of belief per voxel, and more in the
+#: agents' caches), and the observable-voxel rays of H_th grow with the floor area: Nav2's
+#: depot (1.0 million voxels, 393 m^2 of reachable floor) takes 12 s of them on 2 cores,
+#: a 200 m x 200 m map at 0.1 m (75 million voxels) took more than 6 minutes before its
+#: first frame. 20 million voxels is about 9,000 m^2 of floor at 0.1 m and 2.2 m of height.
+MAX_SIM_VOXELS = 20_000_000
+
+
+def check_simulation_size(mission: Mission) -> None:
+    """Raise ConfigError naming the numbers when the workspace is too large to simulate here."""
+    grid = mission.workspace.grid()
+    if grid.size <= MAX_SIM_VOXELS:
+        return
+    ws = mission.workspace
+    nx, ny, nz = grid.shape
+    raise ConfigError(
+        f"{mission.source or '<mission>'}: workspace: x [{ws.lo[0]:g}, {ws.hi[0]:g}], y [{ws.lo[1]:g}, "
+        f"{ws.hi[1]:g}], z [{ws.lo[2]:g}, {ws.hi[2]:g}] m at {ws.voxel:g} m voxels is {nx:,} x {ny:,} x "
+        f"{nz:,} = {grid.size:,} voxels, more than the {MAX_SIM_VOXELS:,} a simulated mission takes "
+        f"(the map server, the coordinator and each agent would hold {8 * grid.size / 1e9:.1f} GB of "
+        "beliefs each, and setting up H_th would take many minutes); crop the map to the part to "
+        "explore (its image and origin), or write a mission with a smaller workspace or a coarser "
+        "workspace.voxel"
+    )
+
+
+def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
+    """Warnings for robots that start in a pocket of a ROS map's floor: a free region (where the
+    robot's body fits, ``robot.radius`` from every wall and unknown cell) of less than ``share``
+    of the largest one, cut off by passages narrower than the robot (SLAM maps draw doors
+    narrower than they are). Empty for other floor plans."""
+    from scipy import ndimage
+
+    plan = mission.load_floor_plan()
+    ros_map = getattr(plan, "ros_map", None)
+    if ros_map is None:
+        return []
+    # Cell centres to the nearest non-free cell's centre, less half a cell: to its edge.
+    clearance = (ndimage.distance_transform_edt(ros_map.free) - 0.5) * ros_map.resolution
+    fits = clearance > mission.robot.radius
+    labels, count = ndimage.label(fits, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return []
+    cell_area = ros_map.resolution**2
+    areas = np.bincount(labels.ravel()) * cell_area
+    areas[0] = 0.0
+    largest = float(areas.max())
+    out = []
+    for robot in mission.robots:
+        row, col = ros_map.to_cell(np.array([robot.start.x, robot.start.y]))
+        inside = 0 <= row < fits.shape[0] and 0 <= col < fits.shape[1]
+        area = float(areas[labels[row, col]]) if inside else 0.0
+        if area < share * largest:
+            out.append(
+                f"warning: {robot.id} starts in a free region of {area:.1f} m^2 where its body fits, cut off "
+                f"from the largest ({largest:.1f} m^2) by passages narrower than the robot "
+                f"({2 * mission.robot.radius:g} m across): it will map only its own region"
+            )
+    return out
+
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
-    """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied."""
+    """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied;
+    refused when too large to simulate (``check_simulation_size``)."""
+    mission = _resolve_mission(args, default_config)
+    check_simulation_size(mission)
+    return mission
+
+
+def _resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
     if args.config and args.map:
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml, not both")
     if args.map:
+        if args.robots is not None and args.robots < 1:
+            raise ConfigError(f"--robots {args.robots}: must be at least 1")
         return mission_from_map(args.map, robots=args.robots or 1)
     path = args.config or Path(default_config)
     if not path.exists():
@@ -48,6 +118,8 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     except ConfigError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return 2
+    for warning in confined_robots(mission):
+        print(warning, file=sys.stderr, flush=True)
     out = args.out or Path("runs") / f"{mission.mission}-{args.strategy}-s{args.seed}"
     if args.seed:
         mission = mission.model_copy(update={"sim": mission.sim.model_copy(update={"seed": args.seed})})

@@ -16,7 +16,7 @@ into the mission, so that every role reads H_th as plain ``stop.entropy_threshol
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -111,8 +111,9 @@ def resolve_threshold(
             f"{mission.source or '<mission>'}: stop.observable_fraction: the observable rule "
             "needs a floor_plan"
         )
+    t0 = time.monotonic()
     observable = observable_mask_of(mission)
-    parts = threshold_parts(mission, fraction, observable)
+    parts = replace(threshold_parts(mission, fraction, observable), seconds=time.monotonic() - t0)
     new_stop = stop.model_copy(
         update={"entropy_threshold_bits": parts.threshold_bits, "observable_fraction": fraction}
     )
