@@ -235,7 +235,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
             f"{answers['p95']:.1f} ms p95, {answers['max']:.1f} ms max (coord/stats)",
             flush=True,
         )
-    print(json.dumps({k: metrics.get(k) for k in keys}, default=str))
+    print(json.dumps({k: _rounded(metrics.get(k)) for k in keys}, default=str))
     print(f"stopped: {facts['reason']}; evaluation {time.monotonic() - t0:.1f} s; wrote {out}/")
     return 0
 
@@ -253,3 +253,13 @@ def final_line(metrics: dict, facts: dict) -> str:
         f"({h - h_stop:+,.0f} bits since the last progress line, H={h_stop:,.0f}); "
         + (f"the map server's map: H={server:,.0f} bits" if server is not None else "no map from the server")
     )
+
+
+def _rounded(value):
+    """Floats to 6 decimals, in dicts too: the summary line shows 306.0, not the sum of 612 frame
+    periods (306.0000000000011)."""
+    if isinstance(value, float):
+        return round(value, 6)
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    return value
