@@ -234,7 +234,10 @@ def timing(
 ) -> list[tuple[str, str, float, float, float]]:
     """Rows (size, matcher, best ms, median ms, valid) of disparity + depth on a rectified EuRoC pair."""
     calib = load_stereo_calibration(euroc / "mav0/cam0/sensor.yaml", euroc / "mav0/cam1/sensor.yaml")
-    name = sorted((euroc / "mav0/cam0/data").glob("*.png"))[20].name
+    images = sorted((euroc / "mav0/cam0/data").glob("*.png"))
+    if not images:
+        raise FileNotFoundError(f"{euroc / 'mav0/cam0/data'}: no PNG images")
+    name = images[min(20, len(images) - 1)].name  # the 21st pair of the 74-pair excerpt, else the last
     raw_l = cv2.imread(str(euroc / "mav0/cam0/data" / name), cv2.IMREAD_GRAYSCALE)
     raw_r = cv2.imread(str(euroc / "mav0/cam1/data" / name), cv2.IMREAD_GRAYSCALE)
     left, right = calib.rectify(raw_l, raw_r)
