@@ -312,6 +312,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 known = float(np.mean(monitor.cmap.known_mask()))
                 states = " ".join(f"{r}:{monitor.states.get(r, '-')}" for r in mission.robot_ids)
                 if monitor.sim_time == 0.0 and reason == "running":  # the world waits for every agent
+                    last_print = now + 8.0  # this line every 10 s, not every 2
                     print(
                         f"[{now - started:6.1f} s] starting: the world waits for the agents of "
                         f"{', '.join(mission.robot_ids)} (a first run compiles their kernels into "
