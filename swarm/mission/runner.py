@@ -19,6 +19,7 @@ with its own certificate; the runner watches (and loads a previous map) as ``ope
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import signal
@@ -289,7 +290,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         ]  # fmt: skip
         started = time.monotonic()
         reason = "running"
-        last_print = 0.0
+        last_print = last_wait_print = -math.inf
         while True:
             time.sleep(0.2)
             now = time.monotonic()
@@ -312,7 +313,9 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 known = float(np.mean(monitor.cmap.known_mask()))
                 states = " ".join(f"{r}:{monitor.states.get(r, '-')}" for r in mission.robot_ids)
                 if monitor.sim_time == 0.0 and reason == "running":  # the world waits for every agent
-                    last_print = now + 8.0  # this line every 10 s, not every 2
+                    if now - last_wait_print < 10.0:  # this line every 10 s, not every 2
+                        continue
+                    last_wait_print = now
                     print(
                         f"[{now - started:6.1f} s] starting: the world waits for the agents of "
                         f"{', '.join(mission.robot_ids)} (a first run compiles their kernels into "
