@@ -233,6 +233,7 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     from swarm.mission.run_report import top_view_image
 
@@ -240,11 +241,13 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
     image, _ = top_view_image(cmap, (cmap.grid.lo[2], cmap.grid.hi[2]))
     (x0, y0, _), (x1, y1, _) = cmap.grid.lo, cmap.grid.hi
     fig, ax = plt.subplots(figsize=(7, 6), dpi=110, layout="constrained")
-    shown = ax.imshow(np.ma.masked_invalid(image.T), origin="lower", extent=(x0, x1, y0, y1), cmap="gray_r",
+    grey = plt.get_cmap("gray_r").with_extremes(bad="lightsteelblue")  # columns with no known voxel
+    shown = ax.imshow(np.ma.masked_invalid(image.T), origin="lower", extent=(x0, x1, y0, y1), cmap=grey,
                       vmin=0, vmax=1, interpolation="nearest")  # fmt: skip
-    fig.colorbar(shown, ax=ax, label="max E[C] of known voxels in the column")
+    fig.colorbar(shown, ax=ax, label="max E[C] of known voxels in the column (0: free, 1: occupied)")
     ax.plot(traj[:, 0], traj[:, 1], "r-", lw=1.5, label="camera")
-    ax.set(xlabel="x (m)", ylabel="y (m)", title="Top view (grey: known, blank: unknown)", aspect="equal")
+    title = "Top view (white: known free, dark: occupied, blue: unknown)"
+    ax.set(xlabel="x (m)", ylabel="y (m)", title=title, aspect="equal")
     ax.legend(loc="upper right")
     fig.savefig(out / "top_view.png")
     plt.close(fig)
@@ -260,7 +263,10 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
     plt.close(fig)
     if rows:
         fig, ax = plt.subplots(figsize=(7, 4), dpi=110, layout="constrained")
-        ax.plot([r["seq"] + 1 for r in rows], [r["entropy_bits"] for r in rows], "b.-")
-        ax.set(xlabel="frame", ylabel="map entropy (bits)", title="Entropy over frames")
+        h = [r["entropy_bits"] for r in rows]
+        ax.plot([r["seq"] + 1 for r in rows], h, "b.-")
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        title = f"Entropy after each frame: {h[0]:,.0f} -> {h[-1]:,.0f} bits"
+        ax.set(xlabel="frame", ylabel="map entropy (bits)", title=title)
         fig.savefig(out / "entropy.png")
         plt.close(fig)
