@@ -167,8 +167,9 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
                 ms = "no answer" if rtt is None else f"{rtt * 1e3:6.0f} ms"
                 ms = "sent" if options.realtime else ms
                 shown = "" if valid is None else f"  stereo valid {valid:4.0%}"
+                so_far = " (the deltas in so far)" if options.realtime else ""  # not this frame's yet
                 print(f"frame {frame.seq + 1:4d}/{len(recording)}  {ms}{shown}  "
-                      f"H={monitor.team_entropy:,.0f} bits", flush=True)  # fmt: skip
+                      f"H={monitor.team_entropy:,.0f} bits{so_far}", flush=True)  # fmt: skip
 
         log = publisher.run(_frames(recording, options), options.realtime, after_each=after_each)
         for row, (_seq, _t, rtt), sent in zip(rows, log.rows, log.sent_s, strict=True):
