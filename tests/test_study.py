@@ -438,3 +438,20 @@ def test_tiny_study_end_to_end(tmp_path: Path):
     again = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=60)
     assert again.returncode == 0, again.stdout + again.stderr
     assert again.stdout.count("resumed from") == 2 and "started" not in again.stdout
+
+
+def test_resume_reruns_a_cell_run_with_another_max_time_or_threshold() -> None:
+    """--resume takes a run folder only when it was run with the study's --max-time and
+    --observable-threshold, not merely for the same cell."""
+    from swarm.mission.study.grid import Cell, StudySpec
+    from swarm.mission.study.runner import _matches
+
+    lab = Path("configs/lab.yaml")
+    cell = Cell(source=lab, kind="config", robots=1, strategy="entropy", coordination="none", seed=0)
+    metrics = {"robots": ["r1"], "strategy": "entropy", "coordination": "none", "seed": 0}
+    metrics |= {"max_time_s": 30.0, "threshold_parts": {"fraction": 0.16}}
+    spec = StudySpec(configs=(lab,), robots=(1,), max_time_s=30.0, observable_threshold=0.16, out=Path("s"))
+    assert _matches(cell, metrics, spec)
+    assert not _matches(cell, metrics, spec.model_copy(update={"max_time_s": 60.0}))
+    assert not _matches(cell, metrics, spec.model_copy(update={"observable_threshold": 0.5}))
+    assert _matches(cell, metrics, spec.model_copy(update={"max_time_s": None, "observable_threshold": None}))

@@ -14,6 +14,7 @@ from swarm import __version__
 from swarm.cli import bench, ingest, maps, replay, roles, security, sim, stereo, study, view
 from swarm.cli.common import endpoint_problem, fail, zenoh_message
 from swarm.formats.errors import InputError
+from swarm.mission.role_failure import RoleError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -73,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.run(args) or 0)
     except InputError as exc:  # a user's file or value: FILE: FIELD: what, never a traceback
+        return fail(str(exc))
+    except RoleError as exc:  # a role process of a mission or replay failed: say which and why
         return fail(str(exc))
     except OSError as exc:  # a path the user gave that cannot be used (--out an existing file, ...)
         if exc.filename is None:

@@ -33,6 +33,7 @@ from swarm.formats.point_cloud_file import write_ply_points
 from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
+from swarm.mission.role_failure import RoleError
 from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
@@ -145,7 +146,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
         procs.append(agent)  # stopped below however the replay ends
         publisher = FramePublisher(session, name, options.robot)
         if not publisher.wait_for_agent(AGENT_START_S):
-            raise RuntimeError(
+            raise RoleError(
                 f"the agent did not subscribe to its frames within {AGENT_START_S:g} s "
                 f"(see {out}/agent-*.log)"
             )

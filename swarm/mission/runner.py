@@ -39,6 +39,7 @@ from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
+from swarm.mission.role_failure import RoleError
 from swarm.protocol import bus, coord_client
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
@@ -305,6 +306,8 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
                 reason = "agents done"
             elif world.poll() is not None:
+                if world.returncode != 0:  # it failed: not a mission that ran to its end
+                    raise RoleError(f"the simulated world {why_it_exited(world)}")
                 reason = "world stopped (max time or all agents dead)"
             elif now - started > options.wall_limit_s:
                 reason = "wall-clock limit"
@@ -376,7 +379,7 @@ def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMo
             break
         time.sleep(0.1)
     else:
-        raise RuntimeError("the map server did not take the previous map within 60 s (see server.log)")
+        raise RoleError("the map server did not take the previous map within 60 s (see server.log)")
     publisher.undeclare()
     print(f"runner: started from the previous map {path}: {len(delta):,} voxels known", flush=True)
 
@@ -386,13 +389,13 @@ def _wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if server.poll() is not None:
-            raise RuntimeError(f"the map server {why_it_exited(server)}")
+            raise RoleError(f"the map server {why_it_exited(server)}")
         try:
             client.stats()
             return
         except (MapServerUnavailable, MapQueryError):
             time.sleep(0.2)
-    raise RuntimeError(f"the map server did not answer within {timeout:g} s (see server.log)")
+    raise RoleError(f"the map server did not answer within {timeout:g} s (see server.log)")
 
 
 def _final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 20.0) -> CoverageMap | None:

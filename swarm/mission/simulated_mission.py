@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import time
 from pathlib import Path
@@ -108,6 +109,26 @@ def _resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
 
 
 def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
+    """``swarm sim run``: the mission, then its run folder. A SIGTERM or Ctrl-C stops every role
+    it started and leaves no ``metrics.json`` (``swarm study --resume`` takes one as a finished
+    run); the command then exits with 130 and one line."""
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        return _run_sim_mission(args, default_config)
+    except KeyboardInterrupt:
+        print(
+            "swarm: interrupted: every role was stopped; the run folder has no metrics.json", file=sys.stderr
+        )
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt  # unwinds through run_mission's clean-up, as Ctrl-C does
+
+
+def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     from sim2d.ground_truth import coverage as true_coverage_of
     from swarm.mission.run_report import RunRecord, compute_metrics, write_run_folder
     from swarm.mission.runner import NEVER, MissionOptions, run_mission
@@ -130,6 +151,8 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         sharing = mission.sharing.model_copy(update={"share_min_bits": args.share_min_bits})
         mission = mission.model_copy(update={"sharing": sharing})
     try:
+        if args.seed < 0:
+            raise ConfigError(f"--seed {args.seed}: must be 0 or more")
         if args.max_time is not None and not args.max_time > 0:
             raise ConfigError(f"--max-time {args.max_time:g}: must be > 0 (simulated seconds)")
         fraction = getattr(args, "observable_threshold", None)
@@ -193,6 +216,7 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     metrics = compute_metrics(record, monitor.cmap, truth, observed_by, sensor_observable)
     metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
     metrics["stop_reason"] = facts["reason"]
+    metrics["max_time_s"] = mission.stop.max_time_s if args.max_time is None else float(args.max_time)
     metrics["share_min_bits"] = mission.sharing.share_min_bits
     metrics["max_held_bits"] = mission.sharing.max_held_bits
     coordinator_stats = facts.get("coordinator_stats")
@@ -209,15 +233,19 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         metrics["server_map_max_rel_diff"] = diff
         metrics["server_final_entropy_bits"] = float(EntropyCache.from_information(
             server_map.lam, server_map.eta, table=default_table()).total)  # fmt: skip
-    write_run_folder(out, metrics, monitor.cmap, mission.to_yaml(), record)
-    if server_map is not None:
-        save_map(out / "server_map.npz", server_map)
-    curve_t = np.array([t for t, _h in monitor.curve])
-    arrays = {}
-    for r, n in first_delta.items():
-        arrays[f"first_delta_{r}"] = n
-        arrays[f"first_seen_{r}"] = evaluation.first_seen_times(n, curve_t, never=NEVER)
-    np.savez_compressed(out / "observed_by.npz", **arrays)
+    try:
+        write_run_folder(out, metrics, monitor.cmap, mission.to_yaml(), record)
+        if server_map is not None:
+            save_map(out / "server_map.npz", server_map)
+        curve_t = np.array([t for t, _h in monitor.curve])
+        arrays = {}
+        for r, n in first_delta.items():
+            arrays[f"first_delta_{r}"] = n
+            arrays[f"first_seen_{r}"] = evaluation.first_seen_times(n, curve_t, never=NEVER)
+        np.savez_compressed(out / "observed_by.npz", **arrays)
+    except BaseException:  # a run folder cut short is not a finished run
+        (out / "metrics.json").unlink(missing_ok=True)
+        raise
     keys = (
         "reached_threshold",
         "mission_time_s",

@@ -65,13 +65,23 @@ def read_metrics(run_dir: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
-def _matches(cell: Cell, metrics: Mapping[str, Any]) -> bool:
-    return (
+def _matches(cell: Cell, metrics: Mapping[str, Any], spec: StudySpec | None = None) -> bool:
+    """Whether a run folder's metrics are this cell's, run with this study's --max-time and
+    --observable-threshold (when the study gives them)."""
+    same_cell = (
         len(metrics.get("robots") or []) == cell.robots
         and metrics.get("strategy") == cell.strategy
         and metrics.get("coordination") == cell.coordination
         and metrics.get("seed") == cell.seed
     )
+    if not same_cell or spec is None:
+        return same_cell
+    if spec.max_time_s is not None and metrics.get("max_time_s") != spec.max_time_s:
+        return False
+    if spec.observable_threshold is not None:
+        parts = metrics.get("threshold_parts") or {}
+        return parts.get("fraction") == spec.observable_threshold
+    return True
 
 
 def _duration(seconds: float) -> str:
@@ -175,7 +185,7 @@ def execute(
                 run_dir = out / "runs" / cell.name
                 if spec.resume:
                     metrics = read_metrics(run_dir)
-                    if metrics is not None and _matches(cell, metrics):
+                    if metrics is not None and _matches(cell, metrics, spec):
                         log = out / "logs" / f"{cell.name}.log"
                         results[k] = RunResult(
                             cell, "resumed", run_dir, log if log.exists() else None, metrics
@@ -183,7 +193,10 @@ def execute(
                         report(k, f"resumed from {run_dir / 'metrics.json'}: {outcome_text(metrics)}")
                         continue
                     if metrics is not None:
-                        echo(f"[{k + 1}/{total}] {cell.name}: metrics.json does not match the cell; running")
+                        echo(
+                            f"[{k + 1}/{total}] {cell.name}: metrics.json is of another cell, --max-time or "
+                            "--observable-threshold; running"
+                        )
                 echo(f"[{k + 1}/{total}] {cell.name}: started")
                 args = cell.sim_args(run_dir, spec.max_time_s, spec.observable_threshold)
                 running[k] = (launch(args, out / "logs" / f"{cell.name}.log"), time.monotonic())
