@@ -185,3 +185,25 @@ def test_a_depth_image_given_as_a_map_is_refused_naming_it(tmp_path, capsys) -> 
     np.save(tmp_path / "depth.npy", np.zeros((4, 4), np.float32))
     code, err = run(capsys, "map", "info", str(tmp_path / "depth.npy"))
     assert code == 2 and "depth.npy: a single array of shape (4, 4) (.npy), not a map file" in err, err
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["bench", "entropy", "--voxels", "100"], "argument --voxels: must be at least 20,000 (got 100)"),
+        (["bench", "octomap", "--repeat", "0"], "argument --repeat: must be at least 1 (got 0)"),
+        (["bench", "entropy", "--repeat", "-1"], "argument --repeat: must be at least 1 (got -1)"),
+    ],
+)
+def test_benchmark_options_out_of_range_are_refused_by_name(capsys, argv, message) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_a_file_that_is_no_npz_is_refused_as_a_map(tmp_path, capsys) -> None:
+    (tmp_path / "notes.txt").write_text("hello\n")
+    code, err = run(capsys, "map", "info", str(tmp_path / "notes.txt"))
+    assert (
+        code == 2 and err.strip() == f"swarm: error: {tmp_path / 'notes.txt'}: not a NumPy .npz map file"
+    ), err

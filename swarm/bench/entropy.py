@@ -15,6 +15,10 @@ from swarm.map.entropy import entropy_exact
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import EntropyTable
 
+#: Voxels timed with the exact formula, and updated in the cache (``swarm bench entropy --voxels``
+#: must be at least this).
+SAMPLE = 20_000
+
 
 def run(voxels: int = 1_000_000, repeat: int = 5, seed: int = 0) -> dict:
     """Seconds for: building the table, table entropy of ``voxels`` beliefs, exact entropy per voxel,
@@ -31,11 +35,11 @@ def run(voxels: int = 1_000_000, repeat: int = 5, seed: int = 0) -> dict:
         return float(np.sum(table(mu, sigma), dtype=np.float64))
 
     table_s = best_seconds(map_entropy, repeat)
-    sample = 20_000
+    sample = SAMPLE
     exact_s = best_seconds(lambda: entropy_exact(mu[:sample], sigma[:sample]), 1) / sample * voxels
 
     cache = EntropyCache(table(mu, sigma))
-    idx = rng.choice(voxels, 20_000, replace=False)
+    idx = rng.choice(voxels, SAMPLE, replace=False)
     update_s = best_seconds(lambda: cache.update(idx, mu[idx] * 0.9, sigma[idx] * 0.9), repeat)
     return {
         "voxels": voxels,

@@ -22,6 +22,23 @@ DEFAULT_EUROC = _bundled(Path("tests") / "data" / "euroc_mini")
 DEFAULT_BT = _bundled(Path("data") / "octomap" / "geb079.bt")
 
 
+#: swarm.bench.entropy.SAMPLE, the voxels the entropy benchmark samples (kept here: --help stays light).
+ENTROPY_SAMPLE = 20_000
+
+
+def at_least(lowest: int):
+    """An argparse type: an integer of at least ``lowest`` (else argparse's one-line error)."""
+
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < lowest:
+            raise argparse.ArgumentTypeError(f"must be at least {lowest:,} (got {value})")
+        return value
+
+    parse.__name__ = "integer"  # argparse's word for a value it cannot parse
+    return parse
+
+
 # -- swarm bench --------------------------------------------------------------------------
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -53,7 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"EuRoC folder (ASL layout); its first pair is the dense cloud (default {DEFAULT_EUROC})",
     )
     fusion.add_argument("--voxel", type=float, default=0.1, help="voxel edge (default 0.1 m)")
-    fusion.add_argument("--repeat", type=int, default=3, help="take the best of N runs (default 3)")
+    fusion.add_argument("--repeat", type=at_least(1), default=3, help="take the best of N runs (default 3)")
     fusion.set_defaults(run=_run_bench_fusion)
     octo = bsub.add_parser(
         "octomap",
@@ -62,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "back, with our own code and with OctoMap (octomap-python, pip install '.[bench]').",
     )
     octo.add_argument("--bt", type=Path, default=DEFAULT_BT, help=f"OctoMap file (default: {DEFAULT_BT})")
-    octo.add_argument("--repeat", type=int, default=3, help="take the best of N runs (default 3)")
+    octo.add_argument("--repeat", type=at_least(1), default=3, help="take the best of N runs (default 3)")
     octo.set_defaults(run=_run_bench_octomap)
     entropy = bsub.add_parser(
         "entropy",
@@ -71,9 +88,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the exact formula on a sample, and an incremental update.",
     )
     entropy.add_argument(
-        "--voxels", type=int, default=1_000_000, help="map size in voxels (default 1,000,000)"
+        "--voxels",
+        type=at_least(ENTROPY_SAMPLE),
+        default=1_000_000,
+        help=f"map size in voxels (default 1,000,000; at least {ENTROPY_SAMPLE:,}, the exact one's sample)",
     )
-    entropy.add_argument("--repeat", type=int, default=5, help="take the best of N runs (default 5)")
+    entropy.add_argument("--repeat", type=at_least(1), default=5, help="take the best of N runs (default 5)")
     entropy.set_defaults(run=_run_bench_entropy)
     agent = bsub.add_parser(
         "agent",
@@ -88,7 +108,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--sizes", nargs="+", default=["160x120", "640x480", "752x480"], help="image sizes WxH"
     )
     agent.add_argument(
-        "--repeat", type=int, default=5, help="time N runs of each stage: best and median (default 5)"
+        "--repeat", type=at_least(1), default=5, help="time N runs of each stage: best and median (default 5)"
     )
     agent.set_defaults(run=_run_bench_agent)
     server = bsub.add_parser(

@@ -109,7 +109,10 @@ def is_store_snapshot(path: str | Path) -> bool:
 def _npz(path: Path):
     """``np.load`` of an ``.npz`` archive; a single array (``.npy``, e.g. a depth image from
     ``swarm stereo depth``) is refused naming the file (MapFileError, a ValueError)."""
-    data = np.load(path, allow_pickle=False)
+    try:
+        data = np.load(path, allow_pickle=False)
+    except ValueError:  # NumPy's "pickled data ... allow_pickle": any file that is no .npy/.npz
+        raise MapFileError(f"{path}: not a NumPy .npz map file") from None
     if isinstance(data, np.ndarray):
         raise MapFileError(
             f"{path}: a single array of shape {data.shape} (.npy), not a map file "
