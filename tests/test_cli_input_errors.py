@@ -207,3 +207,20 @@ def test_a_file_that_is_no_npz_is_refused_as_a_map(tmp_path, capsys) -> None:
     assert (
         code == 2 and err.strip() == f"swarm: error: {tmp_path / 'notes.txt'}: not a NumPy .npz map file"
     ), err
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--mission", "of/fice", "--robots", "r1"], "--mission 'of/fice': only letters, digits, _ and -"),
+        (["--mission", "office", "--robots", "r 1", "r2"], "--robots 'r 1': only letters, digits, _ and -"),
+        (
+            ["--mission", "office", "--robots", "r1", "--server-host", "bad host!!"],
+            "--server-host 'bad host!!'",
+        ),
+    ],
+)
+def test_security_init_refuses_names_the_mission_would_refuse(tmp_path, capsys, options, message) -> None:
+    code, err = run(capsys, "security", "init", *options, "--out", str(tmp_path / "team"))
+    assert code == 2 and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "team").exists()

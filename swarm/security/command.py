@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -45,6 +46,7 @@ def run_init(args: argparse.Namespace) -> int:
     try:
         if args.days < 1:
             raise ValueError(f"--days {args.days}: must be at least 1")
+        _check_names(args)
         team = init_team(
             args.mission, args.robots, args.out, args.server_host, args.port, args.days, args.force
         )
@@ -58,3 +60,17 @@ def run_init(args: argparse.Namespace) -> int:
         print(f"  {identity.name + '/':<24} {identity.role}")
     print(f"start the map server with --zenoh-config {team.configs['server']}, every other role with its own")
     return 0
+
+
+def _check_names(args: argparse.Namespace) -> None:
+    """The mission and robot ids as a mission file takes them (letters, digits, _ and -), and a
+    server host a certificate can name; ValueError naming the option otherwise."""
+    name = re.compile(r"^[A-Za-z0-9_-]+$")  # the ids a mission file takes (swarm.config's NAME_PATTERN)
+    if not name.match(args.mission):
+        raise ValueError(f"--mission {args.mission!r}: only letters, digits, _ and - (as in a mission file)")
+    bad = [r for r in args.robots if not name.match(r)]
+    if bad:
+        raise ValueError(f"--robots {' '.join(map(repr, bad))}: only letters, digits, _ and - (as robot ids)")
+    for host in args.server_host or []:
+        if not re.fullmatch(r"[A-Za-z0-9.:_-]+", host):
+            raise ValueError(f"--server-host {host!r}: not a host name or IP address")
