@@ -272,6 +272,12 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             coordinator = _child(coordinator_args, out / "coordinator.log")
             services.append(coordinator)
         _wait_for_server(client, server)
+        if not options.quiet:  # docs/interop.md: the map tools work on a running mission too
+            query = ["swarm map stats", *plan.child_args(TOOL), "--mission", name]
+            print(
+                f"runner: the map server is up; to query it while the mission runs: {' '.join(query)}",
+                flush=True,
+            )
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
         if options.view is not None:
