@@ -67,7 +67,7 @@ def grid_key_offset(grid: Grid, align: str = "refuse") -> tuple[np.ndarray, np.n
         raise ValueError(
             f"grid origin {list(grid.origin)} is not a multiple of the voxel size {grid.voxel:g} m: "
             "OctoMap anchors voxels at the world origin; use a workspace lo that is a multiple of "
-            "the voxel size, or align='shift' (--align shift) to move the map by "
+            "the voxel size, or shift the map (swarm map export --align shift; align='shift' in Python) by "
             f"{[round(float(-d * grid.voxel), 6) for d in off]} m"
         )
     first = whole.astype(np.int64) + KEY_ORIGIN
@@ -150,7 +150,8 @@ def export_bt(path, cmap: CoverageMap, max_sigma: float = DEFAULT_MAX_SIGMA, ali
     leaves = coverage_to_leaves(cmap, max_sigma, align)
     nodes = write_bt(path, leaves.resolution, leaves.key, leaves.occupied)
     occupied = int(leaves.occupied.sum())
-    moved = f", moved by {list(leaves.shift)} m to OctoMap's lattice" if any(leaves.shift) else ""
+    shift = [round(s, 6) for s in leaves.shift]  # metres, without float noise
+    moved = f", moved by {shift} m to OctoMap's lattice" if any(leaves.shift) else ""
     return (
         f"{path}: OctoMap tree at {leaves.resolution:g} m, {occupied:,} occupied and "
         f"{len(leaves.key) - occupied:,} free voxels ({nodes:,} nodes after pruning){moved}"
