@@ -157,7 +157,7 @@ def _run_map_stats(args: argparse.Namespace) -> int:
         with _open_client(args) as client:
             print(json.dumps(client.stats(), indent=1))
     except (ConnectionError, MapQueryError, ValueError) as exc:
-        return fail(str(exc))
+        return fail(_explained(exc, args))
     return 0
 
 
@@ -177,7 +177,7 @@ def _run_map_get(args: argparse.Namespace) -> int:
         with _open_client(args) as client:
             region = client.point(values) if args.point else client.region(values[:3], values[3:])
     except (ConnectionError, MapQueryError, ValueError) as exc:
-        return fail(str(exc))
+        return fail(_explained(exc, args))
     if len(region) == 0:
         lo, hi = region.grid.lo, region.grid.hi
         box = ", ".join(f"{a:g}..{b:g}" for a, b in zip(lo, hi, strict=True))
@@ -199,7 +199,7 @@ def _run_map_export(args: argparse.Namespace) -> int:
         with _open_client(args) as client:
             print(export_map(client, args.out, args.threshold, **options))
     except (ConnectionError, MapQueryError, MapFileError, ValueError, OSError) as exc:
-        return fail(str(exc))
+        return fail(_explained(exc, args))
     return 0
 
 
@@ -215,3 +215,13 @@ def _run_map_import(args: argparse.Namespace) -> int:
     except (OctomapFileError, ValueError, OSError) as exc:
         return fail(str(exc))
     return 0
+
+
+def _explained(exc: Exception, args: argparse.Namespace) -> str:
+    """The error's text; over TLS, a server that does not answer may be one that refuses our
+    certificate (it looks the same from here), so the text says to check them (docs/security.md)."""
+    text = str(exc)
+    if isinstance(exc, ConnectionError) and getattr(args, "zenoh_config", None) and "certificate" not in text:
+        text += f" (over TLS a refused certificate looks like this: check that {args.zenoh_config} names "
+        text += "this mission's CA and an identity allowed to query)"
+    return text
