@@ -312,9 +312,10 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
                 reason = "agents done"
             elif world.poll() is not None:
-                if world.returncode != 0:  # it failed: not a mission that ran to its end
-                    raise RoleError(f"the simulated world {why_it_exited(world)}")
                 reason = "world stopped (max time or all agents dead)"
+                if world.returncode != 0:  # it failed: say so, and the run folder's stop_reason does
+                    reason = f"world failed: it {why_it_exited(world)}"
+                    print(f"runner: warning: the simulated world {why_it_exited(world)}", file=sys.stderr)
             elif now - started > options.wall_limit_s:
                 reason = "wall-clock limit"
             if not options.quiet and (now - last_print > 2.0 or reason != "running"):
