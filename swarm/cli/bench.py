@@ -178,8 +178,8 @@ def _run_bench_fusion(args: argparse.Namespace) -> int:
     for path, what in ((args.scan, "scan"), (args.euroc / "mav0", "EuRoC stereo cloud")):
         if not path.exists():
             print(f"note: {path} not found; skipping the {what}", file=sys.stderr)
-    if not (args.voxel > 0 and args.repeat >= 1):
-        return fail("--voxel must be > 0 and --repeat >= 1")
+    if not args.voxel > 0:  # --repeat is checked by its argparse type (at_least)
+        return fail(f"--voxel {args.voxel:g}: must be > 0")
 
     def progress(message: str) -> None:
         print(message, file=sys.stderr, flush=True)

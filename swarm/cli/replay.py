@@ -134,16 +134,13 @@ def _open_bag(args: argparse.Namespace):
                 "give the calibration either as files (--calib-left, --calib-right) or as CameraInfo "
                 "topics (--left-info, --right-info), not both"
             )
-        # loaded once the bag's image size is known, for a file that states none (stereo_calib's)
-        calib = functools.partial(_load_for_size, load_stereo_calibration, args.calib_left, args.calib_right)
+        # loaded once the bag's image size is known (its third argument, image_size), for a file
+        # that states none (stereo_calib's)
+        calib = functools.partial(load_stereo_calibration, args.calib_left, args.calib_right)
     return BagRecording(
         args.bag, args.left, args.right, args.pose, calib, args.left_info, args.right_info, args.child_frame,
         args.tolerance, world_frame=args.world_frame, tf_static=args.tf_static,
     )  # fmt: skip
-
-
-def _load_for_size(load, left: Path, right: Path | None, size: tuple[int, int]):
-    return load(left, right, image_size=size)
 
 
 def _fit_image_size(recording, start: int) -> None:

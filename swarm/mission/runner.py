@@ -314,14 +314,13 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             elif world.poll() is not None:
                 reason = "world stopped (max time or all agents dead)"
                 if world.returncode != 0:  # it failed: say so, and the run folder's stop_reason does
-                    reason = f"world failed: it {why_it_exited(world)}"
-                    print(f"runner: warning: the simulated world {why_it_exited(world)}", file=sys.stderr)
+                    why = why_it_exited(world)
+                    reason = f"world failed: it {why}"
+                    print(f"runner: warning: the simulated world {why}", file=sys.stderr)
             elif now - started > options.wall_limit_s:
                 reason = "wall-clock limit"
             if not options.quiet and (now - last_print > 2.0 or reason != "running"):
                 last_print = now
-                known = float(np.mean(monitor.cmap.known_mask()))
-                states = " ".join(f"{r}:{monitor.states.get(r, '-')}" for r in mission.robot_ids)
                 if monitor.sim_time == 0.0 and reason == "running":  # the world waits for every agent
                     if now - last_wait_print < 10.0:  # this line every 10 s, not every 2
                         continue
@@ -333,6 +332,8 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                         flush=True,
                     )
                     continue
+                known = float(np.mean(monitor.cmap.known_mask()))
+                states = " ".join(f"{r}:{monitor.states.get(r, '-')}" for r in mission.robot_ids)
                 print(
                     f"[{now - started:6.1f} s] sim t={monitor.sim_time:7.1f} s  H={h:,.0f} bits "
                     f"(H_th {threshold:,.0f})  known {known:5.1%}  {states}",
