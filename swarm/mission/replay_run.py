@@ -237,7 +237,7 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    from swarm.mission.run_report import top_view_image
+    from swarm.mission.run_plots import top_view_image
 
     traj = recording.positions()
     image, _ = top_view_image(cmap, (cmap.grid.lo[2], cmap.grid.hi[2]))
