@@ -34,7 +34,8 @@ from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.mission.role_failure import RoleError
-from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
+from swarm.mission.runner import _child, _final_server_map, _stop, _wait_for_server
+from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import Frame

@@ -131,7 +131,8 @@ def _interrupt(signum, frame) -> None:
 def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     from sim2d.ground_truth import coverage as true_coverage_of
     from swarm.mission.run_report import RunRecord, compute_metrics, write_run_folder
-    from swarm.mission.runner import NEVER, MissionOptions, run_mission
+    from swarm.mission.runner import MissionOptions, run_mission
+    from swarm.mission.team_monitor import NEVER
     from swarm.mission.threshold import resolve_threshold
 
     try:
