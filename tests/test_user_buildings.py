@@ -198,7 +198,8 @@ def test_a_map_where_no_robot_fits_says_the_map_size_and_what_to_check(tmp_path)
     image = np.pad(np.full((38, 38), FREE), 1, constant_values=WALL)
     with pytest.raises(ConfigError) as e:
         mission_from_map(write_map(tmp_path, image, resolution=0.005))  # 5 mm: meant 5 cm
-    assert "the most the map offers is 0.095 m (40 x 40 cells at 0.005 m: 0.2 m x 0.2 m)" in str(e.value)
+    # the best cell centre is 18.5 cells from the nearest wall face (38 free cells across)
+    assert "the most the map offers is 0.0925 m (40 x 40 cells at 0.005 m: 0.2 m x 0.2 m)" in str(e.value)
     assert "check resolution" in str(e.value)
     with pytest.raises(ConfigError) as e:
         mission_from_map(write_map(tmp_path, np.full((40, 40), UNKNOWN)))

@@ -135,13 +135,12 @@ def check_mission(mission: Mission) -> None:
 
 def _free_hint(plan, xy: np.ndarray, radius: float) -> str:
     """``; the nearest free point ...`` of a ROS-map floor plan where a robot of ``radius`` fits."""
-    from scipy import ndimage
-
     ros_map = plan.ros_map
     if ros_map is None:
         return ""
-    clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
-    rows, cols = np.nonzero(clearance > radius + ros_map.resolution)
+    # Half a cell more than the radius: the raster's clearance may exceed the exact one (the
+    # walls' quads that the start is checked against) by up to 0.21 cell on a diagonal.
+    rows, cols = np.nonzero(ros_map.clearance() > radius + 0.5 * ros_map.resolution)
     if rows.size == 0:
         return f"; the map has no free space where a robot of radius {radius:g} m fits"
     centres = ros_map.to_world(cols + 0.5, rows + 0.5)
@@ -194,10 +193,11 @@ def mission_from_map(
 ) -> Mission:
     """A mission over a ROS map: workspace = known part of the map x [0, wall_height + z_margin].
 
-    Robots start in known free space with at least robot radius + 0.15 m clearance (unknown
-    cells count as obstacles), in the free region connected to ``start`` (default: the largest
-    free region, from its cell closest to the middle of the known part of the map), at least
-    ``spacing`` metres apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
+    Robots start in known free space with at least robot radius + 0.15 m clearance
+    (:meth:`RosMap.clearance`: to the nearest wall, unknown cell or the image's edge), in the
+    free region connected to ``start`` (default: the largest free region, from its cell
+    closest to the middle of the known part of the map), at least ``spacing`` metres apart,
+    facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
     OBSERVABLE_FRACTION): the entropy of the voxels no sensor can ever observe + 16% of the
     observable prior, resolved by the simulator when the mission runs.
     """
@@ -230,7 +230,7 @@ def mission_from_map(
     )
     lo_xy, hi_xy = np.round(corners.min(axis=0), 6), np.round(corners.max(axis=0), 6)
 
-    clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
+    clearance = ros_map.clearance()
     ok = clearance > body.radius + 0.15
     if not ok.any():
         raise ConfigError(

@@ -60,6 +60,22 @@ class RosMap:
         c, s = np.cos(yaw), np.sin(yaw)
         return np.stack([ox + c * u - s * v, oy + s * u + c * v], axis=-1)
 
+    def clearance(self) -> np.ndarray:
+        """Clearance (m) of every cell, shape (rows, cols) like ``free``; 0 where not free.
+
+        The distance from a free cell's centre to the nearest cell that is not free (occupied,
+        unknown, or beyond the image's edge, which counts as unknown), measured to that cell's
+        near edge: the centre-to-centre distance less half a cell. That is exact along rows
+        and columns (a robot between straight walls) and at most 0.21 cell more than the exact
+        distance to a cell that lies diagonally. Every test of where a robot's body fits on a
+        ROS map (starts of ``--map`` missions, the hint of a refused start, confined robots)
+        uses this one field.
+        """
+        from scipy import ndimage
+
+        centre = ndimage.distance_transform_edt(np.pad(self.free, 1))[1:-1, 1:-1]
+        return np.where(self.free, (centre - 0.5) * self.resolution, 0.0)
+
     def to_cell(self, xy: np.ndarray) -> np.ndarray:
         """Cell (row, col) indices (..., 2) of world points (may be outside the map)."""
         ox, oy, yaw = self.origin

@@ -55,9 +55,7 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
     ros_map = getattr(plan, "ros_map", None)
     if ros_map is None:
         return []
-    # Cell centres to the nearest non-free cell's centre, less half a cell: to its edge.
-    clearance = (ndimage.distance_transform_edt(ros_map.free) - 0.5) * ros_map.resolution
-    fits = clearance > mission.robot.radius
+    fits = ros_map.clearance() > mission.robot.radius
     labels, count = ndimage.label(fits, structure=np.ones((3, 3), dtype=bool))
     if count == 0:
         return []
