@@ -6,10 +6,12 @@ the run folder), the coordinator (``swarm coordinator``, unless coordination is 
 simulated world (``swarm sim world``) and one ``swarm agent`` per robot, and watches the
 mission as any monitor could (:class:`swarm.mission.team_monitor.TeamMonitor`): it keeps a
 replica of the team map from ``delta/*`` (the entropy curve, bytes and overlap per robot),
-trajectories from ``sim/truth`` and states from ``robot/*/status``. It stops at H_th (eq. 36), when every agent is done, or at the
-time limit; agents flush their outboxes, the server's final map is fetched over
-``map/snapshot``, and the run folder is written: metrics.json, map.npz, server_map.npz,
-plots, the config used and every process's log.
+trajectories from ``sim/truth`` and states from ``robot/*/status``. It stops at H_th (eq.
+36), when every agent is done, or at the time limit; agents flush their outboxes, the
+server's final map is fetched over ``map/snapshot``, and the run folder is written:
+metrics.json, map.npz, server_map.npz, plots, the config used and every process's log.
+``--view`` starts ``swarm view`` beside the roles; a view that cannot start (no display for
+its window, no rerun) is one warning line and the mission goes on without it.
 
 With ``secure`` (``swarm sim --secure``) the run folder gets a fresh team of certificates
 (``security/``, as ``swarm security init`` writes it); the map server is then the mission's
@@ -188,11 +190,9 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             )
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
-        if options.view is not None:
-            view_args = ["view", *plan.child_args(TOOL), "--mission", name]
-            if options.view != "window":
-                view_args += ["--save", str(Path(options.view).resolve())]
-            services.append(_child(view_args, out / "view.log"))
+        view = _start_view(options.view, plan, name, out)
+        if view is not None:
+            services.append(view)
         world = _child(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
         agents = [
@@ -215,6 +215,11 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 if coordinator.poll() is None:
                     coordinator.kill()
                     print(f"runner: killed the coordinator at sim t={monitor.sim_time:.1f} s", flush=True)
+            if view is not None and view.poll() is not None:  # the view listens: the mission goes on
+                if view.returncode != 0:
+                    why = why_it_exited(view)
+                    print(f"runner: warning: the view (--view) {why}; the mission goes on", file=sys.stderr)
+                view = None
             if h <= threshold:
                 reason = "threshold"
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
@@ -275,6 +280,31 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         },
     }
     return monitor, facts
+
+
+def _start_view(view: str | None, plan: BusPlan, mission: str, out: Path) -> subprocess.Popen | None:
+    """``swarm view`` beside the mission (``view``: "window", or the .rrd file to record), or None.
+
+    A window needs a display: without one (:func:`swarm.view.live.missing_display`) the view is
+    not started and one warning line says what to do instead; the mission runs as without --view.
+    """
+    if view is None:
+        return None
+    from swarm.view.live import missing_display
+
+    args = ["view", *plan.child_args(TOOL), "--mission", mission]
+    if view != "window":
+        args += ["--save", str(Path(view).resolve())]
+    elif why := missing_display():
+        print(
+            f"runner: warning: --view: {why}; the mission goes on without the view: run without --view, "
+            "or record it with --view RUN.rrd and open that with `rerun RUN.rrd` where there is a display "
+            "(the run folder's top_view.png and map_3d.png show the final map)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return None
+    return _child(args, out / "view.log")
 
 
 def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMonitor) -> None:
