@@ -170,3 +170,17 @@ def test_ros_map_clearance_matches_a_brute_force_distance():
     # and scipy's transform of the hand-padded grid agrees
     padded = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1]
     np.testing.assert_allclose(got[free], (padded[free] - 0.5) * resolution)
+
+
+def test_free_ray_lengths_stop_at_walls_unknown_cells_and_the_image_edge():
+    free = np.zeros((10, 10), bool)
+    free[1:9, 1:9] = True  # free x, y in [0.1, 0.9] at 0.1 m; walls round it
+    free[4, 9] = True  # a free cell on the east edge of the image (x 0.9-1.0, y 0.4-0.5)
+    ros_map = _ros_map(free, 0.1)
+    east, north, west = 0.0, np.pi / 2, np.pi
+    got = ros_map.free_ray_lengths(np.array([0.55, 0.45]), np.array([east, north, west]), 5.0)
+    # samples every 0.05 m: east the last free one is x = 0.95 (the image ends at 1.0),
+    # north y = 0.85 (wall from 0.9), west x = 0.10 (wall up to 0.1)
+    np.testing.assert_allclose(got, [0.40, 0.40, 0.45])
+    np.testing.assert_allclose(ros_map.free_ray_lengths(np.array([0.55, 0.45]), [west], 0.2), [0.2])  # reach
+    assert ros_map.free_ray_lengths(np.array([0.05, 0.05]), [east], 5.0)[0] == 0.0  # starts on a wall

@@ -76,6 +76,31 @@ class RosMap:
         centre = ndimage.distance_transform_edt(np.pad(self.free, 1))[1:-1, 1:-1]
         return np.where(self.free, (centre - 0.5) * self.resolution, 0.0)
 
+    def free_ray_lengths(self, xy: np.ndarray, yaws: np.ndarray, reach: float) -> np.ndarray:
+        """How far (m) a ray from the point ``xy`` (2,) runs through free cells along each of
+        ``yaws`` (A,) (radians from +x, counter-clockwise), up to ``reach`` metres; shape (A,).
+
+        The ray is sampled every half cell and stops before its first sample in a cell that
+        is not free (occupied, unknown or beyond the image's edge); 0 when ``xy`` itself is not
+        on a free cell.
+        """
+        yaws = np.asarray(yaws, dtype=np.float64).reshape(-1)
+        step = 0.5 * self.resolution
+        s = np.arange(0, int(np.ceil(reach / step)) + 1) * step  # (S,), from the point itself
+        s = np.minimum(s, reach)
+        points = (
+            np.asarray(xy, dtype=np.float64)[:2]
+            + s[None, :, None] * np.stack([np.cos(yaws), np.sin(yaws)], axis=-1)[:, None, :]
+        )  # (A, S, 2)
+        cells = self.to_cell(points)
+        rows, cols = cells[..., 0], cells[..., 1]
+        inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
+        free = np.zeros(inside.shape, dtype=bool)
+        free[inside] = self.free[rows[inside], cols[inside]]
+        blocked = ~free
+        first = np.where(blocked.any(axis=1), np.argmax(blocked, axis=1), len(s))  # (A,)
+        return np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0)
+
     def to_cell(self, xy: np.ndarray) -> np.ndarray:
         """Cell (row, col) indices (..., 2) of world points (may be outside the map)."""
         ox, oy, yaw = self.origin
