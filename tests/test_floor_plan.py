@@ -16,6 +16,7 @@ from swarm.formats.floor_plan import (
     load_ros_map,
     merge_cells,
 )
+from swarm.formats.ros_map import RosMap
 
 MAPS = Path(__file__).resolve().parent.parent / "configs" / "maps"
 
@@ -127,3 +128,59 @@ def test_ros_map_thresholds_negate_and_origin(tmp_path):
     plan = load_floor_plan(tmp_path / "r.yaml")
     np.testing.assert_allclose(plan.lo, [-1.0, 0.0], atol=1e-12)  # turned: x <- -y
     np.testing.assert_allclose(plan.hi, [0.0, 1.5], atol=1e-12)
+
+
+def _ros_map(free: np.ndarray, resolution: float = 0.1) -> RosMap:
+    free = np.asarray(free, dtype=bool)
+    return RosMap(~free, free, resolution, (0.0, 0.0, 0.0), Path("hand.yaml"))
+
+
+def test_ros_map_clearance_of_a_corridor_by_hand():
+    """A corridor 5 cells wide and 9 long, walled on both long sides, open at both ends of the
+    image: from the middle cell's centre the walls' edges are 2.5 cells away."""
+    free = np.zeros((7, 9), bool)
+    free[1:6, :] = True
+    clearance = _ros_map(free, 0.1).clearance()
+    assert clearance.shape == free.shape
+    np.testing.assert_allclose(clearance[3, 4], 0.25)  # middle: 2.5 cells to either wall
+    np.testing.assert_allclose(clearance[1, 4], 0.05)  # beside the wall: half a cell
+    np.testing.assert_allclose(clearance[3, 0], 0.05)  # on the image's edge: outside counts as unknown
+    np.testing.assert_allclose(clearance[3, 1], 0.15)
+    assert np.all(clearance[~free] == 0.0)
+
+
+def test_ros_map_clearance_matches_a_brute_force_distance():
+    """Each free cell's centre to the nearest non-free cell's centre (also the ring of cells just
+    beyond the image), less half a cell, computed cell by cell."""
+    rng = np.random.default_rng(3)
+    free = rng.random((12, 15)) > 0.2
+    free[4:9, 3:12] = True
+    resolution = 0.05
+    got = _ros_map(free, resolution).clearance()
+    rows, cols = free.shape
+    blocked = [(r, c) for r in range(-1, rows + 1) for c in range(-1, cols + 1)
+               if not (0 <= r < rows and 0 <= c < cols and free[r, c])]  # fmt: skip
+    blocked = np.array(blocked, dtype=np.float64)
+    for r in range(rows):
+        for c in range(cols):
+            want = 0.0
+            if free[r, c]:
+                want = (np.hypot(*(blocked - (r, c)).T).min() - 0.5) * resolution
+            assert got[r, c] == pytest.approx(want), (r, c)
+    # and scipy's transform of the hand-padded grid agrees
+    padded = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1]
+    np.testing.assert_allclose(got[free], (padded[free] - 0.5) * resolution)
+
+
+def test_free_ray_lengths_stop_at_walls_unknown_cells_and_the_image_edge():
+    free = np.zeros((10, 10), bool)
+    free[1:9, 1:9] = True  # free x, y in [0.1, 0.9] at 0.1 m; walls round it
+    free[4, 9] = True  # a free cell on the east edge of the image (x 0.9-1.0, y 0.4-0.5)
+    ros_map = _ros_map(free, 0.1)
+    east, north, west = 0.0, np.pi / 2, np.pi
+    got = ros_map.free_ray_lengths(np.array([0.55, 0.45]), np.array([east, north, west]), 5.0)
+    # samples every 0.05 m: east the last free one is x = 0.95 (the image ends at 1.0),
+    # north y = 0.85 (wall from 0.9), west x = 0.10 (wall up to 0.1)
+    np.testing.assert_allclose(got, [0.40, 0.40, 0.45])
+    np.testing.assert_allclose(ros_map.free_ray_lengths(np.array([0.55, 0.45]), [west], 0.2), [0.2])  # reach
+    assert ros_map.free_ray_lengths(np.array([0.05, 0.05]), [east], 5.0)[0] == 0.0  # starts on a wall

@@ -90,6 +90,28 @@ def test_robots_start_in_the_largest_free_region(tmp_path):
     assert np.all(starts[:, 1] > 7.0), starts  # in the hall (y 7.1-9.7), not the speck (y 4.5-5.5)
 
 
+@pytest.mark.parametrize("east", ["wall", "image edge"])
+def test_a_robot_started_beside_an_east_wall_faces_the_room(tmp_path, east):
+    """Robots placed by --map all faced +x: one started 0.5 m from the east end of a 6 m x 3 m
+    room stared at the wall (or at the image's edge, where the map ends) and saw nothing."""
+    image = np.pad(np.full((28, 58), FREE), 1, constant_values=WALL)  # x, y in [0.1, 5.9] x [0.1, 2.9]
+    if east == "image edge":
+        image = image[:, :-1]  # free cells run to the image's east edge at x = 5.9
+    path = write_map(tmp_path, image)
+    mission = mission_from_map(path, start=(5.4, 1.5))
+    start = mission.robots[0].start
+    assert start.x > 5.0, start  # beside the east end
+    assert np.cos(start.yaw) < -0.9, np.degrees(start.yaw)  # facing west, down the room
+    again = mission_from_map(path, start=(5.4, 1.5)).robots[0].start
+    assert again.yaw == start.yaw  # deterministic
+
+
+def test_a_robot_with_open_space_all_round_faces_plus_x(tmp_path):
+    image = np.pad(np.full((148, 148), FREE), 1, constant_values=WALL)  # 15 m x 15 m
+    mission = mission_from_map(write_map(tmp_path, image), start=(7.5, 7.5))
+    assert mission.robots[0].start.yaw == 0.0  # every ray reaches 5 m: the first heading, +x
+
+
 def mission_on(map_yaml: Path, x: float, y: float) -> dict:
     return {
         "mission": "site",
@@ -198,7 +220,8 @@ def test_a_map_where_no_robot_fits_says_the_map_size_and_what_to_check(tmp_path)
     image = np.pad(np.full((38, 38), FREE), 1, constant_values=WALL)
     with pytest.raises(ConfigError) as e:
         mission_from_map(write_map(tmp_path, image, resolution=0.005))  # 5 mm: meant 5 cm
-    assert "the most the map offers is 0.095 m (40 x 40 cells at 0.005 m: 0.2 m x 0.2 m)" in str(e.value)
+    # the best cell centre is 18.5 cells from the nearest wall face (38 free cells across)
+    assert "the most the map offers is 0.0925 m (40 x 40 cells at 0.005 m: 0.2 m x 0.2 m)" in str(e.value)
     assert "check resolution" in str(e.value)
     with pytest.raises(ConfigError) as e:
         mission_from_map(write_map(tmp_path, np.full((40, 40), UNKNOWN)))

@@ -61,8 +61,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         nargs="?",
         const="window",
         metavar="RUN.rrd",
-        help="follow the mission with swarm view (rerun, pip install '.[view]'): a viewer window, "
-        "or with a file name a recording to open later with `rerun RUN.rrd`",
+        help="follow the mission with swarm view (rerun, pip install '.[view]'): a viewer window "
+        "(with no display: one warning line, and the mission runs without it), or with a file name "
+        "a recording to open later with `rerun RUN.rrd`",
     )
     run.add_argument(
         "--observable-threshold",

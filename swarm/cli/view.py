@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _run_view(args: argparse.Namespace) -> int:
     try:
-        from swarm.view.live import run_view
+        from swarm.view.live import missing_display, run_view
         from swarm.view.scene import require_rerun
 
         require_rerun()
@@ -53,6 +53,10 @@ def _run_view(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     spawn = args.save is None or args.spawn
+    no_window = missing_display() if spawn else None
+    if no_window:
+        drop = "drop --spawn" if args.save is not None else "record with --save RUN.rrd"
+        return fail(f"{no_window}: {drop} and open the recording where there is one with `rerun RUN.rrd`")
     try:
         view = run_view(
             args.connect, args.mission, args.save, spawn, args.period, args.duration, stop, args.zenoh_config

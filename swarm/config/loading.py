@@ -135,13 +135,12 @@ def check_mission(mission: Mission) -> None:
 
 def _free_hint(plan, xy: np.ndarray, radius: float) -> str:
     """``; the nearest free point ...`` of a ROS-map floor plan where a robot of ``radius`` fits."""
-    from scipy import ndimage
-
     ros_map = plan.ros_map
     if ros_map is None:
         return ""
-    clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
-    rows, cols = np.nonzero(clearance > radius + ros_map.resolution)
+    # Half a cell more than the radius: the raster's clearance may exceed the exact one (the
+    # walls' quads that the start is checked against) by up to 0.21 cell on a diagonal.
+    rows, cols = np.nonzero(ros_map.clearance() > radius + 0.5 * ros_map.resolution)
     if rows.size == 0:
         return f"; the map has no free space where a robot of radius {radius:g} m fits"
     centres = ros_map.to_world(cols + 0.5, rows + 0.5)
@@ -194,12 +193,14 @@ def mission_from_map(
 ) -> Mission:
     """A mission over a ROS map: workspace = known part of the map x [0, wall_height + z_margin].
 
-    Robots start in known free space with at least robot radius + 0.15 m clearance (unknown
-    cells count as obstacles), in the free region connected to ``start`` (default: the largest
-    free region, from its cell closest to the middle of the known part of the map), at least
-    ``spacing`` metres apart, facing +x. H_th follows the observable rule (``stop.observable_fraction`` =
-    OBSERVABLE_FRACTION): the entropy of the voxels no sensor can ever observe + 16% of the
-    observable prior, resolved by the simulator when the mission runs.
+    Robots start in known free space with at least robot radius + 0.15 m clearance
+    (:meth:`RosMap.clearance`: to the nearest wall, unknown cell or the image's edge), in the
+    free region connected to ``start`` (default: the largest free region, from its cell
+    closest to the middle of the known part of the map), at least ``spacing`` metres apart,
+    each facing into the most open space around it (:func:`_open_heading`). H_th follows the
+    observable rule (``stop.observable_fraction`` = OBSERVABLE_FRACTION): the entropy of the
+    voxels no sensor can ever observe + 16% of the observable prior, resolved by the
+    simulator when the mission runs.
     """
     from scipy import ndimage
 
@@ -230,7 +231,7 @@ def mission_from_map(
     )
     lo_xy, hi_xy = np.round(corners.min(axis=0), 6), np.round(corners.max(axis=0), 6)
 
-    clearance = ndimage.distance_transform_edt(ros_map.free) * ros_map.resolution
+    clearance = ros_map.clearance()
     ok = clearance > body.radius + 0.15
     if not ok.any():
         raise ConfigError(
@@ -268,6 +269,7 @@ def mission_from_map(
             "ask for fewer robots"
         )
 
+    yaws = [_open_heading(ros_map, p) for p in chosen]
     data = {
         "mission": name or _safe_name(map_yaml.stem),
         "workspace": {
@@ -278,11 +280,34 @@ def mission_from_map(
         "floor_plan": {"path": str(map_yaml.resolve()), "wall_height": wall_height},
         "stop": {"observable_fraction": OBSERVABLE_FRACTION},
         "robots": [
-            {"id": f"r{i + 1}", "start": {"x": float(p[0]), "y": float(p[1]), "yaw": 0.0}}
-            for i, p in enumerate(chosen)
+            {"id": f"r{i + 1}", "start": {"x": float(p[0]), "y": float(p[1]), "yaw": yaw}}
+            for i, (p, yaw) in enumerate(zip(chosen, yaws, strict=True))
         ],
     }
     return mission_from_dict(data, source=map_yaml, base_dir=map_yaml.parent)
+
+
+#: How far (m) a start looks for open space: the default sensor's range (``sensor.max_range``).
+OPEN_VIEW_M = 5.0
+#: Headings a start may face: every 5 degrees, counter-clockwise from +x.
+HEADINGS = np.deg2rad(np.arange(0, 360, 5))
+
+
+def _open_heading(ros_map, xy: np.ndarray) -> float:
+    """The yaw (radians, in [0, 2 pi)) a robot starting at ``xy`` faces: into the most open space.
+
+    For each of :data:`HEADINGS`, the mean length of the free rays (:meth:`RosMap.free_ray_lengths`,
+    up to :data:`OPEN_VIEW_M`) over that heading and its two neighbours on either side (a
+    20 degree fan, so a slit between two walls does not win over an open room); the heading
+    with the longest mean wins, the first counter-clockwise from +x on a tie (so a start with
+    open space all round faces +x, as before). Rays stop at walls and unknown cells, which a
+    farthest free cell of the region (behind a wall) or the clearance's gradient (zero in the
+    middle of a room) would not.
+    """
+    rays = ros_map.free_ray_lengths(xy, HEADINGS, OPEN_VIEW_M)
+    fan = sum(np.roll(rays, k) for k in range(-2, 3)) / 5
+    best = np.flatnonzero(fan >= fan.max() - 1e-9)[0]
+    return round(float(HEADINGS[best]), 6)
 
 
 _IMAGE_SUFFIXES = (".pgm", ".pbm", ".ppm", ".pnm", ".pam", ".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg")

@@ -60,6 +60,47 @@ class RosMap:
         c, s = np.cos(yaw), np.sin(yaw)
         return np.stack([ox + c * u - s * v, oy + s * u + c * v], axis=-1)
 
+    def clearance(self) -> np.ndarray:
+        """Clearance (m) of every cell, shape (rows, cols) like ``free``; 0 where not free.
+
+        The distance from a free cell's centre to the nearest cell that is not free (occupied,
+        unknown, or beyond the image's edge, which counts as unknown), measured to that cell's
+        near edge: the centre-to-centre distance less half a cell. That is exact along rows
+        and columns (a robot between straight walls) and at most 0.21 cell more than the exact
+        distance to a cell that lies diagonally. Every test of where a robot's body fits on a
+        ROS map (starts of ``--map`` missions, the hint of a refused start, confined robots)
+        uses this one field.
+        """
+        from scipy import ndimage
+
+        centre = ndimage.distance_transform_edt(np.pad(self.free, 1))[1:-1, 1:-1]
+        return np.where(self.free, (centre - 0.5) * self.resolution, 0.0)
+
+    def free_ray_lengths(self, xy: np.ndarray, yaws: np.ndarray, reach: float) -> np.ndarray:
+        """How far (m) a ray from the point ``xy`` (2,) runs through free cells along each of
+        ``yaws`` (A,) (radians from +x, counter-clockwise), up to ``reach`` metres; shape (A,).
+
+        The ray is sampled every half cell and stops before its first sample in a cell that
+        is not free (occupied, unknown or beyond the image's edge); 0 when ``xy`` itself is not
+        on a free cell.
+        """
+        yaws = np.asarray(yaws, dtype=np.float64).reshape(-1)
+        step = 0.5 * self.resolution
+        s = np.arange(0, int(np.ceil(reach / step)) + 1) * step  # (S,), from the point itself
+        s = np.minimum(s, reach)
+        points = (
+            np.asarray(xy, dtype=np.float64)[:2]
+            + s[None, :, None] * np.stack([np.cos(yaws), np.sin(yaws)], axis=-1)[:, None, :]
+        )  # (A, S, 2)
+        cells = self.to_cell(points)
+        rows, cols = cells[..., 0], cells[..., 1]
+        inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
+        free = np.zeros(inside.shape, dtype=bool)
+        free[inside] = self.free[rows[inside], cols[inside]]
+        blocked = ~free
+        first = np.where(blocked.any(axis=1), np.argmax(blocked, axis=1), len(s))  # (A,)
+        return np.where(first > 0, s[np.maximum(first - 1, 0)], 0.0)
+
     def to_cell(self, xy: np.ndarray) -> np.ndarray:
         """Cell (row, col) indices (..., 2) of world points (may be outside the map)."""
         ox, oy, yaw = self.origin

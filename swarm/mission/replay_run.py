@@ -34,7 +34,8 @@ from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.mission.role_failure import RoleError
-from swarm.mission.runner import TeamMonitor, _child, _final_server_map, _stop, _wait_for_server
+from swarm.mission.runner import _child, _final_server_map, _stop, _wait_for_server
+from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import Frame
@@ -237,7 +238,7 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    from swarm.mission.run_report import top_view_image
+    from swarm.mission.run_plots import top_view_image
 
     traj = recording.positions()
     image, _ = top_view_image(cmap, (cmap.grid.lo[2], cmap.grid.hi[2]))

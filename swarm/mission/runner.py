@@ -4,12 +4,14 @@ The runner writes the effective mission to the run folder and is the mission's Z
 router on a loopback endpoint. It starts the map server (``swarm server``, its store in
 the run folder), the coordinator (``swarm coordinator``, unless coordination is off), the
 simulated world (``swarm sim world``) and one ``swarm agent`` per robot, and watches the
-mission as any monitor could: it keeps a replica of the team map from ``delta/*`` (the
-entropy curve, bytes and overlap per robot), trajectories from ``sim/truth`` and states
-from ``robot/*/status``. It stops at H_th (eq. 36), when every agent is done, or at the
-time limit; agents flush their outboxes, the server's final map is fetched over
-``map/snapshot``, and the run folder is written: metrics.json, map.npz, server_map.npz,
-plots, the config used and every process's log.
+mission as any monitor could (:class:`swarm.mission.team_monitor.TeamMonitor`): it keeps a
+replica of the team map from ``delta/*`` (the entropy curve, bytes and overlap per robot),
+trajectories from ``sim/truth`` and states from ``robot/*/status``. It stops at H_th (eq.
+36), when every agent is done, or at the time limit; agents flush their outboxes, the
+server's final map is fetched over ``map/snapshot``, and the run folder is written:
+metrics.json, map.npz, server_map.npz, plots, the config used and every process's log.
+``--view`` starts ``swarm view`` beside the roles; a view that cannot start (no display for
+its window, no rerun) is one warning line and the mission goes on without it.
 
 With ``secure`` (``swarm sim --secure``) the run folder gets a fresh team of certificates
 (``security/``, as ``swarm security init`` writes it); the map server is then the mission's
@@ -25,9 +27,8 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,18 +36,13 @@ import numpy as np
 from robot_agent.explorer import load_kernels
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.delta import Delta
-from swarm.map.entropy_cache import EntropyCache
-from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.mission.role_failure import RoleError
+from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
-from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
-from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
+from swarm.protocol.wire import DeltaMessage
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
-
-NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
 
 
 @dataclass
@@ -95,92 +91,6 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     endpoint = f"tls/127.0.0.1:{bus.free_port()}"
     server_args = ["--listen", endpoint, "--zenoh-config", str(team.configs["server"])]
     return BusPlan([], [endpoint], team.configs[OPERATOR], server_args, team.configs)
-
-
-@dataclass
-class TeamMonitor:
-    """What an observer of the bus knows: the team map, trajectories, states and traffic."""
-
-    mission: Mission
-    cmap: CoverageMap = field(init=False)
-    entropy: EntropyCache = field(init=False)
-    curve: list[tuple[float, float]] = field(default_factory=list)
-    trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
-    states: dict[str, str] = field(default_factory=dict)
-    bytes_shared: dict[str, int] = field(default_factory=dict)
-    # robot -> per voxel, the number of the first of its deltas that carried it (NEVER: none
-    # did); delta n is the one after which curve[n] was sampled, so its sim time is curve[n][0]
-    first_delta: dict[str, np.ndarray] = field(default_factory=dict)
-    sim_time: float = 0.0
-    dead: list[str] = field(default_factory=list)
-    rejected: int = 0
-    seen: AppliedDeltas = field(default_factory=AppliedDeltas)
-    applied: int = 0  # distinct deltas in the map
-    prior_deltas: int = 0  # of which the previous map's (delta/prior): the starting belief
-
-    def __post_init__(self) -> None:
-        grid = self.mission.workspace.grid()
-        self.cmap = CoverageMap(grid, self.mission.sensor.model())
-        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
-        self.curve.append((0.0, float(self.entropy.total)))
-        self._lock = threading.Lock()
-
-    def on_delta(self, _key: str, payload: bytes) -> None:
-        try:
-            msg = DeltaMessage.decode(payload)
-            if not self.cmap.grid.matches(msg.grid):
-                raise WireError(f"delta on grid {msg.grid}, not the mission's {self.cmap.grid}")
-            delta = Delta(msg.idx, msg.dlam, msg.deta)
-            with self._lock:
-                if (msg.robot, msg.epoch, msg.seq) in self.seen:
-                    return  # a resend: already counted
-                self.cmap.apply(delta)
-                self.seen.add(msg.robot, msg.epoch, msg.seq)
-                self.applied += 1
-                idx = msg.idx.astype(np.int64)
-                self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
-                if msg.robot == PRIOR_SOURCE:  # the previous map: the mission's starting belief
-                    self.prior_deltas += 1
-                    self.curve[-1] = (0.0, float(self.entropy.total))
-                    return
-                self.curve.append((float(msg.t), float(self.entropy.total)))
-                first = self.first_delta.get(msg.robot)
-                if first is None:
-                    first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
-                first[idx] = np.minimum(first[idx], self.applied - self.prior_deltas)
-                self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
-        except (WireError, ValueError) as exc:
-            self.rejected += 1
-            print(f"monitor: rejected delta: {exc}", file=sys.stderr)
-
-    def on_truth(self, _key: str, payload: bytes) -> None:
-        try:
-            truth = TruthPoses.decode(payload)
-        except WireError:
-            self.rejected += 1
-            return
-        with self._lock:
-            self.sim_time = truth.t
-            self.dead = list(truth.dead)
-            for rid, (x, y, _yaw) in truth.poses.items():
-                self.trajectories.setdefault(rid, []).append((truth.t, float(x), float(y)))
-
-    def on_status(self, _key: str, payload: bytes) -> None:
-        try:
-            status = Status.decode(payload)
-        except WireError:
-            self.rejected += 1
-            return
-        self.states[status.robot] = status.state
-
-    def first_delta_copy(self) -> dict[str, np.ndarray]:
-        """Robot id -> number of the first of its deltas that carried each voxel (NEVER: none)."""
-        with self._lock:
-            return {r: n.copy() for r, n in self.first_delta.items()}
-
-    @property
-    def team_entropy(self) -> float:
-        return float(self.entropy.total)
 
 
 def _child(args: list[str], log_path: Path) -> subprocess.Popen:
@@ -280,11 +190,9 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             )
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
-        if options.view is not None:
-            view_args = ["view", *plan.child_args(TOOL), "--mission", name]
-            if options.view != "window":
-                view_args += ["--save", str(Path(options.view).resolve())]
-            services.append(_child(view_args, out / "view.log"))
+        view = _start_view(options.view, plan, name, out)
+        if view is not None:
+            services.append(view)
         world = _child(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
         agents = [
@@ -307,6 +215,11 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 if coordinator.poll() is None:
                     coordinator.kill()
                     print(f"runner: killed the coordinator at sim t={monitor.sim_time:.1f} s", flush=True)
+            if view is not None and view.poll() is not None:  # the view listens: the mission goes on
+                if view.returncode != 0:
+                    why = why_it_exited(view)
+                    print(f"runner: warning: the view (--view) {why}; the mission goes on", file=sys.stderr)
+                view = None
             if h <= threshold:
                 reason = "threshold"
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
@@ -367,6 +280,31 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         },
     }
     return monitor, facts
+
+
+def _start_view(view: str | None, plan: BusPlan, mission: str, out: Path) -> subprocess.Popen | None:
+    """``swarm view`` beside the mission (``view``: "window", or the .rrd file to record), or None.
+
+    A window needs a display: without one (:func:`swarm.view.live.missing_display`) the view is
+    not started and one warning line says what to do instead; the mission runs as without --view.
+    """
+    if view is None:
+        return None
+    from swarm.view.live import missing_display
+
+    args = ["view", *plan.child_args(TOOL), "--mission", mission]
+    if view != "window":
+        args += ["--save", str(Path(view).resolve())]
+    elif why := missing_display():
+        print(
+            f"runner: warning: --view: {why}; the mission goes on without the view: run without --view, "
+            "or record it with --view RUN.rrd and open that with `rerun RUN.rrd` where there is a display "
+            "(the run folder's top_view.png and map_3d.png show the final map)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return None
+    return _child(args, out / "view.log")
 
 
 def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMonitor) -> None:

@@ -55,9 +55,7 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
     ros_map = getattr(plan, "ros_map", None)
     if ros_map is None:
         return []
-    # Cell centres to the nearest non-free cell's centre, less half a cell: to its edge.
-    clearance = (ndimage.distance_transform_edt(ros_map.free) - 0.5) * ros_map.resolution
-    fits = clearance > mission.robot.radius
+    fits = ros_map.clearance() > mission.robot.radius
     labels, count = ndimage.label(fits, structure=np.ones((3, 3), dtype=bool))
     if count == 0:
         return []
@@ -131,7 +129,8 @@ def _interrupt(signum, frame) -> None:
 def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     from sim2d.ground_truth import coverage as true_coverage_of
     from swarm.mission.run_report import RunRecord, compute_metrics, write_run_folder
-    from swarm.mission.runner import NEVER, MissionOptions, run_mission
+    from swarm.mission.runner import MissionOptions, run_mission
+    from swarm.mission.team_monitor import NEVER
     from swarm.mission.threshold import resolve_threshold
 
     try:

@@ -12,7 +12,9 @@ a delta and never makes the mission wait (the view publishes nothing).
 from __future__ import annotations
 
 import logging
+import os
 import queue
+import sys
 import threading
 import time
 from pathlib import Path
@@ -33,6 +35,20 @@ from swarm.view.scene import RobotTrack, log_map, log_robot, require_rerun
 log = logging.getLogger("swarm.view")
 
 TIMELINE = "sim_time"
+
+
+def missing_display() -> str | None:
+    """Why a rerun viewer window cannot open here, or None when it can (or may).
+
+    On Linux and the BSDs a window needs an X or Wayland display: ``DISPLAY``,
+    ``WAYLAND_DISPLAY`` or ``WAYLAND_SOCKET`` set in the environment (an ssh session without
+    X forwarding, a container or a CI runner has none). macOS and Windows always may.
+    """
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return None
+    if any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
+        return None
+    return "no display to open a viewer window on (DISPLAY and WAYLAND_DISPLAY are unset)"
 
 
 def open_recording(mission: str, save: str | Path | None = None, spawn: bool = False):

@@ -1,0 +1,113 @@
+"""What an observer of a mission's bus knows: the team map, trajectories, states and traffic.
+
+:class:`TeamMonitor` subscribes like any client (``delta/*``, ``sim/truth``,
+``robot/*/status``) and keeps a replica of the team map from the deltas it sees: the entropy
+curve (one sample per delta), the bytes each robot shared, and per robot which of its deltas
+first carried each voxel (for the overlap over time). ``swarm sim`` and ``swarm replay run``
+(:mod:`swarm.mission.runner`, :mod:`swarm.mission.replay_run`) watch their missions with it.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarm.config import Mission
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.delta import Delta
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import default_table
+from swarm.mission.prior_map import PRIOR_SOURCE
+from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
+
+NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
+
+
+@dataclass
+class TeamMonitor:
+    """What an observer of the bus knows: the team map, trajectories, states and traffic."""
+
+    mission: Mission
+    cmap: CoverageMap = field(init=False)
+    entropy: EntropyCache = field(init=False)
+    curve: list[tuple[float, float]] = field(default_factory=list)
+    trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
+    states: dict[str, str] = field(default_factory=dict)
+    bytes_shared: dict[str, int] = field(default_factory=dict)
+    # robot -> per voxel, the number of the first of its deltas that carried it (NEVER: none
+    # did); delta n is the one after which curve[n] was sampled, so its sim time is curve[n][0]
+    first_delta: dict[str, np.ndarray] = field(default_factory=dict)
+    sim_time: float = 0.0
+    dead: list[str] = field(default_factory=list)
+    rejected: int = 0
+    seen: AppliedDeltas = field(default_factory=AppliedDeltas)
+    applied: int = 0  # distinct deltas in the map
+    prior_deltas: int = 0  # of which the previous map's (delta/prior): the starting belief
+
+    def __post_init__(self) -> None:
+        grid = self.mission.workspace.grid()
+        self.cmap = CoverageMap(grid, self.mission.sensor.model())
+        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
+        self.curve.append((0.0, float(self.entropy.total)))
+        self._lock = threading.Lock()
+
+    def on_delta(self, _key: str, payload: bytes) -> None:
+        try:
+            msg = DeltaMessage.decode(payload)
+            if not self.cmap.grid.matches(msg.grid):
+                raise WireError(f"delta on grid {msg.grid}, not the mission's {self.cmap.grid}")
+            delta = Delta(msg.idx, msg.dlam, msg.deta)
+            with self._lock:
+                if (msg.robot, msg.epoch, msg.seq) in self.seen:
+                    return  # a resend: already counted
+                self.cmap.apply(delta)
+                self.seen.add(msg.robot, msg.epoch, msg.seq)
+                self.applied += 1
+                idx = msg.idx.astype(np.int64)
+                self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
+                if msg.robot == PRIOR_SOURCE:  # the previous map: the mission's starting belief
+                    self.prior_deltas += 1
+                    self.curve[-1] = (0.0, float(self.entropy.total))
+                    return
+                self.curve.append((float(msg.t), float(self.entropy.total)))
+                first = self.first_delta.get(msg.robot)
+                if first is None:
+                    first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
+                first[idx] = np.minimum(first[idx], self.applied - self.prior_deltas)
+                self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
+        except (WireError, ValueError) as exc:
+            self.rejected += 1
+            print(f"monitor: rejected delta: {exc}", file=sys.stderr)
+
+    def on_truth(self, _key: str, payload: bytes) -> None:
+        try:
+            truth = TruthPoses.decode(payload)
+        except WireError:
+            self.rejected += 1
+            return
+        with self._lock:
+            self.sim_time = truth.t
+            self.dead = list(truth.dead)
+            for rid, (x, y, _yaw) in truth.poses.items():
+                self.trajectories.setdefault(rid, []).append((truth.t, float(x), float(y)))
+
+    def on_status(self, _key: str, payload: bytes) -> None:
+        try:
+            status = Status.decode(payload)
+        except WireError:
+            self.rejected += 1
+            return
+        self.states[status.robot] = status.state
+
+    def first_delta_copy(self) -> dict[str, np.ndarray]:
+        """Robot id -> number of the first of its deltas that carried each voxel (NEVER: none)."""
+        with self._lock:
+            return {r: n.copy() for r, n in self.first_delta.items()}
+
+    @property
+    def team_entropy(self) -> float:
+        return float(self.entropy.total)
