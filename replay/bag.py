@@ -1,5 +1,5 @@
 """ROS 1 (``.bag``) and ROS 2 (``.db3``, ``.mcap`` folders) recordings, read with ``rosbags``
-(no ROS install).
+(no ROS install; opening the file and finding the topics: ``replay.bag_files``).
 
 * images: ``sensor_msgs/Image`` (mono8/16, bgr8, rgb8, bgra8, rgba8, YUV 4:2:2, Bayer 8/16) or
   ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics;
@@ -20,102 +20,23 @@ tolerance, a pose between two slower ones is interpolated, and what was dropped 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from replay import pose_messages as pm
 from replay.asl import RecordingError
+from replay.bag_files import bag_path, open_reader, topic_connections
 from replay.frames import RecordedPair
-from replay.image_messages import decode_image
+from replay.image_messages import camera_info, decode_image
 from replay.matching import Matched, match_stamps
 from replay.poses import interpolate_pose
 from replay.tf_tree import Chain, TfError, TfTree
-from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
+from swarm.formats.calibration_formats import stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
 POSE_GAP_S = 0.2  # poses at most this far apart are interpolated between, for an image between them
 _PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
-
-
-_IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-_POSE_TYPES = (
-    "geometry_msgs/msg/PoseStamped",
-    "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "nav_msgs/msg/Odometry",
-    "geometry_msgs/msg/TransformStamped",
-    *pm.TF_TYPES,
-)
-_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
-ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
-    "left": _IMAGE_TYPES,
-    "right": _IMAGE_TYPES,
-    "pose": _POSE_TYPES,
-    "left_info": _INFO_TYPES,
-    "right_info": _INFO_TYPES,
-}
-
-
-def _type_name(msgtype: str) -> str:
-    return msgtype.replace("/msg/", "/")
-
-
-def _camera_info(msg: Any, where: str) -> CameraInfo:
-    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
-    in the message, and says how the images were binned; a binned camera's are scaled to them."""
-    data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
-    data["distortion_model"] = msg.distortion_model
-    for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
-        data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
-    roi = msg.roi
-    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
-        raise RecordingError(
-            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
-            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
-        )
-    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
-    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
-        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
-        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
-        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
-        data["width"], data["height"] = data["width"] // bx, data["height"] // by
-    return CameraInfo.from_dict(data, where)
-
-
-def _bag_path(path: Path) -> Path:
-    if not path.exists():
-        raise RecordingError(f"{path}: no such bag")
-    if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
-        return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
-    return path
-
-
-@contextmanager
-def _open_reader(path: Path) -> Iterator[Any]:
-    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
-
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise RecordingError(
-            f"{path}: a ROS 2 bag is a folder with its metadata.yaml beside the .db3 / .mcap files, and "
-            "there is none ('ros2 bag reindex FOLDER' writes it)"
-        )
-    if path.suffix == ".active":
-        raise RecordingError(
-            f"{path}: an unfinished ROS 1 recording (rosbag record was stopped before it closed the bag): "
-            "'rosbag reindex' it and rename it to .bag"
-        )
-    try:
-        reader = AnyReader([path])
-        reader.open()
-    except (AnyReaderError, OSError) as exc:
-        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
-    try:
-        yield reader
-    finally:
-        reader.close()
 
 
 class BagRecording:
@@ -140,7 +61,7 @@ class BagRecording:
         world_frame: str | None = None,
         tf_static: str | None = None,
     ) -> None:
-        self.path = _bag_path(Path(path))
+        self.path = bag_path(Path(path))
         self.topics = {"left": left, "right": right, "pose": pose}
         if calibration is None:
             if not (left_info and right_info):
@@ -155,8 +76,8 @@ class BagRecording:
         first: dict[str, np.ndarray] = {}  # each camera's first image
         peak = 0  # the brightest 16-bit pixel of the first images
         unusable = 0  # pose messages of the camera that are not a pose, skipped
-        with _open_reader(self.path) as reader:
-            conns = self._connections(reader, tf_static)
+        with open_reader(self.path) as reader:
+            conns, self._static = topic_connections(reader, self.path, self.topics, tf_static)
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
                 raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
@@ -164,7 +85,7 @@ class BagRecording:
                 role = next(r for r, cs in conns.items() if conn in cs)
                 if role in ("left_info", "right_info"):
                     if role not in infos:
-                        infos[role] = _camera_info(
+                        infos[role] = camera_info(
                             reader.deserialize(raw, conn.msgtype), f"{path}: {conn.topic}"
                         )
                     continue
@@ -322,41 +243,6 @@ class BagRecording:
         self.pose_frames = f"{chain.child} in {chain.world} ({how}): {chain.describe()}"
         return chain
 
-    def _connections(self, reader: Any, tf_static: str | None) -> dict[str, list]:
-        present = sorted({c.topic for c in reader.connections})
-        conns = {}
-        roles: dict[str, str] = {}
-        for role, topic in self.topics.items():
-            if topic in roles:
-                raise RecordingError(f"{self.path}: topic {topic} is given as both {roles[topic]} and {role}")
-            roles[topic] = role
-            found = [c for c in reader.connections if c.topic == topic]
-            if not found:
-                raise RecordingError(f"{self.path}: topic {topic} ({role}) is not in the bag "
-                                     f"(topics: {', '.join(present)})")  # fmt: skip
-            for conn in found:
-                if conn.msgtype not in ROLE_TYPES[role]:
-                    wanted = ", ".join(_type_name(t) for t in ROLE_TYPES[role])
-                    raise RecordingError(
-                        f"{self.path}: topic {topic} ({role}) is a {_type_name(conn.msgtype)}; "
-                        f"the {role} topic must be one of {wanted}"
-                    )
-            conns[role] = found
-        self._static = None  # the /tf_static topic read with a /tf pose topic
-        static = tf_static or "/tf_static"
-        if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) and static != self.topics["pose"]:
-            found = [c for c in reader.connections if c.topic == static]
-            if tf_static and not found:
-                raise RecordingError(f"{self.path}: --tf-static {tf_static} is not in the bag "
-                                     f"(topics: {', '.join(present)})")  # fmt: skip
-            for conn in found:
-                if conn.msgtype not in pm.TF_TYPES:
-                    raise RecordingError(f"{self.path}: topic {conn.topic} (tf_static) is a "
-                                         f"{_type_name(conn.msgtype)}, not a tf2_msgs/TFMessage")  # fmt: skip
-            if found:
-                self._static, conns["tf_static"] = found[0].topic, found
-        return conns
-
     def __len__(self) -> int:
         return len(self.matched.reference)
 
@@ -375,7 +261,7 @@ class BagRecording:
         found: dict[int, dict[str, np.ndarray]] = {}
         counts = {"left": 0, "right": 0}
         nxt = start
-        with _open_reader(self.path) as reader:
+        with open_reader(self.path) as reader:
             conns = {
                 r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
             }

@@ -1,4 +1,5 @@
-"""ROS image messages to pixels: ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage``.
+"""ROS camera messages: ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` to pixels,
+``sensor_msgs/CameraInfo`` to a camera's calibration.
 
 Raw images are read by their ``encoding`` (``sensor_msgs/image_encodings``: mono, BGR/RGB with
 or without alpha, 16-bit, YUV 4:2:2 and Bayer mosaics), with row padding (``step``) and
@@ -15,6 +16,7 @@ import cv2
 import numpy as np
 
 from replay.asl import RecordingError
+from swarm.formats.calibration_formats import CameraInfo
 
 # sensor_msgs/image_encodings read (lower case): (pixel type, values a pixel, conversion to gray or BGR)
 _ENCODINGS: dict[str, tuple[type, int, Any]] = {
@@ -84,3 +86,26 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     if convert is not None:
         image = cv2.cvtColor(image, convert)
     return image
+
+
+def camera_info(msg: Any, where: str) -> CameraInfo:
+    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
+    in the message, and says how the images were binned; a binned camera's are scaled to them. A
+    region of interest is refused (RecordingError naming ``where``)."""
+    data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
+    data["distortion_model"] = msg.distortion_model
+    for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
+        data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
+    roi = msg.roi
+    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
+        raise RecordingError(
+            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
+            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
+        )
+    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
+    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
+        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
+        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
+        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
+        data["width"], data["height"] = data["width"] // bx, data["height"] // by
+    return CameraInfo.from_dict(data, where)
