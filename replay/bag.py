@@ -12,9 +12,10 @@
   ``tf2_msgs/TFMessage`` (``/tf``, with ``/tf_static``): the transforms on the path from
   ``world_frame`` down to ``child_frame``, composed (``replay.tf_tree``).
 
-Times are the messages' header stamps (sorted); left, right and pose are matched within a
-tolerance, a pose between two slower ones is interpolated, and what was dropped is counted
-(``matched.describe()``). Each camera's first image is decoded when the bag is opened.
+Times are the messages' header stamps (sorted); right images are matched to each left image
+within a tolerance, the pose at each left image's stamp follows ``replay.trajectory``'s rule
+(interpolated between two poses around it, or one within the tolerance), and what was dropped
+is counted (``matched.describe()``). Each camera's first image is decoded when the bag is opened.
 """
 
 from __future__ import annotations
@@ -30,12 +31,11 @@ from replay.bag_files import bag_path, open_reader, topic_connections
 from replay.frames import RecordedPair
 from replay.image_messages import camera_info, decode_image
 from replay.matching import Matched, match_stamps
-from replay.poses import interpolate_pose
 from replay.tf_tree import Chain, TfError, TfTree
+from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
-POSE_GAP_S = 0.2  # poses at most this far apart are interpolated between, for an image between them
 _PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
 
 
@@ -112,14 +112,11 @@ class BagRecording:
                     if first[role].dtype == np.uint16 and len(stamps[role]) <= _PEAK_IMAGES:
                         image = decode_image(msg, conn.topic) if image is None else image
                         peak = max(peak, int(image.max()))
-        chain = None
         if tree is not None:  # /tf: the camera's chain of transforms, world first
-            chain = self._chain(tree, children, world_frame)
-            if chain.direct:  # its own transforms, world -> camera: read as they are
-                stamps["pose"], positions, rotations = (list(v) for v in chain.edges[0].samples())
-            else:
-                stamps["pose"] = list(chain.stamps())
-            unusable = chain.unusable
+            track: Trajectory | Chain = self._chain(tree, children, world_frame)
+            stamps["pose"], unusable = track.stamps().tolist(), track.unusable
+        else:
+            track = Trajectory(stamps["pose"], positions, rotations)
         for role in self.topics:
             if not (stamps[role] if role in stamps else role in infos):
                 what = (
@@ -167,17 +164,11 @@ class BagRecording:
         self.left_stamps = left_sorted[first]
         self._left_message = ordered["left"][first]  # message number of each left stamp
         self._right_message = ordered["right"]
-        if chain is None or chain.direct:
-            order = np.argsort(stamps["pose"])
-            self.pose_stamps = np.asarray(stamps["pose"])[order]
-            self.pose_positions = np.asarray(positions)[order]
-            self.pose_rotations = np.asarray(rotations)[order]
-            self._interpolate_poses(tolerance_s)
-        else:  # each left image's pose, composed along the chain at its stamp
-            rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = chain.poses_at(
-                self.left_stamps, tolerance_s, POSE_GAP_S
-            )
-            self.pose_stamps = self.left_stamps[rows]
+        # the pose at each left stamp (replay.trajectory's rule, for a pose topic and /tf alike)
+        rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = track.poses_at(
+            self.left_stamps, tolerance_s, MAX_GAP_S
+        )
+        self.pose_stamps = self.left_stamps[rows]
         self.matched: Matched = match_stamps(
             self.left_stamps,
             {"right image": np.asarray(stamps["right"])[ordered["right"]], "pose": self.pose_stamps},
@@ -200,34 +191,6 @@ class BagRecording:
                 f"{path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
                 f"{shown}: are the topics stamped by one clock?"
             )
-
-    def _interpolate_poses(self, tolerance_s: float) -> None:
-        """Add a pose at each left stamp with none within the tolerance but one on each side at most
-        ``POSE_GAP_S`` apart (odometry or /tf slower than the camera), interpolated between them."""
-        stamps, positions, rotations = self.pose_stamps, self.pose_positions, self.pose_rotations
-        self.interpolated_poses = 0
-        if stamps.size < 2:
-            return
-        after = np.clip(np.searchsorted(stamps, self.left_stamps), 1, stamps.size - 1)
-        t0, t1 = stamps[after - 1], stamps[after]
-        near = np.minimum(np.abs(self.left_stamps - t0), np.abs(self.left_stamps - t1)) <= tolerance_s
-        inside = (t0 <= self.left_stamps) & (self.left_stamps <= t1) & (t1 - t0 <= POSE_GAP_S)
-        rows = np.flatnonzero(~near & inside)
-        if rows.size == 0:
-            return
-        new_p, new_r = [], []
-        for row in rows:
-            j = after[row]
-            s = (self.left_stamps[row] - stamps[j - 1]) / (stamps[j] - stamps[j - 1])
-            p, r = interpolate_pose(s, positions[j - 1], rotations[j - 1], positions[j], rotations[j])
-            new_p.append(p)
-            new_r.append(r)
-        all_stamps = np.concatenate([stamps, self.left_stamps[rows]])
-        order = np.argsort(all_stamps, kind="stable")
-        self.pose_stamps = all_stamps[order]
-        self.pose_positions = np.concatenate([positions, np.asarray(new_p)])[order]
-        self.pose_rotations = np.concatenate([rotations, np.asarray(new_r)])[order]
-        self.interpolated_poses = int(rows.size)
 
     def _chain(self, tree: TfTree, children: set[str], world_frame: str | None) -> Chain:
         """The left camera's chain in the transform tree of the /tf pose topic (and /tf_static)."""
