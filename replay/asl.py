@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from replay.frames import RecordedPair
+from replay.frames import RecordedPair, fit_image_size
 from replay.matching import Matched, match_stamps
 from replay.poses import camera_from_body, quaternion_matrix
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
@@ -68,6 +68,13 @@ def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
         raise RecordingError(f"{cam / 'data.csv'}: none of its {len(files)} image files is in {cam / 'data'}")
     order = [i for i in np.argsort(stamps) if present[i]]
     return stamps[order], [files[i] for i in order], int((~present).sum())
+
+
+def _read_image(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise RecordingError(f"{path}: missing or not a readable image")
+    return image
 
 
 @dataclass
@@ -131,6 +138,9 @@ class AslRecording:
         self.poses = load_poses(mav0, left)
         self.left_stamps, self.left_files, left_missing = _images(mav0 / "cam0")
         right_stamps, self.right_files, right_missing = _images(mav0 / "cam1")
+        for first in (self.left_files[0], self.right_files[0]):  # before anything starts
+            shape = _read_image(first).shape
+            self.calibration = fit_image_size(self.calibration, shape[1], shape[0], str(first))
         # matched in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"
         others = {"cam1 image": right_stamps * NS, "pose": self.poses.stamps * NS}
         self.matched: Matched = match_stamps(self.left_stamps * NS, others, tolerance_s)
@@ -152,11 +162,7 @@ class AslRecording:
             i = self.matched.reference[k]
             j = self.matched.others["cam1 image"][k]
             p = self.matched.others["pose"][k]
-            left = cv2.imread(str(self.left_files[i]), cv2.IMREAD_UNCHANGED)
-            right = cv2.imread(str(self.right_files[j]), cv2.IMREAD_UNCHANGED)
-            for path, image in ((self.left_files[i], left), (self.right_files[j], right)):
-                if image is None:
-                    raise RecordingError(f"{path}: missing or not a readable image")
+            left, right = _read_image(self.left_files[i]), _read_image(self.right_files[j])
             yield RecordedPair(
                 float(self.left_stamps[i]) * NS, left, right, self.poses.positions[p], self.poses.rotations[p]
             )

@@ -15,7 +15,8 @@
 Times are the messages' header stamps (sorted); right images are matched to each left image
 within a tolerance, the pose at each left image's stamp follows ``replay.trajectory``'s rule
 (interpolated between two poses around it, or one within the tolerance), and what was dropped
-is counted (``matched.describe()``). Each camera's first image is decoded when the bag is opened.
+is counted (``matched.describe()``). Each camera's first image is decoded when the bag is opened,
+and checked against the calibration (``replay.frames.fit_image_size``).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 from replay import pose_messages as pm
 from replay.asl import RecordingError
 from replay.bag_files import bag_path, open_reader, topic_connections
-from replay.frames import RecordedPair
+from replay.frames import RecordedPair, fit_image_size
 from replay.image_messages import camera_info, decode_image
 from replay.matching import Matched, match_stamps
 from replay.tf_tree import Chain, TfError, TfTree
@@ -44,7 +45,7 @@ class BagRecording:
 
     ``calibration``: a ``StereoCalibration``, or a function of the images' (width, height)
     returning one (for a file that states no image size), or None for the CameraInfo topics
-    ``left_info`` and ``right_info``.
+    ``left_info`` and ``right_info``. A rectified rig that states no size takes the images'.
     """
 
     def __init__(
@@ -135,19 +136,14 @@ class BagRecording:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
         elif callable(calibration):  # a loader that needs the images' (width, height)
             calibration = calibration(first["left"].shape[1::-1])
+        for role in ("left", "right"):  # checked against (or sized by) each camera's first image
+            h, w = first[role].shape[:2]
+            calibration = fit_image_size(calibration, w, h, f"{path}: topic {self.topics[role]}")
         self.calibration = calibration
         # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
         # and their top 8 bits would be black; the significant bits are those the brightest pixel
         # of the first images needs, and every image is scaled to 8 bits by them.
         self.pixel_bits = next(b for b in (8, 10, 12, 14, 16) if peak < 2**b) if peak else None
-        size = getattr(calibration, "image_size", None)
-        for role in ("left", "right"):
-            h, w = first[role].shape[:2]
-            if size is not None and (w, h) != tuple(size):
-                raise RecordingError(
-                    f"{path}: topic {self.topics[role]}: images are {w}x{h}, the calibration "
-                    f"({calibration.source}) is for {size[0]}x{size[1]}"
-                )
         # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
         # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
         ordered = {}

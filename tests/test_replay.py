@@ -222,3 +222,24 @@ def test_a_replay_that_fails_stops_its_agent(tmp_path, monkeypatch):
     with pytest.raises(RecordingError, match="1403715275312143104.png: missing or not a readable image"):
         run_replay(rec, default_mission(rec), ReplayOptions(out=tmp_path / "run", quiet=True))
     assert len(started) == 2 and all(p.poll() is not None for p in started)  # server and agent
+
+
+def test_asl_images_of_another_size_than_the_calibration_are_refused_when_opened(tmp_path):
+    """sensor.yaml for 640 x 480 beside 752 x 480 images: one error naming the image file and the
+    calibration, when the folder is opened (before, only the command line checked, apart from the
+    bag reader's own check)."""
+    import shutil
+
+    from replay.asl import AslRecording
+    from swarm.formats.stereo_calibration import CalibrationError
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    for cam in ("cam0", "cam1"):
+        path = copy / f"mav0/{cam}/sensor.yaml"
+        path.write_text(path.read_text().replace("resolution: [752, 480]", "resolution: [640, 480]"))
+    with pytest.raises(
+        CalibrationError,
+        match=r"cam0/data/\d+.png: images are 752x480, the calibration .*sensor.yaml\) is for 640x480",
+    ):
+        AslRecording(copy)

@@ -11,12 +11,14 @@ import pytest
 from replay.asl import RecordingError
 from replay.bag import BagRecording
 from replay.frames import to_gray8
+from swarm.formats.stereo_calibration import StereoCalibration
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402
 
 H, W = 12, 16
-CALIB = object()  # a calibration given: these tests read images, stamps and poses only
+# a rectified rig that states no image size: it takes the images' (these tests read images, stamps, poses)
+CALIB = StereoCalibration(100.0, 100.0, 8.0, 6.0, 0.1, source="rectified test rig")
 
 
 class DriverBag(BagWriter):
@@ -307,6 +309,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
     """Before, a calibration for other images, or an Image whose data is shorter than height * step,
     failed with a ValueError traceback once the map server and agent were running."""
     from swarm.formats.calibration_formats import load_stereo_calibration
+    from swarm.formats.stereo_calibration import CalibrationError
 
     euroc = Path(__file__).resolve().parent / "data" / "euroc_mini" / "mav0"
     calib = load_stereo_calibration(euroc / "cam0/sensor.yaml", euroc / "cam1/sensor.yaml")
@@ -315,7 +318,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
         _stereo(bag, [1.0, 1.05])
         bag.raw_image("/short", 1.0, "mono16", np.zeros(H * W * 2 - 5, np.uint8).tobytes(), step=2 * W)
     with pytest.raises(
-        RecordingError, match=r"topic /left: images are 16x12, the calibration .* is for 752x480"
+        CalibrationError, match=r"b.bag: topic /left: images are 16x12, the calibration .* is for 752x480"
     ):
         BagRecording(path, "/left", "/right", "/pose", calib)
     with pytest.raises(RecordingError, match=r"/short: a 16x12 mono16 image needs step >= 32 and "

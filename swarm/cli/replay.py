@@ -143,22 +143,6 @@ def _open_bag(args: argparse.Namespace):
     )  # fmt: skip
 
 
-def _fit_image_size(recording, start: int) -> None:
-    """Check the calibration against the first pair's images before any process starts: a file for
-    another size is refused naming it; a rectified rig that states no size takes the images'."""
-    import dataclasses
-
-    first = next(iter(recording.pairs(start, 1)), None)
-    if first is None:
-        return
-    height, width = first.left.shape[:2]
-    calib = recording.calibration
-    if calib.image_size is None and calib.maps is None:
-        recording.calibration = dataclasses.replace(calib, image_size=(width, height))
-    else:
-        calib.check_image_size(width, height, f"the recording's left image (pair {start})")
-
-
 def _run_asl(args: argparse.Namespace) -> int:
     return _replay(args, _open_asl)
 
@@ -188,7 +172,6 @@ def _replay(args: argparse.Namespace, opener) -> int:
                 f"--start {args.start}: the recording has {len(recording)} pairs after matching "
                 f"(0 to {len(recording) - 1})"
             )
-        _fit_image_size(recording, args.start)
         robot = args.robot
         if args.config is not None:
             mission = load_mission(args.config)
