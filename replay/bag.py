@@ -30,14 +30,14 @@ from replay import pose_messages as pm
 from replay.asl import RecordingError
 from replay.bag_files import bag_path, open_reader, topic_connections
 from replay.frames import RecordedPair, fit_image_size
-from replay.image_messages import camera_info, decode_image
+from replay.image_messages import SignificantBits, camera_info, decode_image, to_8_bits
 from replay.matching import Matched, match_stamps
 from replay.tf_tree import Chain, TfError, TfTree
 from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
-_PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
+BIT_SAMPLES = 30  # 16-bit images: how many of each camera's, spread over the bag, set the bits
 
 
 class BagRecording:
@@ -75,10 +75,11 @@ class BagRecording:
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
         first: dict[str, np.ndarray] = {}  # each camera's first image
-        peak = 0  # the brightest 16-bit pixel of the first images
         unusable = 0  # pose messages of the camera that are not a pose, skipped
         with open_reader(self.path) as reader:
             conns, self._static = topic_connections(reader, self.path, self.topics, tf_static)
+            images = ("left", "right")
+            bits = SignificantBits({r: sum(c.msgcount for c in conns[r]) for r in images}, BIT_SAMPLES)
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
                 raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
@@ -105,14 +106,13 @@ class BagRecording:
                         stamps["pose"].append(found[0])
                         positions.append(found[1])
                         rotations.append(found[2])
-                else:
-                    stamps[role].append(pm.stamp(msg))
+                else:  # an image topic
                     image = None
                     if role not in first:  # read now: a bad image is an error before anything starts
                         image = first[role] = decode_image(msg, conn.topic)
-                    if first[role].dtype == np.uint16 and len(stamps[role]) <= _PEAK_IMAGES:
-                        image = decode_image(msg, conn.topic) if image is None else image
-                        peak = max(peak, int(image.max()))
+                    if first[role].dtype == np.uint16 and bits.wants(role, len(stamps[role])):
+                        bits.add(decode_image(msg, conn.topic) if image is None else image)
+                    stamps[role].append(pm.stamp(msg))
         if tree is not None:  # /tf: the camera's chain of transforms, world first
             track: Trajectory | Chain = self._chain(tree, children, world_frame)
             stamps["pose"], unusable = track.stamps().tolist(), track.unusable
@@ -141,9 +141,9 @@ class BagRecording:
             calibration = fit_image_size(calibration, w, h, f"{path}: topic {self.topics[role]}")
         self.calibration = calibration
         # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
-        # and their top 8 bits would be black; the significant bits are those the brightest pixel
-        # of the first images needs, and every image is scaled to 8 bits by them.
-        self.pixel_bits = next(b for b in (8, 10, 12, 14, 16) if peak < 2**b) if peak else None
+        # and their top 8 bits would be black: every image is scaled to 8 bits by the bits the
+        # brightest pixel of images spread over the bag needs (a camera may start in the dark).
+        self.pixel_bits = bits.bits
         # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
         # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
         ordered = {}
@@ -231,10 +231,9 @@ class BagRecording:
                 ks = want[role].get(n)
                 if ks is None:
                     continue
-                image = decode_image(reader.deserialize(raw, conn.msgtype), conn.topic)
-                if image.dtype == np.uint16:
-                    shift = (self.pixel_bits or 16) - 8
-                    image = np.minimum(image >> shift, 255).astype(np.uint8)
+                image = to_8_bits(
+                    decode_image(reader.deserialize(raw, conn.msgtype), conn.topic), self.pixel_bits
+                )
                 for k in ks:
                     found.setdefault(k, {})[role] = image
                 while nxt in found and len(found[nxt]) == 2:

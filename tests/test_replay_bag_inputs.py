@@ -330,7 +330,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
 @pytest.mark.parametrize("compressed", [False, True])
 def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bits, compressed):
     """A 12-bit (or 10-bit) camera's mono16 holds 0..4095: its top 8 bits were a black image. The
-    brightest pixel of the first images sets the bits; full-range 16-bit keeps its top 8 bits."""
+    brightest pixel of sampled images sets the bits; full-range 16-bit keeps its top 8 bits."""
     path = _bag(tmp_path, 2)
     with DriverBag(path, 2) as bag:
         for k, t in enumerate((1.0, 1.05)):
@@ -353,6 +353,32 @@ def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bit
         assert np.array_equal(to_gray8(pair.left), _gray(k)) and np.array_equal(
             to_gray8(pair.right), _gray(k)
         )
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_16_bit_images_of_a_camera_that_starts_in_the_dark_keep_their_bits(tmp_path, ros):
+    """A 12-bit camera whose first 40 of 100 images are dark (values under 200): the bits came
+    from the first 30 images, 8 of them, and every later image saturated to white. They now come
+    from images spread over the whole recording: 12 bits, and the bright images keep their grey."""
+    path = _bag(tmp_path, ros)
+    ramp = np.arange(H * W, dtype=np.uint16).reshape(H, W)
+    frames = []
+    with DriverBag(path, ros) as bag:
+        for k in range(100):
+            t = 1.0 + 0.05 * k
+            image = ramp + np.uint16(k) if k < 40 else ramp * np.uint16(20) + np.uint16(k)  # up to 3919
+            frames.append(image)
+            for topic in ("/left", "/right"):
+                bag.raw_image(topic, t, "mono16", image.tobytes())
+            bag.pose("/pose", t, [0, 0, 1], [1, 0, 0, 0])
+    rec = BagRecording(path, "/left", "/right", "/pose", CALIB)
+    assert rec.pixel_bits == 12
+    pairs = list(rec.pairs())
+    assert len(pairs) == 100
+    for k in (0, 39, 40, 99):
+        want = (frames[k] >> 4).astype(np.uint8)
+        assert np.array_equal(pairs[k].left, want) and np.array_equal(pairs[k].right, want), k
+    assert pairs[99].left.max() == 3919 >> 4  # not saturated at 255
 
 
 @pytest.mark.parametrize("storage", ["SQLITE3", "MCAP"])
