@@ -94,16 +94,18 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
 
 class SignificantBits:
     """The significant bits of a recording's 16-bit images (8, 10, 12, 14 or 16), from the
-    brightest pixel of up to ``samples`` images of each topic, spread evenly over its messages
-    (a camera that starts in the dark and sees light later is judged by both)."""
+    brightest pixel of up to ``samples`` images of each topic, spread evenly over its
+    ``message_counts`` messages (a camera that starts in the dark and sees light later is judged
+    by both)."""
 
     BITS = (8, 10, 12, 14, 16)
 
     def __init__(self, message_counts: dict[str, int], samples: int = 30) -> None:
-        self._picked = {
+        self._picked = {  # a count the bag's index does not give (0): the first images
             name: set(np.linspace(0, count - 1, min(samples, count)).round().astype(int).tolist())
-            for name, count in message_counts.items()
             if count > 0
+            else set(range(samples))
+            for name, count in message_counts.items()
         }
         self.peak = 0  # the brightest 16-bit value seen
         self.images = 0  # 16-bit images looked at
