@@ -115,7 +115,9 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
 
 def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_path, euroc_asl_run):
     """``--realtime``: frames leave at the recorded times (one per second here), never before; the agent
-    takes them all (reliable delivery, its queue), so the map is the lockstep run's, bit for bit."""
+    takes them all (reliable delivery, its queue), so the map is the lockstep run's, bit for bit, and
+    so is the entropy after each frame (frames.csv; it was the one when the frame left, before its
+    delta came in: the previous frame's)."""
     import csv
 
     from swarm.formats.map_file import load_map
@@ -134,6 +136,45 @@ def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_
     assert all(float(r["round_trip_ms"]) > 0 and 0 < float(r["stereo_valid"]) <= 1 for r in rows)
     got, want = load_map(out / "map.npz"), load_map(euroc_asl_run / "map.npz")
     assert np.array_equal(got.lam, want.lam) and np.array_equal(got.eta, want.eta)
+    with (euroc_asl_run / "frames.csv").open() as fh:
+        lockstep = [float(r["entropy_bits"]) for r in csv.DictReader(fh)]
+    assert [float(r["entropy_bits"]) for r in rows] == pytest.approx(lockstep, rel=1e-12)
+    assert lockstep[0] < json.loads((out / "metrics.json").read_text())["entropy_start_bits"]
+
+
+def test_the_entropy_after_a_frame_is_the_one_after_its_deltas():
+    """FrameEntropy: the replayed robot's deltas carry their frame's time; the entropy after frame
+    t is the one after the last of them with a time <= t, whenever they arrive; another robot's
+    deltas change the team map but mark no frame."""
+    from swarm.config import mission_from_dict
+    from swarm.mission.replay_run import FrameEntropy
+    from swarm.mission.runner import TeamMonitor
+    from swarm.protocol.map_messages import DeltaMessage
+
+    mission = mission_from_dict(
+        {"mission": "m", "workspace": {"lo": [0, 0, 0], "hi": [1, 1, 1], "voxel": 0.5},
+         "robots": [{"id": "r1", "start": {"x": 0.5, "y": 0.5}}]}
+    )  # fmt: skip
+    monitor = TeamMonitor(mission)
+    entropy = FrameEntropy(monitor, "r1")
+    grid = mission.workspace.grid()
+
+    def delta(robot: str, seq: int, t: float, voxel: int) -> bytes:
+        one = np.ones(1, np.float32)
+        return DeltaMessage(robot, 1, seq, t, grid, np.array([voxel], np.uint32), one * 5, one * 5).encode()
+
+    start = monitor.team_entropy
+    assert entropy.latest() is None and entropy.after(10.0) == start
+    entropy.on_delta("m/delta/r1", delta("r1", 1, 10.0, 0))
+    h10 = monitor.team_entropy
+    entropy.on_delta("m/delta/r2", delta("r2", 1, 99.0, 1))  # another robot: no frame of ours
+    entropy.on_delta("m/delta/r1", delta("r1", 2, 12.0, 2))
+    assert h10 < start and monitor.team_entropy < h10
+    assert entropy.latest() == 12.0
+    assert entropy.after(9.9) == start and entropy.after(10.0) == entropy.after(11.0) == h10
+    assert entropy.after(12.0) == monitor.team_entropy
+    entropy.on_delta("m/delta/r1", b"not a delta")  # counted by the monitor, ignored here
+    assert monitor.rejected == 1 and entropy.latest() == 12.0
 
 
 @pytest.mark.parametrize(
