@@ -2,7 +2,8 @@
 (no ROS install; opening the file and finding the topics: ``replay.bag_files``).
 
 * images: ``sensor_msgs/Image`` (mono8/16, bgr8, rgb8, bgra8, rgba8, YUV 4:2:2, Bayer 8/16) or
-  ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics;
+  ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics, or one topic of
+  side-by-side pairs (a double-width image, the left camera's in its left half);
 * calibration: a ``StereoCalibration`` from files, or the two ``sensor_msgs/CameraInfo``
   topics (the first message of each);
 * poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
@@ -15,8 +16,8 @@
 Times are the messages' header stamps (sorted); right images are matched to each left image
 within a tolerance, the pose at each left image's stamp follows ``replay.trajectory``'s rule
 (interpolated between two poses around it, or one within the tolerance), and what was dropped
-is counted (``matched.describe()``). Each camera's first image is decoded when the bag is opened,
-and checked against the calibration (``replay.frames.fit_image_size``).
+is counted (``matched.describe()``). Each camera's first image is decoded when the bag is
+opened, and checked against the calibration (``replay.frames.fit_image_size``).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from replay import pose_messages as pm
 from replay.asl import RecordingError
 from replay.bag_files import bag_path, open_reader, topic_connections
 from replay.frames import RecordedPair, fit_image_size
-from replay.image_messages import SignificantBits, camera_info, decode_image, to_8_bits
+from replay.image_messages import SignificantBits, camera_info, decode_image, split_side_by_side, to_8_bits
 from replay.matching import Matched, match_stamps
 from replay.tf_tree import Chain, TfError, TfTree
 from replay.trajectory import MAX_GAP_S, Trajectory
@@ -43,16 +44,19 @@ BIT_SAMPLES = 30  # 16-bit images: how many of each camera's, spread over the ba
 class BagRecording:
     """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses.
 
+    Images: the ``left`` and ``right`` topics, or ``side_by_side``, one topic of double-width
+    images (left half: the left camera's; left and right are then None).
     ``calibration``: a ``StereoCalibration``, or a function of the images' (width, height)
     returning one (for a file that states no image size), or None for the CameraInfo topics
     ``left_info`` and ``right_info``. A rectified rig that states no size takes the images'.
+    Raises RecordingError (or CalibrationError) naming the bag and the topic.
     """
 
     def __init__(
         self,
         path: str | Path,
-        left: str,
-        right: str,
+        left: str | None,
+        right: str | None,
         pose: str,
         calibration: StereoCalibration | Callable[[tuple[int, int]], StereoCalibration] | None = None,
         left_info: str | None = None,
@@ -61,9 +65,16 @@ class BagRecording:
         tolerance_s: float = 0.01,
         world_frame: str | None = None,
         tf_static: str | None = None,
+        side_by_side: str | None = None,
     ) -> None:
         self.path = bag_path(Path(path))
-        self.topics = {"left": left, "right": right, "pose": pose}
+        if side_by_side and (left or right):
+            raise RecordingError(f"{path}: give the image topics as --left and --right or as --side-by-side, "
+                                 "not both")  # fmt: skip
+        if not (side_by_side or (left and right)):
+            raise RecordingError(f"{path}: give both image topics (--left, --right) or --side-by-side")
+        images = {"stereo": side_by_side} if side_by_side else {"left": left, "right": right}
+        self.topics: dict[str, str] = {**images, "pose": pose}
         if calibration is None:
             if not (left_info and right_info):
                 raise RecordingError(f"{path}: give a calibration (--calib-left/--calib-right) or both "
@@ -71,14 +82,13 @@ class BagRecording:
             self.topics |= {"left_info": left_info, "right_info": right_info}
         self.child_frame = child_frame
         self.pose_frames: str | None = None  # a /tf pose: its chain of frames, for the summary
-        stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
+        stamps: dict[str, list[float]] = {role: [] for role in (*images, "pose")}
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
-        first: dict[str, np.ndarray] = {}  # each camera's first image
+        first: dict[str, np.ndarray] = {}  # each image topic's first image
         unusable = 0  # pose messages of the camera that are not a pose, skipped
         with open_reader(self.path) as reader:
             conns, self._static = topic_connections(reader, self.path, self.topics, tf_static)
-            images = ("left", "right")
             bits = SignificantBits({r: sum(c.msgcount for c in conns[r]) for r in images}, BIT_SAMPLES)
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
@@ -118,43 +128,64 @@ class BagRecording:
             stamps["pose"], unusable = track.stamps().tolist(), track.unusable
         else:
             track = Trajectory(stamps["pose"], positions, rotations)
-        for role in self.topics:
-            if not (stamps[role] if role in stamps else role in infos):
-                what = (
-                    "no messages"
-                    if role != "pose" or not unusable
-                    else f"every message is an {pm.UNUSABLE_POSE}"
-                )
-                if role == "pose" and children:
-                    what = (
-                        f"no messages with child_frame_id {child_frame!r}"
-                        if child_frame
-                        else "give --child-frame, the left camera's child_frame_id"
-                    ) + f" (child frames: {', '.join(sorted(children))})"
-                raise RecordingError(f"{path}: topic {self.topics[role]}: {what}")
-        if calibration is None:
-            calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
-        elif callable(calibration):  # a loader that needs the images' (width, height)
-            calibration = calibration(first["left"].shape[1::-1])
-        for role in ("left", "right"):  # checked against (or sized by) each camera's first image
-            h, w = first[role].shape[:2]
-            calibration = fit_image_size(calibration, w, h, f"{path}: topic {self.topics[role]}")
-        self.calibration = calibration
+        self._check_messages(stamps, infos, unusable, children)
+        if side_by_side:
+            where = f"{path}: topic {side_by_side}"
+            first["left"], first["right"] = split_side_by_side(first.pop("stereo"), where)
+            stamps["left"] = stamps["right"] = stamps.pop("stereo")
+        self.calibration = self._fit_calibration(calibration, infos, first)
         # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
         # and their top 8 bits would be black: every image is scaled to 8 bits by the bits the
         # brightest pixel of images spread over the bag needs (a camera may start in the dark).
         self.pixel_bits = bits.bits
+        self._match(stamps, tolerance_s, track, unusable)
+
+    def _image_topic(self, side: str) -> str:
+        """The topic of the ``left`` or ``right`` camera's images, as errors name it."""
+        if "stereo" in self.topics:
+            return f"{self.topics['stereo']} ({side} half)"
+        return self.topics[side]
+
+    def _check_messages(self, stamps: dict, infos: dict, unusable: int, children: set[str]) -> None:
+        """A topic asked for with no message (of the camera: a pose topic) is named."""
+        for role in self.topics:
+            if stamps.get(role) if role in stamps else role in infos:
+                continue
+            what = (
+                "no messages" if role != "pose" or not unusable else f"every message is an {pm.UNUSABLE_POSE}"
+            )
+            if role == "pose" and children:
+                what = (
+                    f"no messages with child_frame_id {self.child_frame!r}"
+                    if self.child_frame
+                    else "give --child-frame, the left camera's child_frame_id"
+                ) + f" (child frames: {', '.join(sorted(children))})"
+            raise RecordingError(f"{self.path}: topic {self.topics[role]}: {what}")
+
+    def _fit_calibration(self, calibration, infos: dict, first: dict[str, np.ndarray]) -> StereoCalibration:
+        """The calibration, checked against (or sized by) each camera's first image."""
+        if calibration is None:
+            calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
+        elif callable(calibration):  # a loader that needs the images' (width, height)
+            calibration = calibration(first["left"].shape[1::-1])
+        for side in ("left", "right"):
+            h, w = first[side].shape[:2]
+            calibration = fit_image_size(calibration, w, h, f"{self.path}: topic {self._image_topic(side)}")
+        return calibration
+
+    def _match(self, stamps: dict, tolerance_s: float, track: Trajectory | Chain, unusable: int) -> None:
+        """Right images and poses for the left images; what was dropped is counted."""
         # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
         # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
         ordered = {}
-        for role in ("left", "right"):
-            arr = np.asarray(stamps[role])
+        for side in ("left", "right"):
+            arr = np.asarray(stamps[side])
             if arr.size > 1 and np.all(arr == arr[0]):
                 raise RecordingError(
-                    f"{path}: topic {self.topics[role]}: all {arr.size} messages have the header stamp "
-                    f"{arr[0]:.9f} (the driver does not stamp its images)"
+                    f"{self.path}: topic {self._image_topic(side)}: all {arr.size} messages have the header "
+                    f"stamp {arr[0]:.9f} (the driver does not stamp its images)"
                 )
-            ordered[role] = np.argsort(arr, kind="stable")
+            ordered[side] = np.argsort(arr, kind="stable")
         left_sorted = np.asarray(stamps["left"])[ordered["left"]]
         first = np.r_[True, np.diff(left_sorted) > 0]
         self.left_stamps = left_sorted[first]
@@ -175,16 +206,15 @@ class BagRecording:
         if unusable:
             self.matched.dropped[pm.UNUSABLE_POSE] += unusable
         if len(self.matched.reference) == 0:  # often topics stamped by different clocks
-            spans = {
-                "left": self.left_stamps,
-                "right": np.asarray(stamps["right"]),
-                "pose": np.asarray(stamps["pose"]),
-            }
+            spans = {"left": self.left_stamps, "right": np.asarray(stamps["right"]),
+                     "pose": np.asarray(stamps["pose"])}  # fmt: skip
             shown = ", ".join(
-                f"{self.topics[role]} {arr.min():.3f} .. {arr.max():.3f}" for role, arr in spans.items()
+                f"{self.topics['pose'] if role == 'pose' else self._image_topic(role)} "
+                f"{arr.min():.3f} .. {arr.max():.3f}"
+                for role, arr in spans.items()
             )
             raise RecordingError(
-                f"{path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
+                f"{self.path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
                 f"{shown}: are the topics stamped by one clock?"
             )
 
@@ -218,24 +248,25 @@ class BagRecording:
             want["left"].setdefault(int(self._left_message[i]), []).append(k)
             want["right"].setdefault(int(self._right_message[j]), []).append(k)
         found: dict[int, dict[str, np.ndarray]] = {}
-        counts = {"left": 0, "right": 0}
+        roles = [r for r in ("left", "right", "stereo") if r in self.topics]
+        counts = dict.fromkeys(roles, 0)
         nxt = start
         with open_reader(self.path) as reader:
-            conns = {
-                r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
-            }
-            for conn, _t, raw in reader.messages(connections=conns["left"] + conns["right"]):
-                role = "left" if conn in conns["left"] else "right"
+            conns = {r: [c for c in reader.connections if c.topic == self.topics[r]] for r in roles}
+            for conn, _t, raw in reader.messages(connections=[c for r in roles for c in conns[r]]):
+                role = next(r for r in roles if conn in conns[r])
                 n = counts[role]
                 counts[role] += 1
-                ks = want[role].get(n)
-                if ks is None:
+                sides = ("left", "right") if role == "stereo" else (role,)
+                if not any(n in want[side] for side in sides):
                     continue
                 image = to_8_bits(
                     decode_image(reader.deserialize(raw, conn.msgtype), conn.topic), self.pixel_bits
                 )
-                for k in ks:
-                    found.setdefault(k, {})[role] = image
+                halves = split_side_by_side(image, conn.topic) if role == "stereo" else (image,)
+                for side, half in zip(sides, halves, strict=True):
+                    for k in want[side].get(n, ()):
+                        found.setdefault(k, {})[side] = half
                 while nxt in found and len(found[nxt]) == 2:
                     p = self.matched.others["pose"][nxt]
                     t = float(self.left_stamps[self.matched.reference[nxt]])

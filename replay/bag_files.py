@@ -27,6 +27,7 @@ _INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
 ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
     "left": _IMAGE_TYPES,
     "right": _IMAGE_TYPES,
+    "stereo": _IMAGE_TYPES,  # side by side: left half the left camera's, right half the right's
     "pose": _POSE_TYPES,
     "left_info": _INFO_TYPES,
     "right_info": _INFO_TYPES,

@@ -158,3 +158,16 @@ def camera_info(msg: Any, where: str) -> CameraInfo:
         data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
         data["width"], data["height"] = data["width"] // bx, data["height"] // by
     return CameraInfo.from_dict(data, where)
+
+
+def split_side_by_side(image: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The (left, right) halves of a side-by-side stereo image (a double-width image, the left
+    camera's in its left half, as ZED and USB stereo cameras send it). An odd width raises
+    RecordingError naming ``where``."""
+    height, width = image.shape[:2]
+    if width % 2:
+        raise RecordingError(
+            f"{where}: a side-by-side pair is a double-width image; {width}x{height} has an odd width"
+        )
+    half = width // 2
+    return np.ascontiguousarray(image[:, :half]), np.ascontiguousarray(image[:, half:])

@@ -202,7 +202,7 @@ def test_opencv_stereo_calib_files_without_a_size_take_the_bags_image_size(tmp_p
     args = argparse.Namespace(
         bag=bag, left="/cam0/image_raw", right="/cam1/image_raw", pose="/cam0/pose", left_info=None,
         right_info=None, child_frame=None, tolerance=0.01, calib_left=tmp_path / "intrinsics.yml",
-        calib_right=tmp_path / "extrinsics.yml", world_frame=None, tf_static=None,
+        calib_right=tmp_path / "extrinsics.yml", world_frame=None, tf_static=None, side_by_side=None,
     )  # fmt: skip
     recording = _open_bag(args)
     want = load_stereo_calibration(EUROC / "mav0/cam0/sensor.yaml", EUROC / "mav0/cam1/sensor.yaml")

@@ -64,7 +64,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     bag = rsub.add_parser(
         "bag",
         help="a ROS 1 .bag or ROS 2 bag (.db3/.mcap), read with rosbags (no ROS install)",
-        description="Replay two image topics (sensor_msgs/Image or CompressedImage) with the left camera's "
+        description="Replay two image topics (sensor_msgs/Image or CompressedImage), or one of side-by-side "
+        "pairs, with the left camera's "
         "pose (geometry_msgs/PoseStamped or PoseWithCovarianceStamped, nav_msgs/Odometry, "
         "geometry_msgs/TransformStamped, or /tf with --child-frame, whose chain of transforms from the "
         "world (with /tf_static's) is composed; the pose of the left camera's optical frame in a z-up "
@@ -72,8 +73,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or from CameraInfo topics (--left-info/--right-info).",
     )
     bag.add_argument("bag", type=Path, help="a .bag file, or a ROS 2 bag folder / its .db3 or .mcap file")
-    bag.add_argument("--left", required=True, help="left image topic")
-    bag.add_argument("--right", required=True, help="right image topic")
+    bag.add_argument("--left", help="left image topic")
+    bag.add_argument("--right", help="right image topic")
+    bag.add_argument(
+        "--side-by-side",
+        metavar="TOPIC",
+        help="in place of --left and --right: one image topic of side-by-side pairs (double-width "
+        "images, the left camera's in the left half, as ZED and USB stereo cameras send them)",
+    )
     bag.add_argument(
         "--pose", required=True, help="pose topic (PoseStamped, Odometry, TransformStamped, or /tf)"
     )
@@ -140,6 +147,7 @@ def _open_bag(args: argparse.Namespace):
     return BagRecording(
         args.bag, args.left, args.right, args.pose, calib, args.left_info, args.right_info, args.child_frame,
         args.tolerance, world_frame=args.world_frame, tf_static=args.tf_static,
+        side_by_side=args.side_by_side,
     )  # fmt: skip
 
 
