@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Iterator
 from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
 import cv2
@@ -55,11 +56,23 @@ def _rows(path: Path, columns: int) -> list[list[str]]:
     return rows
 
 
+def _nanoseconds(text: str) -> int:
+    """A timestamp in ns as written (``1403715274312143104`` or ``1403715274312143104.0000``),
+    read exactly: a float64 keeps only 256 ns at today's epoch in ns. Raises ValueError."""
+    try:
+        value = Decimal(text)
+    except InvalidOperation:
+        raise ValueError(f"could not convert {text!r} to a timestamp in ns") from None
+    if not value.is_finite():
+        raise ValueError(f"timestamp {text!r} is not a number")
+    return int(value.to_integral_value())
+
+
 def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
     """(stamps in ns, sorted; their image files; how many rows named a file that is not there)."""
     rows = _rows(cam / "data.csv", 2)
     try:
-        stamps = np.array([int(float(r[0])) for r in rows], dtype=np.int64)
+        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
     except ValueError as exc:
         raise RecordingError(f"{cam / 'data.csv'}: timestamp column: {exc}") from None
     files = [cam / "data" / r[1] for r in rows]
@@ -90,12 +103,12 @@ class PoseTrack:
 def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rows = _rows(path, 8)
     try:
-        values = np.array([[float(c) for c in r[:8]] for r in rows])
+        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
+        values = np.array([[float(c) for c in r[1:8]] for r in rows])
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
-    order = np.argsort(values[:, 0])
-    values = values[order]
-    return values[:, 0].astype(np.int64), values[:, 1:4], values[:, 4:8]
+    order = np.argsort(stamps, kind="stable")
+    return stamps[order], values[order, 0:3], values[order, 3:7]
 
 
 def load_poses(mav0: Path, left: KalibrCamera) -> PoseTrack:

@@ -284,3 +284,23 @@ def test_asl_images_of_another_size_than_the_calibration_are_refused_when_opened
         match=r"cam0/data/\d+.png: images are 752x480, the calibration .*sensor.yaml\) is for 640x480",
     ):
         AslRecording(copy)
+
+
+def test_asl_nanosecond_stamps_are_read_exactly(tmp_path):
+    """Timestamps in ns went through a float64, which keeps 256 ns at today's epoch: a pose 100 ns
+    from its image was read 0 or 256 ns from it. Integers and '.000' decimals now read exactly."""
+    import shutil
+
+    from replay.asl import AslRecording
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    path = copy / "mav0/cam0_groundtruth/data.csv"
+    lines = path.read_text().splitlines()
+    first = lines[1].split(",")
+    first[0] = str(int(first[0].split(".")[0]) + 100)  # 1403715274312143204: not a float64
+    lines[1] = ",".join(first)
+    path.write_text("\n".join(lines) + "\n")
+    rec = AslRecording(copy)
+    assert rec.poses.stamps[0] - rec.left_stamps[0] == 100
+    assert rec.left_stamps[0] == 1403715274312143104
