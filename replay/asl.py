@@ -9,7 +9,8 @@ Poses, first found wins:
 * ``mav0/state_groundtruth_estimate0/data.csv``: EuRoC's body ground truth, ``p_RS_R`` and
   ``q_RS`` (w, x, y, z) **from body to world**, combined with cam0's ``T_BS``.
 
-Timestamps are nanoseconds; pairs and poses are matched within a tolerance.
+Timestamps are nanoseconds; right images are matched to each left image within a tolerance,
+and the pose at each left image's stamp follows ``replay.trajectory``'s rule (as in bags).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 from replay.frames import RecordedPair, fit_image_size
 from replay.matching import Matched, match_stamps
 from replay.poses import camera_from_body, quaternion_matrix
+from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
 from swarm.formats.errors import InputError
 from swarm.formats.stereo_calibration import StereoCalibration
@@ -154,8 +156,16 @@ class AslRecording:
         for first in (self.left_files[0], self.right_files[0]):  # before anything starts
             shape = _read_image(first).shape
             self.calibration = fit_image_size(self.calibration, shape[1], shape[0], str(first))
-        # matched in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"
-        others = {"cam1 image": right_stamps * NS, "pose": self.poses.stamps * NS}
+        # in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"; the
+        # pose at each left stamp by replay.trajectory's rule (a body ground truth at 200 Hz is
+        # interpolated between its samples around the image), in seconds from the first image so
+        # that the fraction of the way between two samples keeps its digits
+        origin = self.left_stamps[0]
+        track = Trajectory((self.poses.stamps - origin) * NS, self.poses.positions, self.poses.rotations)
+        rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = track.poses_at(
+            (self.left_stamps - origin) * NS, tolerance_s, MAX_GAP_S
+        )
+        others = {"cam1 image": right_stamps * NS, "pose": self.left_stamps[rows] * NS}
         self.matched: Matched = match_stamps(self.left_stamps * NS, others, tolerance_s)
         # rows of data.csv whose image file is not there (a partial copy) are left out and counted
         for cam, missing in (("cam0", left_missing), ("cam1", right_missing)):
@@ -167,7 +177,7 @@ class AslRecording:
 
     def positions(self) -> np.ndarray:
         """(N, 3) left camera positions of the kept pairs."""
-        return self.poses.positions[self.matched.others["pose"]]
+        return self.pose_positions[self.matched.others["pose"]]
 
     def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]:
         stop = len(self) if count is None else min(len(self), start + count)
@@ -177,5 +187,5 @@ class AslRecording:
             p = self.matched.others["pose"][k]
             left, right = _read_image(self.left_files[i]), _read_image(self.right_files[j])
             yield RecordedPair(
-                float(self.left_stamps[i]) * NS, left, right, self.poses.positions[p], self.poses.rotations[p]
+                float(self.left_stamps[i]) * NS, left, right, self.pose_positions[p], self.pose_rotations[p]
             )

@@ -304,3 +304,32 @@ def test_asl_nanosecond_stamps_are_read_exactly(tmp_path):
     rec = AslRecording(copy)
     assert rec.poses.stamps[0] - rec.left_stamps[0] == 100
     assert rec.left_stamps[0] == 1403715274312143104
+
+
+def test_asl_poses_between_the_images_stamps_are_interpolated(tmp_path):
+    """A pose file whose samples fall between the images' stamps (a ground truth at its own rate):
+    each image takes the pose interpolated at its stamp, by the rule of the bags
+    (replay.trajectory), not the nearest sample 2 ms away."""
+    import shutil
+
+    from replay.asl import AslRecording
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    path = copy / "mav0/cam0_groundtruth/data.csv"
+    rows = [line.split(",") for line in path.read_text().splitlines() if not line.startswith("#")]
+    velocity = np.array([1.0, -0.5, 0.2])  # m/s: a camera moving while its rotation holds
+    lines = []
+    for row in rows:
+        stamp, values = int(row[0].split(".")[0]), np.array([float(v) for v in row[1:8]])
+        for dt_ns in (-2_000_000, 3_000_000):  # ns stamps as integers: a float64 keeps 256 ns
+            moved = values.copy()
+            moved[:3] += velocity * dt_ns * 1e-9
+            lines.append(",".join([str(stamp + dt_ns)] + [repr(float(v)) for v in moved]))
+    path.write_text("#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n" + "\n".join(lines) + "\n")
+    want, got = AslRecording(EUROC), AslRecording(copy)
+    assert len(got) == len(want) == 4 and got.interpolated_poses == 4 and want.interpolated_poses == 0
+    for a, b in zip(got.pairs(), want.pairs(), strict=True):
+        assert a.t == b.t
+        assert np.allclose(a.position, b.position, rtol=0, atol=1e-9)
+        assert np.allclose(a.world_R_optical, b.world_R_optical, rtol=0, atol=1e-9)

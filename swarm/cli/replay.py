@@ -194,7 +194,7 @@ def _replay(args: argparse.Namespace, opener) -> int:
         print(f"poses: {frames}", flush=True)
     interpolated = getattr(recording, "interpolated_poses", 0)
     if interpolated:
-        print(f"{interpolated} poses interpolated between the pose topic's messages", flush=True)
+        print(f"{interpolated} poses interpolated between the recorded ones", flush=True)
     bits = getattr(recording, "pixel_bits", None)
     if bits is not None:
         print(f"16-bit images: {bits} significant bits (scaled to 8 bits by {2 ** (bits - 8)})", flush=True)
