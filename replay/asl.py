@@ -9,7 +9,8 @@ Poses, first found wins:
 * ``mav0/state_groundtruth_estimate0/data.csv``: EuRoC's body ground truth, ``p_RS_R`` and
   ``q_RS`` (w, x, y, z) **from body to world**, combined with cam0's ``T_BS``.
 
-Timestamps are nanoseconds; pairs and poses are matched within a tolerance.
+Timestamps are nanoseconds; right images are matched to each left image within a tolerance,
+and the pose at each left image's stamp follows ``replay.trajectory``'s rule (as in bags).
 """
 
 from __future__ import annotations
@@ -17,14 +18,16 @@ from __future__ import annotations
 import csv
 from collections.abc import Iterator
 from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from replay.frames import RecordedPair
+from replay.frames import RecordedPair, fit_image_size
 from replay.matching import Matched, match_stamps
 from replay.poses import camera_from_body, quaternion_matrix
+from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
 from swarm.formats.errors import InputError
 from swarm.formats.stereo_calibration import StereoCalibration
@@ -55,11 +58,23 @@ def _rows(path: Path, columns: int) -> list[list[str]]:
     return rows
 
 
+def _nanoseconds(text: str) -> int:
+    """A timestamp in ns as written (``1403715274312143104`` or ``1403715274312143104.0000``),
+    read exactly: a float64 keeps only 256 ns at today's epoch in ns. Raises ValueError."""
+    try:
+        value = Decimal(text)
+    except InvalidOperation:
+        raise ValueError(f"could not convert {text!r} to a timestamp in ns") from None
+    if not value.is_finite():
+        raise ValueError(f"timestamp {text!r} is not a number")
+    return int(value.to_integral_value())
+
+
 def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
     """(stamps in ns, sorted; their image files; how many rows named a file that is not there)."""
     rows = _rows(cam / "data.csv", 2)
     try:
-        stamps = np.array([int(float(r[0])) for r in rows], dtype=np.int64)
+        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
     except ValueError as exc:
         raise RecordingError(f"{cam / 'data.csv'}: timestamp column: {exc}") from None
     files = [cam / "data" / r[1] for r in rows]
@@ -68,6 +83,13 @@ def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
         raise RecordingError(f"{cam / 'data.csv'}: none of its {len(files)} image files is in {cam / 'data'}")
     order = [i for i in np.argsort(stamps) if present[i]]
     return stamps[order], [files[i] for i in order], int((~present).sum())
+
+
+def _read_image(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise RecordingError(f"{path}: missing or not a readable image")
+    return image
 
 
 @dataclass
@@ -83,12 +105,12 @@ class PoseTrack:
 def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rows = _rows(path, 8)
     try:
-        values = np.array([[float(c) for c in r[:8]] for r in rows])
+        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
+        values = np.array([[float(c) for c in r[1:8]] for r in rows])
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
-    order = np.argsort(values[:, 0])
-    values = values[order]
-    return values[:, 0].astype(np.int64), values[:, 1:4], values[:, 4:8]
+    order = np.argsort(stamps, kind="stable")
+    return stamps[order], values[order, 0:3], values[order, 3:7]
 
 
 def load_poses(mav0: Path, left: KalibrCamera) -> PoseTrack:
@@ -131,8 +153,19 @@ class AslRecording:
         self.poses = load_poses(mav0, left)
         self.left_stamps, self.left_files, left_missing = _images(mav0 / "cam0")
         right_stamps, self.right_files, right_missing = _images(mav0 / "cam1")
-        # matched in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"
-        others = {"cam1 image": right_stamps * NS, "pose": self.poses.stamps * NS}
+        for first in (self.left_files[0], self.right_files[0]):  # before anything starts
+            shape = _read_image(first).shape
+            self.calibration = fit_image_size(self.calibration, shape[1], shape[0], str(first))
+        # in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"; the
+        # pose at each left stamp by replay.trajectory's rule (a body ground truth at 200 Hz is
+        # interpolated between its samples around the image), in seconds from the first image so
+        # that the fraction of the way between two samples keeps its digits
+        origin = self.left_stamps[0]
+        track = Trajectory((self.poses.stamps - origin) * NS, self.poses.positions, self.poses.rotations)
+        rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = track.poses_at(
+            (self.left_stamps - origin) * NS, tolerance_s, MAX_GAP_S
+        )
+        others = {"cam1 image": right_stamps * NS, "pose": self.left_stamps[rows] * NS}
         self.matched: Matched = match_stamps(self.left_stamps * NS, others, tolerance_s)
         # rows of data.csv whose image file is not there (a partial copy) are left out and counted
         for cam, missing in (("cam0", left_missing), ("cam1", right_missing)):
@@ -144,7 +177,7 @@ class AslRecording:
 
     def positions(self) -> np.ndarray:
         """(N, 3) left camera positions of the kept pairs."""
-        return self.poses.positions[self.matched.others["pose"]]
+        return self.pose_positions[self.matched.others["pose"]]
 
     def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]:
         stop = len(self) if count is None else min(len(self), start + count)
@@ -152,11 +185,7 @@ class AslRecording:
             i = self.matched.reference[k]
             j = self.matched.others["cam1 image"][k]
             p = self.matched.others["pose"][k]
-            left = cv2.imread(str(self.left_files[i]), cv2.IMREAD_UNCHANGED)
-            right = cv2.imread(str(self.right_files[j]), cv2.IMREAD_UNCHANGED)
-            for path, image in ((self.left_files[i], left), (self.right_files[j], right)):
-                if image is None:
-                    raise RecordingError(f"{path}: missing or not a readable image")
+            left, right = _read_image(self.left_files[i]), _read_image(self.right_files[j])
             yield RecordedPair(
-                float(self.left_stamps[i]) * NS, left, right, self.poses.positions[p], self.poses.rotations[p]
+                float(self.left_stamps[i]) * NS, left, right, self.pose_positions[p], self.pose_rotations[p]
             )

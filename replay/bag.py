@@ -1,8 +1,9 @@
 """ROS 1 (``.bag``) and ROS 2 (``.db3``, ``.mcap`` folders) recordings, read with ``rosbags``
-(no ROS install).
+(no ROS install; opening the file and finding the topics: ``replay.bag_files``).
 
 * images: ``sensor_msgs/Image`` (mono8/16, bgr8, rgb8, bgra8, rgba8, YUV 4:2:2, Bayer 8/16) or
-  ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics;
+  ``sensor_msgs/CompressedImage`` (PNG, JPEG), left and right topics, or one topic of
+  side-by-side pairs (a double-width image, the left camera's in its left half);
 * calibration: a ``StereoCalibration`` from files, or the two ``sensor_msgs/CameraInfo``
   topics (the first message of each);
 * poses of the **left camera's optical frame** in the world (z up), ROS's usual meaning
@@ -12,125 +13,50 @@
   ``tf2_msgs/TFMessage`` (``/tf``, with ``/tf_static``): the transforms on the path from
   ``world_frame`` down to ``child_frame``, composed (``replay.tf_tree``).
 
-Times are the messages' header stamps (sorted); left, right and pose are matched within a
-tolerance, a pose between two slower ones is interpolated, and what was dropped is counted
-(``matched.describe()``). Each camera's first image is decoded when the bag is opened.
+Times are the messages' header stamps (sorted); right images are matched to each left image
+within a tolerance, the pose at each left image's stamp follows ``replay.trajectory``'s rule
+(interpolated between two poses around it, or one within the tolerance), and what was dropped
+is counted (``matched.describe()``). Each camera's first image is decoded when the bag is
+opened, and checked against the calibration (``replay.frames.fit_image_size``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from replay import pose_messages as pm
 from replay.asl import RecordingError
-from replay.frames import RecordedPair
-from replay.image_messages import decode_image
+from replay.bag_files import bag_path, open_reader, topic_connections
+from replay.frames import RecordedPair, fit_image_size
+from replay.image_messages import SignificantBits, camera_info, decode_image, split_side_by_side, to_8_bits
 from replay.matching import Matched, match_stamps
-from replay.poses import interpolate_pose
 from replay.tf_tree import Chain, TfError, TfTree
-from swarm.formats.calibration_formats import CameraInfo, stereo_from_camera_infos
+from replay.trajectory import MAX_GAP_S, Trajectory
+from swarm.formats.calibration_formats import stereo_from_camera_infos
 from swarm.formats.stereo_calibration import StereoCalibration
 
-POSE_GAP_S = 0.2  # poses at most this far apart are interpolated between, for an image between them
-_PEAK_IMAGES = 30  # 16-bit images: the first ones of each camera whose brightest pixel sets the bits
-
-
-_IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-_POSE_TYPES = (
-    "geometry_msgs/msg/PoseStamped",
-    "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "nav_msgs/msg/Odometry",
-    "geometry_msgs/msg/TransformStamped",
-    *pm.TF_TYPES,
-)
-_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
-ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
-    "left": _IMAGE_TYPES,
-    "right": _IMAGE_TYPES,
-    "pose": _POSE_TYPES,
-    "left_info": _INFO_TYPES,
-    "right_info": _INFO_TYPES,
-}
-
-
-def _type_name(msgtype: str) -> str:
-    return msgtype.replace("/msg/", "/")
-
-
-def _camera_info(msg: Any, where: str) -> CameraInfo:
-    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
-    in the message, and says how the images were binned; a binned camera's are scaled to them."""
-    data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
-    data["distortion_model"] = msg.distortion_model
-    for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
-        data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
-    roi = msg.roi
-    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
-        raise RecordingError(
-            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
-            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
-        )
-    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
-    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
-        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
-        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
-        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
-        data["width"], data["height"] = data["width"] // bx, data["height"] // by
-    return CameraInfo.from_dict(data, where)
-
-
-def _bag_path(path: Path) -> Path:
-    if not path.exists():
-        raise RecordingError(f"{path}: no such bag")
-    if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
-        return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
-    return path
-
-
-@contextmanager
-def _open_reader(path: Path) -> Iterator[Any]:
-    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
-
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise RecordingError(
-            f"{path}: a ROS 2 bag is a folder with its metadata.yaml beside the .db3 / .mcap files, and "
-            "there is none ('ros2 bag reindex FOLDER' writes it)"
-        )
-    if path.suffix == ".active":
-        raise RecordingError(
-            f"{path}: an unfinished ROS 1 recording (rosbag record was stopped before it closed the bag): "
-            "'rosbag reindex' it and rename it to .bag"
-        )
-    try:
-        reader = AnyReader([path])
-        reader.open()
-    except (AnyReaderError, OSError) as exc:
-        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
-    try:
-        yield reader
-    finally:
-        reader.close()
+BIT_SAMPLES = 30  # 16-bit images: how many of each camera's, spread over the bag, set the bits
 
 
 class BagRecording:
     """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses.
 
+    Images: the ``left`` and ``right`` topics, or ``side_by_side``, one topic of double-width
+    images (left half: the left camera's; left and right are then None).
     ``calibration``: a ``StereoCalibration``, or a function of the images' (width, height)
     returning one (for a file that states no image size), or None for the CameraInfo topics
-    ``left_info`` and ``right_info``.
+    ``left_info`` and ``right_info``. A rectified rig that states no size takes the images'.
+    Raises RecordingError (or CalibrationError) naming the bag and the topic.
     """
 
     def __init__(
         self,
         path: str | Path,
-        left: str,
-        right: str,
+        left: str | None,
+        right: str | None,
         pose: str,
         calibration: StereoCalibration | Callable[[tuple[int, int]], StereoCalibration] | None = None,
         left_info: str | None = None,
@@ -139,9 +65,16 @@ class BagRecording:
         tolerance_s: float = 0.01,
         world_frame: str | None = None,
         tf_static: str | None = None,
+        side_by_side: str | None = None,
     ) -> None:
-        self.path = _bag_path(Path(path))
-        self.topics = {"left": left, "right": right, "pose": pose}
+        self.path = bag_path(Path(path))
+        if side_by_side and (left or right):
+            raise RecordingError(f"{path}: give the image topics as --left and --right or as --side-by-side, "
+                                 "not both")  # fmt: skip
+        if not (side_by_side or (left and right)):
+            raise RecordingError(f"{path}: give both image topics (--left, --right) or --side-by-side")
+        images = {"stereo": side_by_side} if side_by_side else {"left": left, "right": right}
+        self.topics: dict[str, str] = {**images, "pose": pose}
         if calibration is None:
             if not (left_info and right_info):
                 raise RecordingError(f"{path}: give a calibration (--calib-left/--calib-right) or both "
@@ -149,14 +82,14 @@ class BagRecording:
             self.topics |= {"left_info": left_info, "right_info": right_info}
         self.child_frame = child_frame
         self.pose_frames: str | None = None  # a /tf pose: its chain of frames, for the summary
-        stamps: dict[str, list[float]] = {"left": [], "right": [], "pose": []}
+        stamps: dict[str, list[float]] = {role: [] for role in (*images, "pose")}
         positions, rotations, infos = [], [], {}
         children: set[str] = set()  # the pose topic's child frames, for the errors
-        first: dict[str, np.ndarray] = {}  # each camera's first image
-        peak = 0  # the brightest 16-bit pixel of the first images
+        first: dict[str, np.ndarray] = {}  # each image topic's first image
         unusable = 0  # pose messages of the camera that are not a pose, skipped
-        with _open_reader(self.path) as reader:
-            conns = self._connections(reader, tf_static)
+        with open_reader(self.path) as reader:
+            conns, self._static = topic_connections(reader, self.path, self.topics, tf_static)
+            bits = SignificantBits({r: sum(c.msgcount for c in conns[r]) for r in images}, BIT_SAMPLES)
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
                 raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
@@ -164,7 +97,7 @@ class BagRecording:
                 role = next(r for r, cs in conns.items() if conn in cs)
                 if role in ("left_info", "right_info"):
                     if role not in infos:
-                        infos[role] = _camera_info(
+                        infos[role] = camera_info(
                             reader.deserialize(raw, conn.msgtype), f"{path}: {conn.topic}"
                         )
                     continue
@@ -183,80 +116,86 @@ class BagRecording:
                         stamps["pose"].append(found[0])
                         positions.append(found[1])
                         rotations.append(found[2])
-                else:
-                    stamps[role].append(pm.stamp(msg))
+                else:  # an image topic
                     image = None
                     if role not in first:  # read now: a bad image is an error before anything starts
                         image = first[role] = decode_image(msg, conn.topic)
-                    if first[role].dtype == np.uint16 and len(stamps[role]) <= _PEAK_IMAGES:
-                        image = decode_image(msg, conn.topic) if image is None else image
-                        peak = max(peak, int(image.max()))
-        chain = None
+                    if first[role].dtype == np.uint16 and bits.wants(role, len(stamps[role])):
+                        bits.add(decode_image(msg, conn.topic) if image is None else image)
+                    stamps[role].append(pm.stamp(msg))
         if tree is not None:  # /tf: the camera's chain of transforms, world first
-            chain = self._chain(tree, children, world_frame)
-            if chain.direct:  # its own transforms, world -> camera: read as they are
-                stamps["pose"], positions, rotations = (list(v) for v in chain.edges[0].samples())
-            else:
-                stamps["pose"] = list(chain.stamps())
-            unusable = chain.unusable
+            track: Trajectory | Chain = self._chain(tree, children, world_frame)
+            stamps["pose"], unusable = track.stamps().tolist(), track.unusable
+        else:
+            track = Trajectory(stamps["pose"], positions, rotations)
+        self._check_messages(stamps, infos, unusable, children)
+        if side_by_side:
+            where = f"{path}: topic {side_by_side}"
+            first["left"], first["right"] = split_side_by_side(first.pop("stereo"), where)
+            stamps["left"] = stamps["right"] = stamps.pop("stereo")
+        self.calibration = self._fit_calibration(calibration, infos, first)
+        # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
+        # and their top 8 bits would be black: every image is scaled to 8 bits by the bits the
+        # brightest pixel of images spread over the bag needs (a camera may start in the dark).
+        self.pixel_bits = bits.bits
+        self._match(stamps, tolerance_s, track, unusable)
+
+    def _image_topic(self, side: str) -> str:
+        """The topic of the ``left`` or ``right`` camera's images, as errors name it."""
+        if "stereo" in self.topics:
+            return f"{self.topics['stereo']} ({side} half)"
+        return self.topics[side]
+
+    def _check_messages(self, stamps: dict, infos: dict, unusable: int, children: set[str]) -> None:
+        """A topic asked for with no message (of the camera: a pose topic) is named."""
         for role in self.topics:
-            if not (stamps[role] if role in stamps else role in infos):
+            if stamps.get(role) if role in stamps else role in infos:
+                continue
+            what = (
+                "no messages" if role != "pose" or not unusable else f"every message is an {pm.UNUSABLE_POSE}"
+            )
+            if role == "pose" and children:
                 what = (
-                    "no messages"
-                    if role != "pose" or not unusable
-                    else f"every message is an {pm.UNUSABLE_POSE}"
-                )
-                if role == "pose" and children:
-                    what = (
-                        f"no messages with child_frame_id {child_frame!r}"
-                        if child_frame
-                        else "give --child-frame, the left camera's child_frame_id"
-                    ) + f" (child frames: {', '.join(sorted(children))})"
-                raise RecordingError(f"{path}: topic {self.topics[role]}: {what}")
+                    f"no messages with child_frame_id {self.child_frame!r}"
+                    if self.child_frame
+                    else "give --child-frame, the left camera's child_frame_id"
+                ) + f" (child frames: {', '.join(sorted(children))})"
+            raise RecordingError(f"{self.path}: topic {self.topics[role]}: {what}")
+
+    def _fit_calibration(self, calibration, infos: dict, first: dict[str, np.ndarray]) -> StereoCalibration:
+        """The calibration, checked against (or sized by) each camera's first image."""
         if calibration is None:
             calibration = stereo_from_camera_infos(infos["left_info"], infos["right_info"])
         elif callable(calibration):  # a loader that needs the images' (width, height)
             calibration = calibration(first["left"].shape[1::-1])
-        self.calibration = calibration
-        # 16-bit images: a 10- or 12-bit camera's values sit in the low bits (0..4095 of 65535),
-        # and their top 8 bits would be black; the significant bits are those the brightest pixel
-        # of the first images needs, and every image is scaled to 8 bits by them.
-        self.pixel_bits = next(b for b in (8, 10, 12, 14, 16) if peak < 2**b) if peak else None
-        size = getattr(calibration, "image_size", None)
-        for role in ("left", "right"):
-            h, w = first[role].shape[:2]
-            if size is not None and (w, h) != tuple(size):
-                raise RecordingError(
-                    f"{path}: topic {self.topics[role]}: images are {w}x{h}, the calibration "
-                    f"({calibration.source}) is for {size[0]}x{size[1]}"
-                )
+        for side in ("left", "right"):
+            h, w = first[side].shape[:2]
+            calibration = fit_image_size(calibration, w, h, f"{self.path}: topic {self._image_topic(side)}")
+        return calibration
+
+    def _match(self, stamps: dict, tolerance_s: float, track: Trajectory | Chain, unusable: int) -> None:
+        """Right images and poses for the left images; what was dropped is counted."""
         # Header stamps, sorted (a driver's threads or a merged bag can put them out of order); a
         # left stamp seen twice (a republished image, a topic recorded twice) is kept once.
         ordered = {}
-        for role in ("left", "right"):
-            arr = np.asarray(stamps[role])
+        for side in ("left", "right"):
+            arr = np.asarray(stamps[side])
             if arr.size > 1 and np.all(arr == arr[0]):
                 raise RecordingError(
-                    f"{path}: topic {self.topics[role]}: all {arr.size} messages have the header stamp "
-                    f"{arr[0]:.9f} (the driver does not stamp its images)"
+                    f"{self.path}: topic {self._image_topic(side)}: all {arr.size} messages have the header "
+                    f"stamp {arr[0]:.9f} (the driver does not stamp its images)"
                 )
-            ordered[role] = np.argsort(arr, kind="stable")
+            ordered[side] = np.argsort(arr, kind="stable")
         left_sorted = np.asarray(stamps["left"])[ordered["left"]]
         first = np.r_[True, np.diff(left_sorted) > 0]
         self.left_stamps = left_sorted[first]
         self._left_message = ordered["left"][first]  # message number of each left stamp
         self._right_message = ordered["right"]
-        if chain is None or chain.direct:
-            order = np.argsort(stamps["pose"])
-            self.pose_stamps = np.asarray(stamps["pose"])[order]
-            self.pose_positions = np.asarray(positions)[order]
-            self.pose_rotations = np.asarray(rotations)[order]
-            self._interpolate_poses(tolerance_s)
-        else:  # each left image's pose, composed along the chain at its stamp
-            rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = chain.poses_at(
-                self.left_stamps, tolerance_s, POSE_GAP_S
-            )
-            self.pose_stamps = self.left_stamps[rows]
+        # the pose at each left stamp (replay.trajectory's rule, for a pose topic and /tf alike)
+        rows, self.pose_positions, self.pose_rotations, self.interpolated_poses = track.poses_at(
+            self.left_stamps, tolerance_s, MAX_GAP_S
+        )
+        self.pose_stamps = self.left_stamps[rows]
         self.matched: Matched = match_stamps(
             self.left_stamps,
             {"right image": np.asarray(stamps["right"])[ordered["right"]], "pose": self.pose_stamps},
@@ -267,46 +206,17 @@ class BagRecording:
         if unusable:
             self.matched.dropped[pm.UNUSABLE_POSE] += unusable
         if len(self.matched.reference) == 0:  # often topics stamped by different clocks
-            spans = {
-                "left": self.left_stamps,
-                "right": np.asarray(stamps["right"]),
-                "pose": np.asarray(stamps["pose"]),
-            }
+            spans = {"left": self.left_stamps, "right": np.asarray(stamps["right"]),
+                     "pose": np.asarray(stamps["pose"])}  # fmt: skip
             shown = ", ".join(
-                f"{self.topics[role]} {arr.min():.3f} .. {arr.max():.3f}" for role, arr in spans.items()
+                f"{self.topics['pose'] if role == 'pose' else self._image_topic(role)} "
+                f"{arr.min():.3f} .. {arr.max():.3f}"
+                for role, arr in spans.items()
             )
             raise RecordingError(
-                f"{path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
+                f"{self.path}: no pair left after matching ({self.matched.describe()}); header stamps (s): "
                 f"{shown}: are the topics stamped by one clock?"
             )
-
-    def _interpolate_poses(self, tolerance_s: float) -> None:
-        """Add a pose at each left stamp with none within the tolerance but one on each side at most
-        ``POSE_GAP_S`` apart (odometry or /tf slower than the camera), interpolated between them."""
-        stamps, positions, rotations = self.pose_stamps, self.pose_positions, self.pose_rotations
-        self.interpolated_poses = 0
-        if stamps.size < 2:
-            return
-        after = np.clip(np.searchsorted(stamps, self.left_stamps), 1, stamps.size - 1)
-        t0, t1 = stamps[after - 1], stamps[after]
-        near = np.minimum(np.abs(self.left_stamps - t0), np.abs(self.left_stamps - t1)) <= tolerance_s
-        inside = (t0 <= self.left_stamps) & (self.left_stamps <= t1) & (t1 - t0 <= POSE_GAP_S)
-        rows = np.flatnonzero(~near & inside)
-        if rows.size == 0:
-            return
-        new_p, new_r = [], []
-        for row in rows:
-            j = after[row]
-            s = (self.left_stamps[row] - stamps[j - 1]) / (stamps[j] - stamps[j - 1])
-            p, r = interpolate_pose(s, positions[j - 1], rotations[j - 1], positions[j], rotations[j])
-            new_p.append(p)
-            new_r.append(r)
-        all_stamps = np.concatenate([stamps, self.left_stamps[rows]])
-        order = np.argsort(all_stamps, kind="stable")
-        self.pose_stamps = all_stamps[order]
-        self.pose_positions = np.concatenate([positions, np.asarray(new_p)])[order]
-        self.pose_rotations = np.concatenate([rotations, np.asarray(new_r)])[order]
-        self.interpolated_poses = int(rows.size)
 
     def _chain(self, tree: TfTree, children: set[str], world_frame: str | None) -> Chain:
         """The left camera's chain in the transform tree of the /tf pose topic (and /tf_static)."""
@@ -321,41 +231,6 @@ class BagRecording:
         how = "--world-frame" if world_frame else "the root of its tree"
         self.pose_frames = f"{chain.child} in {chain.world} ({how}): {chain.describe()}"
         return chain
-
-    def _connections(self, reader: Any, tf_static: str | None) -> dict[str, list]:
-        present = sorted({c.topic for c in reader.connections})
-        conns = {}
-        roles: dict[str, str] = {}
-        for role, topic in self.topics.items():
-            if topic in roles:
-                raise RecordingError(f"{self.path}: topic {topic} is given as both {roles[topic]} and {role}")
-            roles[topic] = role
-            found = [c for c in reader.connections if c.topic == topic]
-            if not found:
-                raise RecordingError(f"{self.path}: topic {topic} ({role}) is not in the bag "
-                                     f"(topics: {', '.join(present)})")  # fmt: skip
-            for conn in found:
-                if conn.msgtype not in ROLE_TYPES[role]:
-                    wanted = ", ".join(_type_name(t) for t in ROLE_TYPES[role])
-                    raise RecordingError(
-                        f"{self.path}: topic {topic} ({role}) is a {_type_name(conn.msgtype)}; "
-                        f"the {role} topic must be one of {wanted}"
-                    )
-            conns[role] = found
-        self._static = None  # the /tf_static topic read with a /tf pose topic
-        static = tf_static or "/tf_static"
-        if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) and static != self.topics["pose"]:
-            found = [c for c in reader.connections if c.topic == static]
-            if tf_static and not found:
-                raise RecordingError(f"{self.path}: --tf-static {tf_static} is not in the bag "
-                                     f"(topics: {', '.join(present)})")  # fmt: skip
-            for conn in found:
-                if conn.msgtype not in pm.TF_TYPES:
-                    raise RecordingError(f"{self.path}: topic {conn.topic} (tf_static) is a "
-                                         f"{_type_name(conn.msgtype)}, not a tf2_msgs/TFMessage")  # fmt: skip
-            if found:
-                self._static, conns["tf_static"] = found[0].topic, found
-        return conns
 
     def __len__(self) -> int:
         return len(self.matched.reference)
@@ -373,25 +248,25 @@ class BagRecording:
             want["left"].setdefault(int(self._left_message[i]), []).append(k)
             want["right"].setdefault(int(self._right_message[j]), []).append(k)
         found: dict[int, dict[str, np.ndarray]] = {}
-        counts = {"left": 0, "right": 0}
+        roles = [r for r in ("left", "right", "stereo") if r in self.topics]
+        counts = dict.fromkeys(roles, 0)
         nxt = start
-        with _open_reader(self.path) as reader:
-            conns = {
-                r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
-            }
-            for conn, _t, raw in reader.messages(connections=conns["left"] + conns["right"]):
-                role = "left" if conn in conns["left"] else "right"
+        with open_reader(self.path) as reader:
+            conns = {r: [c for c in reader.connections if c.topic == self.topics[r]] for r in roles}
+            for conn, _t, raw in reader.messages(connections=[c for r in roles for c in conns[r]]):
+                role = next(r for r in roles if conn in conns[r])
                 n = counts[role]
                 counts[role] += 1
-                ks = want[role].get(n)
-                if ks is None:
+                sides = ("left", "right") if role == "stereo" else (role,)
+                if not any(n in want[side] for side in sides):
                     continue
-                image = decode_image(reader.deserialize(raw, conn.msgtype), conn.topic)
-                if image.dtype == np.uint16:
-                    shift = (self.pixel_bits or 16) - 8
-                    image = np.minimum(image >> shift, 255).astype(np.uint8)
-                for k in ks:
-                    found.setdefault(k, {})[role] = image
+                image = to_8_bits(
+                    decode_image(reader.deserialize(raw, conn.msgtype), conn.topic), self.pixel_bits
+                )
+                halves = split_side_by_side(image, conn.topic) if role == "stereo" else (image,)
+                for side, half in zip(sides, halves, strict=True):
+                    for k in want[side].get(n, ()):
+                        found.setdefault(k, {})[side] = half
                 while nxt in found and len(found[nxt]) == 2:
                     p = self.matched.others["pose"][nxt]
                     t = float(self.left_stamps[self.matched.reference[nxt]])

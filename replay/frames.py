@@ -6,6 +6,7 @@ The pair is undistorted and rectified with the stereo calibration; the pose publ
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,20 @@ def rectified_camera(calib: StereoCalibration) -> Camera:
         )
     w, h = calib.image_size
     return Camera(w, h, calib.fx, calib.fy, calib.cx, calib.cy, calib.baseline)
+
+
+def fit_image_size(calib: StereoCalibration, width: int, height: int, where: str) -> StereoCalibration:
+    """The calibration of a recording whose images are ``width`` x ``height`` px: a rectified rig that
+    states no size (no rectification maps) takes the images'; one made for another size raises
+    CalibrationError naming ``where`` (the images' file or topic) and the calibration's source."""
+    if calib.image_size is None and calib.maps is None:
+        return dataclasses.replace(calib, image_size=(int(width), int(height)))
+    if calib.image_size is not None and (width, height) != tuple(calib.image_size):
+        w, h = calib.image_size
+        raise CalibrationError(
+            f"{where}: images are {width}x{height}, the calibration ({calib.source}) is for {w}x{h}"
+        )
+    return calib
 
 
 def to_gray8(image: np.ndarray) -> np.ndarray:

@@ -1,10 +1,15 @@
-"""ROS image messages to pixels: ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage``.
+"""ROS camera messages: ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` to pixels,
+``sensor_msgs/CameraInfo`` to a camera's calibration.
 
 Raw images are read by their ``encoding`` (``sensor_msgs/image_encodings``: mono, BGR/RGB with
 or without alpha, 16-bit, YUV 4:2:2 and Bayer mosaics), with row padding (``step``) and
 big-endian 16-bit data; YUV gives its luma, Bayer mosaics are demosaiced to gray. Compressed
 images are decoded by OpenCV; image_transport's format string (``"ENCODING; png compressed"``)
 tells a compressed Bayer mosaic, demosaiced here too.
+
+16-bit images hold a 10- or 12-bit camera's values in their low bits (0..1023, 0..4095), whose top
+8 bits would be black: ``SignificantBits`` finds the bits from the brightest pixel of images
+spread over the whole recording, and ``to_8_bits`` scales by them.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import cv2
 import numpy as np
 
 from replay.asl import RecordingError
+from swarm.formats.calibration_formats import CameraInfo
 
 # sensor_msgs/image_encodings read (lower case): (pixel type, values a pixel, conversion to gray or BGR)
 _ENCODINGS: dict[str, tuple[type, int, Any]] = {
@@ -84,3 +90,84 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     if convert is not None:
         image = cv2.cvtColor(image, convert)
     return image
+
+
+class SignificantBits:
+    """The significant bits of a recording's 16-bit images (8, 10, 12, 14 or 16), from the
+    brightest pixel of up to ``samples`` images of each topic, spread evenly over its
+    ``message_counts`` messages (a camera that starts in the dark and sees light later is judged
+    by both)."""
+
+    BITS = (8, 10, 12, 14, 16)
+
+    def __init__(self, message_counts: dict[str, int], samples: int = 30) -> None:
+        self._picked = {  # a count the bag's index does not give (0): the first images
+            name: set(np.linspace(0, count - 1, min(samples, count)).round().astype(int).tolist())
+            if count > 0
+            else set(range(samples))
+            for name, count in message_counts.items()
+        }
+        self.peak = 0  # the brightest 16-bit value seen
+        self.images = 0  # 16-bit images looked at
+
+    def wants(self, name: str, index: int) -> bool:
+        """Whether message ``index`` (from 0, in the order read) of topic ``name`` is a sample."""
+        return index in self._picked.get(name, ())
+
+    def add(self, image: np.ndarray) -> None:
+        """Look at a sampled image (8-bit ones say nothing about 16-bit values and are skipped)."""
+        if image.dtype == np.uint16:
+            self.peak = max(self.peak, int(image.max()))
+            self.images += 1
+
+    @property
+    def bits(self) -> int | None:
+        """The bits the brightest sampled pixel needs; None when no 16-bit image was sampled."""
+        if not self.images:
+            return None
+        return next(b for b in self.BITS if self.peak < 2**b)
+
+
+def to_8_bits(image: np.ndarray, bits: int | None) -> np.ndarray:
+    """A 16-bit image scaled to 8 bits by its ``bits`` significant bits (None: 16), brighter values
+    saturating at 255; an 8-bit image as it is."""
+    if image.dtype != np.uint16:
+        return image
+    shift = (bits or 16) - 8
+    return np.minimum(image >> shift, 255).astype(np.uint8)
+
+
+def camera_info(msg: Any, where: str) -> CameraInfo:
+    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
+    in the message, and says how the images were binned; a binned camera's are scaled to them. A
+    region of interest is refused (RecordingError naming ``where``)."""
+    data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
+    data["distortion_model"] = msg.distortion_model
+    for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
+        data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
+    roi = msg.roi
+    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
+        raise RecordingError(
+            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
+            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
+        )
+    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
+    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
+        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
+        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
+        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
+        data["width"], data["height"] = data["width"] // bx, data["height"] // by
+    return CameraInfo.from_dict(data, where)
+
+
+def split_side_by_side(image: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The (left, right) halves of a side-by-side stereo image (a double-width image, the left
+    camera's in its left half, as ZED and USB stereo cameras send it). An odd width raises
+    RecordingError naming ``where``."""
+    height, width = image.shape[:2]
+    if width % 2:
+        raise RecordingError(
+            f"{where}: a side-by-side pair is a double-width image; {width}x{height} has an odd width"
+        )
+    half = width // 2
+    return np.ascontiguousarray(image[:, :half]), np.ascontiguousarray(image[:, half:])

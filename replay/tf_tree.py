@@ -9,8 +9,9 @@ into world vectors and whose translation is the camera's position in the world (
 of a pose, as a direct transform has it).
 
 Static edges (``/tf_static``) hold at every time, with their latest value; dynamic edges
-(``/tf``) are interpolated at the asked time between their two samples around it (straight line,
-slerp) when these are at most ``gap`` apart, or else take a sample within ``tolerance``.
+(``/tf``) take their value at the asked time by the rule of ``replay.trajectory`` (the one a
+pose topic's messages follow): interpolated between the two samples around it when these are at
+most ``gap`` apart, or else a sample within ``tolerance``.
 Frame ids are compared without a leading '/' (ROS 1's ``/base_link`` is ``base_link``).
 """
 
@@ -22,7 +23,8 @@ from functools import cached_property
 
 import numpy as np
 
-from replay.poses import interpolate_pose, quaternion_matrix
+from replay.poses import quaternion_matrix
+from replay.trajectory import PosesAt, Trajectory
 
 
 class TfError(ValueError):
@@ -66,29 +68,16 @@ class Edge:
         return self._usable[3]
 
     @cached_property
-    def _sorted(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        stamps, positions, rotations = (np.asarray(v) for v in self.samples())
-        order = np.argsort(stamps, kind="stable")
-        return stamps[order], positions[order], rotations[order]
+    def _trajectory(self) -> Trajectory:
+        return Trajectory(*self.samples())
 
-    def at(self, t: float, tolerance: float, gap: float) -> tuple[np.ndarray, np.ndarray, bool] | None:
-        """(translation, rotation, interpolated) of this edge at time ``t``, or None if it has none."""
-        if self.static:  # its latest value
+    def at(self, stamps: np.ndarray, tolerance: float, gap: float) -> PosesAt:
+        """This edge's transform at each of ``stamps`` (s): a static edge's latest value, a dynamic
+        edge's by the rule of ``replay.trajectory`` (interpolated, or a sample within ``tolerance``)."""
+        if self.static:
             _, positions, rotations = self.samples()
-            return positions[-1], rotations[-1], False
-        stamps, positions, rotations = self._sorted
-        j = int(np.searchsorted(stamps, t))  # stamps[j - 1] < t <= stamps[j]
-        if j < stamps.size and stamps[j] == t:
-            return positions[j], rotations[j], False
-        if 0 < j < stamps.size and stamps[j] - stamps[j - 1] <= gap:
-            s = (t - stamps[j - 1]) / (stamps[j] - stamps[j - 1])
-            p, r = interpolate_pose(s, positions[j - 1], rotations[j - 1], positions[j], rotations[j])
-            return p, r, True
-        near = [k for k in (j - 1, j) if 0 <= k < stamps.size and abs(stamps[k] - t) <= tolerance]
-        if not near:
-            return None
-        k = min(near, key=lambda k: abs(stamps[k] - t))
-        return positions[k], rotations[k], False
+            return PosesAt.constant(np.size(stamps), positions[-1], rotations[-1])
+        return self._trajectory.at(stamps, tolerance, gap)
 
     def __str__(self) -> str:
         return f"{self.parent} -> {self.child}"
@@ -101,11 +90,6 @@ class Chain:
     world: str
     child: str
     edges: list[Edge]
-
-    @property
-    def direct(self) -> bool:
-        """One dynamic transform world -> child: the pose topic's samples are the poses as they are."""
-        return len(self.edges) == 1 and not self.edges[0].static
 
     @property
     def unusable(self) -> int:
@@ -126,27 +110,15 @@ class Chain:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """The child's pose in the world at each stamp the chain has a value at: (rows of ``stamps``,
         positions (N, 3), world_R_child (N, 3, 3), how many needed an interpolated transform)."""
-        rows, positions, rotations = [], [], []
-        interpolated = 0
-        for row, t in enumerate(np.asarray(stamps, dtype=np.float64)):
-            p, r, turned = np.zeros(3), np.eye(3), False
-            for edge in self.edges:  # world_T_child = world_T_a @ a_T_b @ ...
-                value = edge.at(float(t), tolerance, gap)
-                if value is None:
-                    break
-                p, r = p + r @ value[0], r @ value[1]
-                turned |= value[2]
-            else:
-                rows.append(row)
-                positions.append(p)
-                rotations.append(r)
-                interpolated += turned
-        return (
-            np.asarray(rows, dtype=np.int64),
-            np.asarray(positions, dtype=np.float64).reshape(-1, 3),
-            np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3),
-            interpolated,
-        )
+        stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
+        world = PosesAt.constant(stamps.size, np.zeros(3), np.eye(3))
+        for edge in self.edges:  # world_T_child = world_T_a @ a_T_b @ ...
+            step = edge.at(stamps, tolerance, gap)
+            world.positions = world.positions + np.einsum("nij,nj->ni", world.rotations, step.positions)
+            world.rotations = world.rotations @ step.rotations
+            world.found &= step.found
+            world.interpolated |= step.interpolated
+        return world.rows()
 
 
 class TfTree:

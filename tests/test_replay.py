@@ -115,7 +115,9 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
 
 def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_path, euroc_asl_run):
     """``--realtime``: frames leave at the recorded times (one per second here), never before; the agent
-    takes them all (reliable delivery, its queue), so the map is the lockstep run's, bit for bit."""
+    takes them all (reliable delivery, its queue), so the map is the lockstep run's, bit for bit, and
+    so is the entropy after each frame (frames.csv; it was the one when the frame left, before its
+    delta came in: the previous frame's)."""
     import csv
 
     from swarm.formats.map_file import load_map
@@ -134,6 +136,45 @@ def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_
     assert all(float(r["round_trip_ms"]) > 0 and 0 < float(r["stereo_valid"]) <= 1 for r in rows)
     got, want = load_map(out / "map.npz"), load_map(euroc_asl_run / "map.npz")
     assert np.array_equal(got.lam, want.lam) and np.array_equal(got.eta, want.eta)
+    with (euroc_asl_run / "frames.csv").open() as fh:
+        lockstep = [float(r["entropy_bits"]) for r in csv.DictReader(fh)]
+    assert [float(r["entropy_bits"]) for r in rows] == pytest.approx(lockstep, rel=1e-12)
+    assert lockstep[0] < json.loads((out / "metrics.json").read_text())["entropy_start_bits"]
+
+
+def test_the_entropy_after_a_frame_is_the_one_after_its_deltas():
+    """FrameEntropy: the replayed robot's deltas carry their frame's time; the entropy after frame
+    t is the one after the last of them with a time <= t, whenever they arrive; another robot's
+    deltas change the team map but mark no frame."""
+    from swarm.config import mission_from_dict
+    from swarm.mission.replay_run import FrameEntropy
+    from swarm.mission.runner import TeamMonitor
+    from swarm.protocol.map_messages import DeltaMessage
+
+    mission = mission_from_dict(
+        {"mission": "m", "workspace": {"lo": [0, 0, 0], "hi": [1, 1, 1], "voxel": 0.5},
+         "robots": [{"id": "r1", "start": {"x": 0.5, "y": 0.5}}]}
+    )  # fmt: skip
+    monitor = TeamMonitor(mission)
+    entropy = FrameEntropy(monitor, "r1")
+    grid = mission.workspace.grid()
+
+    def delta(robot: str, seq: int, t: float, voxel: int) -> bytes:
+        one = np.ones(1, np.float32)
+        return DeltaMessage(robot, 1, seq, t, grid, np.array([voxel], np.uint32), one * 5, one * 5).encode()
+
+    start = monitor.team_entropy
+    assert entropy.latest() is None and entropy.after(10.0) == start
+    entropy.on_delta("m/delta/r1", delta("r1", 1, 10.0, 0))
+    h10 = monitor.team_entropy
+    entropy.on_delta("m/delta/r2", delta("r2", 1, 99.0, 1))  # another robot: no frame of ours
+    entropy.on_delta("m/delta/r1", delta("r1", 2, 12.0, 2))
+    assert h10 < start and monitor.team_entropy < h10
+    assert entropy.latest() == 12.0
+    assert entropy.after(9.9) == start and entropy.after(10.0) == entropy.after(11.0) == h10
+    assert entropy.after(12.0) == monitor.team_entropy
+    entropy.on_delta("m/delta/r1", b"not a delta")  # counted by the monitor, ignored here
+    assert monitor.rejected == 1 and entropy.latest() == 12.0
 
 
 @pytest.mark.parametrize(
@@ -222,3 +263,73 @@ def test_a_replay_that_fails_stops_its_agent(tmp_path, monkeypatch):
     with pytest.raises(RecordingError, match="1403715275312143104.png: missing or not a readable image"):
         run_replay(rec, default_mission(rec), ReplayOptions(out=tmp_path / "run", quiet=True))
     assert len(started) == 2 and all(p.poll() is not None for p in started)  # server and agent
+
+
+def test_asl_images_of_another_size_than_the_calibration_are_refused_when_opened(tmp_path):
+    """sensor.yaml for 640 x 480 beside 752 x 480 images: one error naming the image file and the
+    calibration, when the folder is opened (before, only the command line checked, apart from the
+    bag reader's own check)."""
+    import shutil
+
+    from replay.asl import AslRecording
+    from swarm.formats.stereo_calibration import CalibrationError
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    for cam in ("cam0", "cam1"):
+        path = copy / f"mav0/{cam}/sensor.yaml"
+        path.write_text(path.read_text().replace("resolution: [752, 480]", "resolution: [640, 480]"))
+    with pytest.raises(
+        CalibrationError,
+        match=r"cam0/data/\d+.png: images are 752x480, the calibration .*sensor.yaml\) is for 640x480",
+    ):
+        AslRecording(copy)
+
+
+def test_asl_nanosecond_stamps_are_read_exactly(tmp_path):
+    """Timestamps in ns went through a float64, which keeps 256 ns at today's epoch: a pose 100 ns
+    from its image was read 0 or 256 ns from it. Integers and '.000' decimals now read exactly."""
+    import shutil
+
+    from replay.asl import AslRecording
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    path = copy / "mav0/cam0_groundtruth/data.csv"
+    lines = path.read_text().splitlines()
+    first = lines[1].split(",")
+    first[0] = str(int(first[0].split(".")[0]) + 100)  # 1403715274312143204: not a float64
+    lines[1] = ",".join(first)
+    path.write_text("\n".join(lines) + "\n")
+    rec = AslRecording(copy)
+    assert rec.poses.stamps[0] - rec.left_stamps[0] == 100
+    assert rec.left_stamps[0] == 1403715274312143104
+
+
+def test_asl_poses_between_the_images_stamps_are_interpolated(tmp_path):
+    """A pose file whose samples fall between the images' stamps (a ground truth at its own rate):
+    each image takes the pose interpolated at its stamp, by the rule of the bags
+    (replay.trajectory), not the nearest sample 2 ms away."""
+    import shutil
+
+    from replay.asl import AslRecording
+
+    copy = tmp_path / "euroc"
+    shutil.copytree(EUROC, copy)
+    path = copy / "mav0/cam0_groundtruth/data.csv"
+    rows = [line.split(",") for line in path.read_text().splitlines() if not line.startswith("#")]
+    velocity = np.array([1.0, -0.5, 0.2])  # m/s: a camera moving while its rotation holds
+    lines = []
+    for row in rows:
+        stamp, values = int(row[0].split(".")[0]), np.array([float(v) for v in row[1:8]])
+        for dt_ns in (-2_000_000, 3_000_000):  # ns stamps as integers: a float64 keeps 256 ns
+            moved = values.copy()
+            moved[:3] += velocity * dt_ns * 1e-9
+            lines.append(",".join([str(stamp + dt_ns)] + [repr(float(v)) for v in moved]))
+    path.write_text("#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n" + "\n".join(lines) + "\n")
+    want, got = AslRecording(EUROC), AslRecording(copy)
+    assert len(got) == len(want) == 4 and got.interpolated_poses == 4 and want.interpolated_poses == 0
+    for a, b in zip(got.pairs(), want.pairs(), strict=True):
+        assert a.t == b.t
+        assert np.allclose(a.position, b.position, rtol=0, atol=1e-9)
+        assert np.allclose(a.world_R_optical, b.world_R_optical, rtol=0, atol=1e-9)

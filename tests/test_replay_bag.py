@@ -139,7 +139,6 @@ def test_calibration_for_another_image_size_is_refused_before_the_run(tmp_path, 
     EuRoC's 752 x 480) is one error line naming it, before any process starts; a rectified rig
     that states no size takes the images'."""
     from swarm.cli import main
-    from swarm.cli.replay import _fit_image_size
 
     bag = tmp_path / "euroc.bag"
     _write_euroc_bag(bag, 1)
@@ -150,13 +149,12 @@ def test_calibration_for_another_image_size_is_refused_before_the_run(tmp_path, 
     rc = main(["replay", "bag", str(bag), *topics, "--calib-left", str(rig), "--out", str(out)])
     err = capsys.readouterr().err
     assert rc == 2, err
-    # the bag's reader checks its first images when it opens the bag (the ASL path, in the CLI)
+    # the bag's reader checks its first images when it opens the bag (replay.frames.fit_image_size)
     assert "topic /cam0/image_raw: images are 752x480, the calibration" in err
     assert "rig.yaml) is for 640x480" in err
     assert not out.exists()
     rig.write_text("fx: 436.2\nfy: 436.2\ncx: 364.4\ncy: 256.8\nbaseline: 0.11\n")
     rec = BagRecording(bag, "/cam0/image_raw", "/cam1/image_raw", "/cam0/pose", load_stereo_calibration(rig))
-    _fit_image_size(rec, 0)
     assert rec.calibration.image_size == (752, 480) and rec.calibration.baseline == 0.11
 
 
@@ -204,7 +202,7 @@ def test_opencv_stereo_calib_files_without_a_size_take_the_bags_image_size(tmp_p
     args = argparse.Namespace(
         bag=bag, left="/cam0/image_raw", right="/cam1/image_raw", pose="/cam0/pose", left_info=None,
         right_info=None, child_frame=None, tolerance=0.01, calib_left=tmp_path / "intrinsics.yml",
-        calib_right=tmp_path / "extrinsics.yml", world_frame=None, tf_static=None,
+        calib_right=tmp_path / "extrinsics.yml", world_frame=None, tf_static=None, side_by_side=None,
     )  # fmt: skip
     recording = _open_bag(args)
     want = load_stereo_calibration(EUROC / "mav0/cam0/sensor.yaml", EUROC / "mav0/cam1/sensor.yaml")

@@ -11,12 +11,14 @@ import pytest
 from replay.asl import RecordingError
 from replay.bag import BagRecording
 from replay.frames import to_gray8
+from swarm.formats.stereo_calibration import StereoCalibration
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402
 
 H, W = 12, 16
-CALIB = object()  # a calibration given: these tests read images, stamps and poses only
+# a rectified rig that states no image size: it takes the images' (these tests read images, stamps, poses)
+CALIB = StereoCalibration(100.0, 100.0, 8.0, 6.0, 0.1, source="rectified test rig")
 
 
 class DriverBag(BagWriter):
@@ -307,6 +309,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
     """Before, a calibration for other images, or an Image whose data is shorter than height * step,
     failed with a ValueError traceback once the map server and agent were running."""
     from swarm.formats.calibration_formats import load_stereo_calibration
+    from swarm.formats.stereo_calibration import CalibrationError
 
     euroc = Path(__file__).resolve().parent / "data" / "euroc_mini" / "mav0"
     calib = load_stereo_calibration(euroc / "cam0/sensor.yaml", euroc / "cam1/sensor.yaml")
@@ -315,7 +318,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
         _stereo(bag, [1.0, 1.05])
         bag.raw_image("/short", 1.0, "mono16", np.zeros(H * W * 2 - 5, np.uint8).tobytes(), step=2 * W)
     with pytest.raises(
-        RecordingError, match=r"topic /left: images are 16x12, the calibration .* is for 752x480"
+        CalibrationError, match=r"b.bag: topic /left: images are 16x12, the calibration .* is for 752x480"
     ):
         BagRecording(path, "/left", "/right", "/pose", calib)
     with pytest.raises(RecordingError, match=r"/short: a 16x12 mono16 image needs step >= 32 and "
@@ -327,7 +330,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
 @pytest.mark.parametrize("compressed", [False, True])
 def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bits, compressed):
     """A 12-bit (or 10-bit) camera's mono16 holds 0..4095: its top 8 bits were a black image. The
-    brightest pixel of the first images sets the bits; full-range 16-bit keeps its top 8 bits."""
+    brightest pixel of sampled images sets the bits; full-range 16-bit keeps its top 8 bits."""
     path = _bag(tmp_path, 2)
     with DriverBag(path, 2) as bag:
         for k, t in enumerate((1.0, 1.05)):
@@ -350,6 +353,37 @@ def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bit
         assert np.array_equal(to_gray8(pair.left), _gray(k)) and np.array_equal(
             to_gray8(pair.right), _gray(k)
         )
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_16_bit_images_of_a_camera_that_starts_in_the_dark_keep_their_bits(tmp_path, ros):
+    """A 12-bit camera whose first 40 of 100 images are dark (values under 200): the bits came
+    from the first 30 images, 8 of them, and every later image saturated to white. They now come
+    from images spread over the whole recording: 12 bits, and the bright images keep their grey."""
+    path = _bag(tmp_path, ros)
+    ramp = np.arange(H * W, dtype=np.uint16).reshape(H, W)
+    frames = []
+    with DriverBag(path, ros) as bag:
+        for k in range(100):
+            t = 1.0 + 0.05 * k
+            image = ramp + np.uint16(k) if k < 40 else ramp * np.uint16(20) + np.uint16(k)  # up to 3919
+            frames.append(image)
+            for topic in ("/left", "/right"):
+                bag.raw_image(topic, t, "mono16", image.tobytes())
+            bag.pose("/pose", t, [0, 0, 1], [1, 0, 0, 0])
+    rec = BagRecording(path, "/left", "/right", "/pose", CALIB)
+    assert rec.pixel_bits == 12
+    pairs = list(rec.pairs())
+    assert len(pairs) == 100
+    for k in (0, 39, 40, 99):
+        want = (frames[k] >> 4).astype(np.uint8)
+        assert np.array_equal(pairs[k].left, want) and np.array_equal(pairs[k].right, want), k
+    assert pairs[99].left.max() == 3919 >> 4  # not saturated at 255
+    from replay.image_messages import SignificantBits
+
+    picked = SignificantBits({"/a": 100, "/b": 0}, samples=5)  # /b: no count in the bag's index
+    assert [k for k in range(100) if picked.wants("/a", k)] == [0, 25, 50, 74, 99]
+    assert [k for k in range(100) if picked.wants("/b", k)] == [0, 1, 2, 3, 4]  # its first ones
 
 
 @pytest.mark.parametrize("storage", ["SQLITE3", "MCAP"])

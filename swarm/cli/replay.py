@@ -64,7 +64,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     bag = rsub.add_parser(
         "bag",
         help="a ROS 1 .bag or ROS 2 bag (.db3/.mcap), read with rosbags (no ROS install)",
-        description="Replay two image topics (sensor_msgs/Image or CompressedImage) with the left camera's "
+        description="Replay two image topics (sensor_msgs/Image or CompressedImage), or one of side-by-side "
+        "pairs, with the left camera's "
         "pose (geometry_msgs/PoseStamped or PoseWithCovarianceStamped, nav_msgs/Odometry, "
         "geometry_msgs/TransformStamped, or /tf with --child-frame, whose chain of transforms from the "
         "world (with /tf_static's) is composed; the pose of the left camera's optical frame in a z-up "
@@ -72,8 +73,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or from CameraInfo topics (--left-info/--right-info).",
     )
     bag.add_argument("bag", type=Path, help="a .bag file, or a ROS 2 bag folder / its .db3 or .mcap file")
-    bag.add_argument("--left", required=True, help="left image topic")
-    bag.add_argument("--right", required=True, help="right image topic")
+    bag.add_argument("--left", help="left image topic")
+    bag.add_argument("--right", help="right image topic")
+    bag.add_argument(
+        "--side-by-side",
+        metavar="TOPIC",
+        help="in place of --left and --right: one image topic of side-by-side pairs (double-width "
+        "images, the left camera's in the left half, as ZED and USB stereo cameras send them)",
+    )
     bag.add_argument(
         "--pose", required=True, help="pose topic (PoseStamped, Odometry, TransformStamped, or /tf)"
     )
@@ -140,23 +147,8 @@ def _open_bag(args: argparse.Namespace):
     return BagRecording(
         args.bag, args.left, args.right, args.pose, calib, args.left_info, args.right_info, args.child_frame,
         args.tolerance, world_frame=args.world_frame, tf_static=args.tf_static,
+        side_by_side=args.side_by_side,
     )  # fmt: skip
-
-
-def _fit_image_size(recording, start: int) -> None:
-    """Check the calibration against the first pair's images before any process starts: a file for
-    another size is refused naming it; a rectified rig that states no size takes the images'."""
-    import dataclasses
-
-    first = next(iter(recording.pairs(start, 1)), None)
-    if first is None:
-        return
-    height, width = first.left.shape[:2]
-    calib = recording.calibration
-    if calib.image_size is None and calib.maps is None:
-        recording.calibration = dataclasses.replace(calib, image_size=(width, height))
-    else:
-        calib.check_image_size(width, height, f"the recording's left image (pair {start})")
 
 
 def _run_asl(args: argparse.Namespace) -> int:
@@ -188,7 +180,6 @@ def _replay(args: argparse.Namespace, opener) -> int:
                 f"--start {args.start}: the recording has {len(recording)} pairs after matching "
                 f"(0 to {len(recording) - 1})"
             )
-        _fit_image_size(recording, args.start)
         robot = args.robot
         if args.config is not None:
             mission = load_mission(args.config)
@@ -203,7 +194,7 @@ def _replay(args: argparse.Namespace, opener) -> int:
         print(f"poses: {frames}", flush=True)
     interpolated = getattr(recording, "interpolated_poses", 0)
     if interpolated:
-        print(f"{interpolated} poses interpolated between the pose topic's messages", flush=True)
+        print(f"{interpolated} poses interpolated between the recorded ones", flush=True)
     bits = getattr(recording, "pixel_bits", None)
     if bits is not None:
         print(f"16-bit images: {bits} significant bits (scaled to 8 bits by {2 ** (bits - 8)})", flush=True)

@@ -14,6 +14,7 @@ import csv
 import json
 import math
 import shutil
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -36,7 +37,7 @@ from swarm.map.entropy import expected_coverage
 from swarm.mission.role_failure import RoleError
 from swarm.mission.runner import _child, _final_server_map, _stop, _wait_for_server
 from swarm.mission.team_monitor import TeamMonitor
-from swarm.protocol import bus
+from swarm.protocol import bus, codec
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import Frame
 
@@ -54,6 +55,45 @@ class Recording(Protocol):
     def __len__(self) -> int: ...
     def positions(self) -> np.ndarray: ...
     def pairs(self, start: int = 0, count: int | None = None) -> Iterator[RecordedPair]: ...
+
+
+class FrameEntropy:
+    """The team map's entropy after each frame of the replayed robot, as the bus shows it.
+
+    The agent's deltas carry the time of the frame they follow (``t``) and may arrive after the
+    next frame left (``--realtime``), or not follow a frame at all (its outbox holds what is not
+    worth sending yet): the entropy after the frame at time ``t`` is the one after the last of
+    the robot's deltas with a time <= ``t``. Wraps ``monitor.on_delta`` as the ``delta/*``
+    subscriber.
+    """
+
+    def __init__(self, monitor: TeamMonitor, robot: str) -> None:
+        self.monitor = monitor
+        self.robot = robot
+        self.marks: list[tuple[float, float]] = []  # (t, entropy after) per delta of the robot
+        self._lock = threading.Lock()
+
+    def on_delta(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            self.monitor.on_delta(key, payload)
+            try:
+                header = codec.unpack(payload, "delta")
+                robot, t = header.get("robot"), float(header.get("t"))
+            except (codec.WireError, TypeError, ValueError, AttributeError):
+                return  # counted as rejected by the monitor
+            if robot == self.robot:
+                self.marks.append((t, self.monitor.team_entropy))
+
+    def after(self, t: float) -> float:
+        """Entropy (bits) after the frame at recording time ``t`` (s); the start's before any delta."""
+        with self._lock:
+            found = [bits for when, bits in self.marks if when <= t]
+        return found[-1] if found else self.monitor.curve[0][1]
+
+    def latest(self) -> float | None:
+        """Recording time of the latest frame whose delta has arrived (None: none yet)."""
+        with self._lock:
+            return max((when for when, _ in self.marks), default=None)
 
 
 def default_mission(
@@ -118,8 +158,9 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     else:
         session = bus.open_session(listen=[endpoint])  # the runner is the router
     monitor = TeamMonitor(mission)
+    entropy = FrameEntropy(monitor, options.robot)
     name = mission.mission
-    sub = bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta)
+    sub = bus.subscribe(session, bus.key_pattern(name, "delta", "*"), entropy.on_delta)
     client = MapClient(session, name, timeout=2.0)
     camera = rectified_camera(recording.calibration)
     matcher = matcher_for_rig(mission.rig_for(options.robot))  # the agent's matcher
@@ -155,23 +196,32 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
         def stereo_valid(frame: Frame) -> float:
             return float(np.isfinite(matcher.disparity(frame.left, frame.right)).mean())
 
+        sent_t: list[float] = []  # recording times of the frames sent so far
+
         def after_each(frame: Frame, rtt: float | None) -> None:
             # In realtime nothing may hold the next frame back: the stereo valid fraction is
-            # computed after the run, the round trips come from the answers' arrival times.
+            # computed after the run, the round trips come from the answers' arrival times, and
+            # each frame's entropy from the deltas' times (FrameEntropy) once all are in.
             valid = None if options.realtime else stereo_valid(frame)
             if not options.realtime:
                 time.sleep(0.05)  # let the agent's delta of this frame arrive
+            sent_t.append(frame.t)
             rows.append(
                 {"seq": frame.seq, "t": frame.t, "round_trip_ms": None if rtt is None else rtt * 1e3,
-                 "stereo_valid": valid, "entropy_bits": monitor.team_entropy}
+                 "stereo_valid": valid, "entropy_bits": None}
             )  # fmt: skip
             if not options.quiet:
                 ms = "no answer" if rtt is None else f"{rtt * 1e3:6.0f} ms"
-                ms = "sent" if options.realtime else ms
                 shown = "" if valid is None else f"  stereo valid {valid:4.0%}"
-                so_far = " (the deltas in so far)" if options.realtime else ""  # not this frame's yet
+                if options.realtime:  # this frame's delta is not in yet: say which frame H is after
+                    latest = entropy.latest()
+                    done = 0 if latest is None else sum(t <= latest for t in sent_t)
+                    ms, after = "sent", f" after frame {done}" if done else " at the start"
+                    h = entropy.after(sent_t[done - 1]) if done else monitor.curve[0][1]
+                else:
+                    after, h = "", entropy.after(frame.t)
                 print(f"frame {frame.seq + 1:4d}/{len(recording)}  {ms}{shown}  "
-                      f"H={monitor.team_entropy:,.0f} bits{so_far}", flush=True)  # fmt: skip
+                      f"H={h:,.0f} bits{after}", flush=True)  # fmt: skip
 
         log = publisher.run(_frames(recording, options), options.realtime, after_each=after_each)
         for row, (_seq, _t, rtt), sent in zip(rows, log.rows, log.sent_s, strict=True):
@@ -182,6 +232,8 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
                 row["stereo_valid"] = stereo_valid(frame)
         _stop([agent], AGENT_STOP_S)  # the agent flushes its outbox on SIGTERM, waits for the acks
         procs_agent = agent.returncode
+        for row in rows:  # every delta is in: the entropy after each frame, by the deltas' times
+            row["entropy_bits"] = entropy.after(row["t"])
         if options.connect is None:
             server_map = _final_server_map(client, monitor)
     finally:

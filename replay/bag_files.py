@@ -1,0 +1,120 @@
+"""Opening a ROS 1 or ROS 2 bag with ``rosbags`` and finding the topics asked for in it.
+
+What a file is (a ``.bag``, a ROS 2 folder or its ``.db3`` / ``.mcap`` file), why one cannot be
+read (unfinished, without ``metadata.yaml``, damaged), and which connections carry each role's
+topic with a message type that role reads. What the messages hold is ``replay.bag``'s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from replay import pose_messages as pm
+from replay.asl import RecordingError
+
+_IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+_POSE_TYPES = (
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/TransformStamped",
+    *pm.TF_TYPES,
+)
+_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
+ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and ROS 2 alike)
+    "left": _IMAGE_TYPES,
+    "right": _IMAGE_TYPES,
+    "stereo": _IMAGE_TYPES,  # side by side: left half the left camera's, right half the right's
+    "pose": _POSE_TYPES,
+    "left_info": _INFO_TYPES,
+    "right_info": _INFO_TYPES,
+}
+
+
+def type_name(msgtype: str) -> str:
+    """The message type as ROS 1 users write it: ``sensor_msgs/Image``."""
+    return msgtype.replace("/msg/", "/")
+
+
+def bag_path(path: Path) -> Path:
+    """The path rosbags opens: a ``.bag`` file, or a ROS 2 bag's folder (given it or a file of it)."""
+    if not path.exists():
+        raise RecordingError(f"{path}: no such bag")
+    if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
+        return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
+    return path
+
+
+@contextmanager
+def open_reader(path: Path) -> Iterator[Any]:
+    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise RecordingError(
+            f"{path}: a ROS 2 bag is a folder with its metadata.yaml beside the .db3 / .mcap files, and "
+            "there is none ('ros2 bag reindex FOLDER' writes it)"
+        )
+    if path.suffix == ".active":
+        raise RecordingError(
+            f"{path}: an unfinished ROS 1 recording (rosbag record was stopped before it closed the bag): "
+            "'rosbag reindex' it and rename it to .bag"
+        )
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except (AnyReaderError, OSError) as exc:
+        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def topic_connections(
+    reader: Any, path: Path, topics: dict[str, str], tf_static: str | None
+) -> tuple[dict[str, list], str | None]:
+    """The connections of each role's topic (``topics``: role -> topic), and with a ``/tf`` pose
+    topic those of the static transforms (role ``tf_static``: ``tf_static`` or ``/tf_static`` when
+    the bag has it), with that topic's name (None: none).
+
+    Raises RecordingError for a topic given for two roles, a topic not in the bag (the topics
+    present are listed) and a topic of a message type its role does not read.
+    """
+    present = sorted({c.topic for c in reader.connections})
+    conns: dict[str, list] = {}
+    roles: dict[str, str] = {}
+    for role, topic in topics.items():
+        if topic in roles:
+            raise RecordingError(f"{path}: topic {topic} is given as both {roles[topic]} and {role}")
+        roles[topic] = role
+        found = [c for c in reader.connections if c.topic == topic]
+        if not found:
+            raise RecordingError(f"{path}: topic {topic} ({role}) is not in the bag "
+                                 f"(topics: {', '.join(present)})")  # fmt: skip
+        for conn in found:
+            if conn.msgtype not in ROLE_TYPES[role]:
+                wanted = ", ".join(type_name(t) for t in ROLE_TYPES[role])
+                raise RecordingError(
+                    f"{path}: topic {topic} ({role}) is a {type_name(conn.msgtype)}; "
+                    f"the {role} topic must be one of {wanted}"
+                )
+        conns[role] = found
+    static = tf_static or "/tf_static"
+    if not any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) or static == topics["pose"]:
+        return conns, None
+    found = [c for c in reader.connections if c.topic == static]
+    if tf_static and not found:
+        raise RecordingError(f"{path}: --tf-static {tf_static} is not in the bag "
+                             f"(topics: {', '.join(present)})")  # fmt: skip
+    for conn in found:
+        if conn.msgtype not in pm.TF_TYPES:
+            raise RecordingError(f"{path}: topic {conn.topic} (tf_static) is a "
+                                 f"{type_name(conn.msgtype)}, not a tf2_msgs/TFMessage")  # fmt: skip
+    if not found:
+        return conns, None
+    conns["tf_static"] = found
+    return conns, static
