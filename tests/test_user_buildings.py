@@ -312,3 +312,21 @@ def test_map_given_the_image_a_mission_or_a_floor_plan_says_what_it_wants(tmp_pa
         ConfigError, match=r"plan\.yaml: a project floor plan, .* name it as floor_plan in a mission"
     ):
         mission_from_map(plan)
+
+
+def test_a_map_mission_workspace_lies_on_octomaps_lattice(tmp_path):
+    """A map whose origin is off the voxel lattice (-10.24 m at 0.1 m voxels) gets a workspace
+    whose corners are whole voxels from the world origin, covering the whole known map."""
+    image = np.full((60, 80), FREE, np.uint8)
+    image[0, :] = image[-1, :] = image[:, 0] = image[:, -1] = WALL
+    origin = (-10.24, 3.333, 0.0)
+    map_yaml = write_map(tmp_path, image, resolution=0.05, origin=origin)
+    mission = mission_from_map(map_yaml, robots=1, voxel=0.1)
+    lo, hi = np.asarray(mission.workspace.lo), np.asarray(mission.workspace.hi)
+    voxels_lo, voxels_hi = lo[:2] / 0.1, hi[:2] / 0.1
+    np.testing.assert_allclose(voxels_lo, np.round(voxels_lo), atol=1e-9)
+    np.testing.assert_allclose(voxels_hi, np.round(voxels_hi), atol=1e-9)
+    map_lo = np.array(origin[:2])
+    map_hi = map_lo + np.array([80, 60]) * 0.05
+    assert np.all(lo[:2] <= map_lo + 1e-9) and np.all(lo[:2] > map_lo - 0.1)
+    assert np.all(hi[:2] >= map_hi - 1e-9) and np.all(hi[:2] < map_hi + 0.1)

@@ -193,6 +193,9 @@ def mission_from_map(
 ) -> Mission:
     """A mission over a ROS map: workspace = known part of the map x [0, wall_height + z_margin].
 
+    The workspace's corners are whole voxels from the world origin (OctoMap's lattice), so
+    its maps export to ``.bt`` without a shift; the box grows by under a voxel per side.
+
     Robots start in known free space with at least robot radius + 0.15 m clearance
     (:meth:`RosMap.clearance`: to the nearest wall, unknown cell or the image's edge), in the
     free region connected to ``start`` (default: the largest free region, from its cell
@@ -229,7 +232,11 @@ def mission_from_map(
         np.array([cols.min(), cols.max() + 1, cols.max() + 1, cols.min()]),
         np.array([rows.min(), rows.min(), rows.max() + 1, rows.max() + 1]),
     )
-    lo_xy, hi_xy = np.round(corners.min(axis=0), 6), np.round(corners.max(axis=0), 6)
+    # The box in whole voxels from the world origin (OctoMap's lattice, so the map exports
+    # to .bt as it is); the rounding keeps 10.2 / 0.1 = 101.99999... at 102 voxels.
+    lo_xy = np.floor(np.round(corners.min(axis=0) / voxel, 6)) * voxel
+    hi_xy = np.ceil(np.round(corners.max(axis=0) / voxel, 6)) * voxel
+    lo_xy, hi_xy = np.round(lo_xy, 9), np.round(hi_xy, 9)
 
     clearance = ros_map.clearance()
     ok = clearance > body.radius + 0.15
