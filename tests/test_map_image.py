@@ -295,3 +295,12 @@ def test_file_written_in_text_mode_is_refused_not_shifted(tmp_path):
     # a raster that starts with byte 10 after a lone CR separator is a valid file, read as it is
     path.write_bytes(b"P5\n3 2\n255\r" + bytes([10, 0, 254, 254, 10, 205]))
     np.testing.assert_allclose(read_map_image(path).shade * 255, [[10, 0, 254], [254, 10, 205]])
+
+
+@pytest.mark.parametrize("mode", ["Trinary", "SCALE", "Raw"])
+def test_mode_is_read_in_any_case_as_nav2_does(tmp_path, mode):
+    """Nav2's map_mode_from_string lowercases the mode: ``mode: Trinary`` is a trinary map."""
+    (tmp_path / "site.pgm").write_bytes(pgm(room(254, 0), 255))
+    want = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode.lower()))
+    got = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode))
+    assert np.array_equal(got.occupied, want.occupied) and np.array_equal(got.free, want.free)
