@@ -529,3 +529,61 @@ def test_a_misspelt_field_of_a_sensor_yaml_is_pointed_at(tmp_path):
         CalibrationError, match=r"intrinsics: required field is missing \(is intrinsic a misspelling"
     ):
         load_stereo_calibration(tmp_path / "sensor.yaml", euroc / "cam1/sensor.yaml")
+
+
+def _expected_rectification() -> tuple[float, float]:
+    """fx and baseline of the reference rig, from cv2.stereoRectify itself."""
+    _r1, _r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    return float(p1[0, 0]), float(-p2[0, 3] / p2[0, 0])
+
+
+def _write_storage(path: Path, fields: dict) -> Path:
+    """A FileStorage file written by OpenCV itself; its encoding follows the name (.yml, .xml, .gz)."""
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, value in fields.items():
+        storage.write(name, value)
+    storage.release()
+    return path
+
+
+@pytest.mark.parametrize("name", ["stereo.xml", "stereo.xml.gz", "stereo.yml.gz", "stereo.yml"])
+@pytest.mark.parametrize("flat", [False, True])
+def test_opencv_writes_any_filestorage_encoding_and_it_loads(tmp_path, name, flat):
+    """cv::FileStorage writes XML and gzip as readily as YAML (OpenCV's calibration samples take
+    ``-o out.xml``), and a 1-D array as ``!!opencv-nd-matrix`` (opencv/opencv#22118 and #5836 are
+    about other readers failing on these files): all load as the YAML form does."""
+    shape = (lambda a: np.asarray(a).ravel()) if flat else np.atleast_2d
+    fields = {"M1": K1, "D1": shape(D1), "M2": K2, "D2": shape(D2), "R": R, "T": shape(T)}
+    fields["image_size"] = np.array(SIZE, np.int32) if flat else np.array([SIZE], np.int32)
+    cal = load_stereo_calibration(_write_storage(tmp_path / name, fields))
+    fx, baseline = _expected_rectification()
+    assert cal.fx == pytest.approx(fx, rel=1e-9) and cal.baseline == pytest.approx(baseline, rel=1e-9)
+    assert cal.image_size == SIZE
+
+
+def test_stereo_calib_sample_in_xml_loads_from_its_two_files(tmp_path):
+    intrinsics = _write_storage(tmp_path / "intrinsics.xml", {"M1": K1, "D1": D1, "M2": K2, "D2": D2})
+    extrinsics = _write_storage(tmp_path / "extrinsics.xml", {"R": R, "T": T})
+    cal = load_stereo_calibration(intrinsics, extrinsics, image_size=SIZE)
+    assert cal.baseline == pytest.approx(_expected_rectification()[1], rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (b'<?xml version="1.0"?>\n<opencv_storage>\n<M1 type_id="opencv-matrix"><rows>3</rows>\n'
+         b"</opencv_storage>\n", ["not a readable OpenCV FileStorage XML file", "closing tag"]),
+        (b"\x1f\x8b\x08\x00broken", ["a damaged gzip file"]),
+    ],
+)  # fmt: skip
+def test_broken_filestorage_files_are_refused_on_one_line(tmp_path, content, words):
+    path = tmp_path / "stereo.xml"
+    path.write_bytes(content)
+    with pytest.raises(CalibrationError) as info:
+        load_stereo_calibration(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message
+    for word in words:
+        assert word in message, message
