@@ -63,24 +63,16 @@ def _type_name(msgtype: str) -> str:
 
 
 def _camera_info(msg: Any, where: str) -> CameraInfo:
-    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
-    in the message, and says how the images were binned; a binned camera's are scaled to them."""
+    """The CameraInfo of the images as published (binning and region of interest as
+    ``CameraInfo.from_dict`` reads them, the same as in a camera_info file)."""
     data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
     data["distortion_model"] = msg.distortion_model
     for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
         data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
+    data["binning_x"], data["binning_y"] = int(msg.binning_x), int(msg.binning_y)
     roi = msg.roi
-    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
-        raise RecordingError(
-            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
-            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
-        )
-    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
-    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
-        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
-        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
-        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
-        data["width"], data["height"] = data["width"] // bx, data["height"] // by
+    data["roi"] = {"x_offset": int(roi.x_offset), "y_offset": int(roi.y_offset)}
+    data["roi"].update(width=int(roi.width), height=int(roi.height))
     return CameraInfo.from_dict(data, where)
 
 

@@ -587,3 +587,41 @@ def test_broken_filestorage_files_are_refused_on_one_line(tmp_path, content, wor
     assert message.startswith(f"{path}: ") and "\n" not in message
     for word in words:
         assert word in message, message
+
+
+@pytest.mark.parametrize("binning", [2, 4])
+def test_camera_info_file_of_a_binned_camera_is_scaled_as_a_topic_is(tmp_path, binning):
+    """A CameraInfo saved with ``ros2 topic echo`` from a binning driver keeps the full sensor's size,
+    K and P with ``binning_x``, ``binning_y`` (REP-104): the file gives the binned images'
+    calibration, as the bag's CameraInfo topic does, instead of a size mismatch on the images."""
+    full = load_stereo_calibration(*_camera_infos(tmp_path))
+    for path in _camera_infos(tmp_path):
+        info = yaml.safe_load(path.read_text())
+        path.write_text(yaml.safe_dump({**info, "binning_x": binning, "binning_y": binning}))
+    binned = load_stereo_calibration(tmp_path / "left.yaml", tmp_path / "right.yaml")
+    assert binned.image_size == (SIZE[0] // binning, SIZE[1] // binning)
+    for field in ("fx", "fy", "cx", "cy", "cx_right"):
+        assert getattr(binned, field) == pytest.approx(getattr(full, field) / binning, rel=1e-12)
+    assert binned.baseline == pytest.approx(full.baseline, rel=1e-12)
+    raw = np.zeros((SIZE[1] // binning, SIZE[0] // binning), np.uint8)
+    assert binned.rectify(raw, raw)[0].shape == raw.shape
+
+
+@pytest.mark.parametrize(
+    ("roi", "refused"),
+    [
+        ({"x_offset": 0, "y_offset": 0, "width": 0, "height": 0, "do_rectify": False}, False),
+        ({"x_offset": 0, "y_offset": 0, "width": SIZE[0], "height": SIZE[1], "do_rectify": False}, False),
+        ({"x_offset": 8, "y_offset": 4, "width": 200, "height": 100, "do_rectify": True}, True),
+        ("all", True),
+    ],
+)
+def test_camera_info_file_with_a_region_of_interest_is_refused_by_name(tmp_path, roi, refused):
+    left, right = _camera_infos(tmp_path)
+    left.write_text(yaml.safe_dump({**yaml.safe_load(left.read_text()), "roi": roi}))
+    if not refused:
+        assert load_stereo_calibration(left, right).image_size == SIZE
+        return
+    with pytest.raises(CalibrationError, match=r"left.yaml: roi: ") as info:
+        load_stereo_calibration(left, right)
+    assert "\n" not in str(info.value)

@@ -11,6 +11,7 @@ import pytest
 from replay.asl import RecordingError
 from replay.bag import BagRecording
 from replay.frames import to_gray8
+from swarm.formats.errors import InputError
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402
@@ -441,7 +442,7 @@ def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, r
     (pair, _) = rec.pairs()
     frame = make_frame("r1", 0, pair, calib, rectified_camera(calib))
     assert frame.left.shape == half[::-1]
-    with pytest.raises(RecordingError, match=r"/roi/camera_info: roi: images of a region of interest "
+    with pytest.raises(InputError, match=r"/roi/camera_info: roi: images of a region of interest "
                        r"\(640x480 at 8, 0 of 752x480\) are not supported"):  # fmt: skip
         BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/roi/camera_info")
 

@@ -54,7 +54,11 @@ def _read_yaml(path: Path) -> Any:
 
 @dataclass(frozen=True)
 class CameraInfo:
-    """One camera's ROS calibration: size, K (3x3), D, R (3x3), P (3x4), distortion model."""
+    """One camera's ROS calibration: size, K (3x3), D, R (3x3), P (3x4), distortion model.
+
+    Of the images as published: a binned camera's (``binning_x``, ``binning_y`` > 1; REP-104
+    keeps the full sensor's size, K and P in the message) are scaled to its binned images; a
+    region of interest (``roi``) is refused."""
 
     width: int
     height: int
@@ -103,12 +107,43 @@ class CameraInfo:
         p = p.reshape(3, 4)
         if p[0, 0] <= 0 or p[1, 1] <= 0:
             raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
+        _refuse_region_of_interest(data.get("roi"), width, height, source)
+        bx, by = (_binning(data, name, source) for name in ("binning_x", "binning_y"))
+        if (bx, by) != (1, 1):  # REP-104: K, P and the size are the full sensor's
+            scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
+            k, p = scale @ k, scale @ p
+            width, height = width // bx, height // by
         return cls(int(width), int(height), k, d, r.reshape(3, 3), p, model, source)
 
     @classmethod
     def load(cls, path: str | Path) -> CameraInfo:
         path = Path(path)
         return cls.from_dict(_read_yaml(path), str(path))
+
+
+def _binning(data: dict, name: str, source: str) -> int:
+    """``binning_x`` / ``binning_y`` of a CameraInfo: 0 and 1 both mean none (REP-104)."""
+    value = whole_number(data.get(name, 0))
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise CalibrationError(f"{source}: {name}: must be a whole number >= 0 (got {value!r})")
+    return max(value, 1)
+
+
+def _refuse_region_of_interest(roi: Any, width: int, height: int, source: str) -> None:
+    """A CameraInfo ``roi`` other than none (all zero) or the whole image is refused: its images
+    are a crop of the calibrated ones."""
+    if roi is None:
+        return
+    if not isinstance(roi, dict):
+        raise CalibrationError(f"{source}: roi: expected x_offset, y_offset, width, height (got {roi!r})")
+    x, y, w, h = (whole_number(roi.get(key, 0)) for key in ("x_offset", "y_offset", "width", "height"))
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (x, y, w, h)):
+        raise CalibrationError(f"{source}: roi: x_offset, y_offset, width, height must be whole numbers")
+    if (x or y) or (w, h) not in ((0, 0), (width, height)):
+        raise CalibrationError(
+            f"{source}: roi: images of a region of interest ({w}x{h} at {x}, {y} of {width}x{height}) "
+            "are not supported"
+        )
 
 
 def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalibration:
