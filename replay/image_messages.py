@@ -48,7 +48,18 @@ ENCODINGS = tuple(_ENCODINGS)
 def decode_image(msg: Any, where: str) -> np.ndarray:
     """A uint8/uint16 image from a sensor_msgs Image or CompressedImage message."""
     if hasattr(msg, "format"):  # CompressedImage
-        image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        data = np.asarray(msg.data, dtype=np.uint8)
+        if "compresseddepth" in str(msg.format).lower():
+            raise RecordingError(
+                f"{where}: format {msg.format!r}: a compressedDepth image is a depth map; "
+                "--left and --right take the cameras' images"
+            )
+        if data.size == 0:  # a recorder that dropped the payload (rosjava/android_core#29)
+            raise RecordingError(f"{where}: compressed image ({msg.format!r}) holds no data (0 bytes)")
+        try:
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            image = None
         if image is None:
             raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
         # image_transport's format is "ENCODING; png compressed [TARGET]": a Bayer image is

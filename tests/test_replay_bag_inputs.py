@@ -487,3 +487,24 @@ def test_topics_stamped_by_different_clocks_show_their_time_spans(tmp_path, ros)
     error = rf"\(0 kept, dropped: 2 no pose within 0.01\); header stamps \(s\): {spans}: are the topics"
     with pytest.raises(RecordingError, match=rf"no pair left after matching {error} stamped by one clock\?"):
         BagRecording(path, "/left", "/right", "/mocap", CALIB)
+
+
+@pytest.mark.parametrize(
+    ("fmt", "data", "words"),
+    [
+        ("jpeg", np.zeros(0, np.uint8), "holds no data (0 bytes)"),  # rosjava/android_core#29
+        ("rgb8; jpeg compressed bgr8", np.frombuffer(b"\xff\xd8 not a jpeg", np.uint8), "does not decode"),
+        ("16UC1; compressedDepth png", np.zeros(40, np.uint8), "a compressedDepth image is a depth map"),
+    ],
+)
+def test_compressed_images_that_do_not_decode_are_named(tmp_path, fmt, data, words):
+    """An empty CompressedImage raised OpenCV's '!buf.empty()' assertion as a traceback."""
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        msg = bag.t["sensor_msgs/msg/CompressedImage"](header=bag.header(1.0), format=fmt, data=data)
+        for topic in ("/left", "/right"):
+            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
+        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    with pytest.raises(RecordingError) as info:
+        list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+    assert str(info.value).startswith("/left: ") and words in str(info.value), str(info.value)
