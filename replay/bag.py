@@ -86,8 +86,13 @@ def _bag_path(path: Path) -> Path:
 
 @contextmanager
 def _open_reader(path: Path) -> Iterator[Any]:
-    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
+    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it.
+
+    A ROS 2 bag recorded before Iron (Foxy, Humble) holds no message definitions; its standard
+    messages (the only ones read here) are read with Humble's, which these distributions share.
+    """
     from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
 
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         raise RecordingError(
@@ -100,7 +105,7 @@ def _open_reader(path: Path) -> Iterator[Any]:
             "'rosbag reindex' it and rename it to .bag"
         )
     try:
-        reader = AnyReader([path])
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except (AnyReaderError, OSError) as exc:
         raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None

@@ -508,3 +508,45 @@ def test_compressed_images_that_do_not_decode_are_named(tmp_path, fmt, data, wor
     with pytest.raises(RecordingError) as info:
         list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
     assert str(info.value).startswith("/left: ") and words in str(info.value), str(info.value)
+
+
+def _as_recorded_by_humble(folder: Path) -> None:
+    """Rewrite a ROS 2 bag as rosbag2 before Iron writes it: metadata version 5, no type hashes,
+    and no message definitions in the .db3 (schema 3: no message_definitions table)."""
+    import sqlite3
+
+    import yaml
+
+    meta_path = folder / "metadata.yaml"
+    meta = yaml.safe_load(meta_path.read_text())
+    info = meta["rosbag2_bagfile_information"]
+    info["version"] = 5
+    for topic in info["topics_with_message_count"]:
+        topic["topic_metadata"].pop("type_description_hash", None)
+    meta_path.write_text(yaml.safe_dump(meta))
+    for db in folder.glob("*.db3"):
+        con = sqlite3.connect(db)
+        con.executescript(
+            "DROP TABLE message_definitions;"
+            "CREATE TABLE t2(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,"
+            " serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);"
+            "INSERT INTO t2 SELECT id, name, type, serialization_format, offered_qos_profiles FROM topics;"
+            "DROP TABLE topics; ALTER TABLE t2 RENAME TO topics; UPDATE schema SET schema_version = 3;"
+        )
+        con.close()
+
+
+def test_a_ros2_bag_without_message_definitions_is_read(tmp_path):
+    """Bags of Foxy and Humble carry no message definitions: rosbags refused them with 'Bag
+    contains no type definitions' (mbpeterson70/robotdatapy#30); the standard types are known."""
+    path = _bag(tmp_path, 2)
+    with DriverBag(path, 2) as bag:
+        _stereo(bag, [1.0, 1.05])
+    want = [
+        (p.left.copy(), p.right.copy()) for p in BagRecording(path, "/left", "/right", "/pose", CALIB).pairs()
+    ]
+    _as_recorded_by_humble(path)
+    got = list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+    assert len(got) == len(want) == 2
+    for pair, (left, right) in zip(got, want, strict=True):
+        assert np.array_equal(pair.left, left) and np.array_equal(pair.right, right)
