@@ -115,6 +115,36 @@ def _open_reader(path: Path) -> Iterator[Any]:
         reader.close()
 
 
+def _messages(reader: Any, path: Path, connections: list) -> Iterator[tuple[Any, int, bytes]]:
+    """``reader.messages(connections)``; a chunk that does not read (damaged, cut short) is a
+    RecordingError naming the bag. rosbags passes its decompressors' errors on as they are (bz2's
+    OSError, lz4's RuntimeError, ...), so any error of the reader here is the file's."""
+    messages = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(messages)
+        except StopIteration:
+            return
+        except Exception as exc:
+            raise RecordingError(
+                f"{path}: the bag is damaged after its start ({type(exc).__name__}: {exc})"
+            ) from None
+        yield item
+
+
+def _deserialize(reader: Any, raw: bytes, conn: Any, t_ns: int) -> Any:
+    """One message; one that does not deserialize as its type is a RecordingError naming its topic."""
+    from rosbags.highlevel import AnyReaderError
+
+    try:
+        return reader.deserialize(raw, conn.msgtype)
+    except AnyReaderError as exc:
+        raise RecordingError(
+            f"{conn.topic}: the message logged at {t_ns / 1e9:.9f} s is not a valid "
+            f"{_type_name(conn.msgtype)} ({len(raw)} bytes; {exc})"
+        ) from None
+
+
 class BagRecording:
     """A stereo recording in a ROS bag; ``pairs()`` yields matched raw pairs with poses.
 
@@ -157,15 +187,15 @@ class BagRecording:
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
                 raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
-            for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
+            for conn, t_ns, raw in _messages(reader, path, [c for cs in conns.values() for c in cs]):
                 role = next(r for r, cs in conns.items() if conn in cs)
                 if role in ("left_info", "right_info"):
                     if role not in infos:
                         infos[role] = _camera_info(
-                            reader.deserialize(raw, conn.msgtype), f"{path}: {conn.topic}"
+                            _deserialize(reader, raw, conn, t_ns), f"{path}: {conn.topic}"
                         )
                     continue
-                msg = reader.deserialize(raw, conn.msgtype)
+                msg = _deserialize(reader, raw, conn, t_ns)
                 if tree is not None and role in ("pose", "tf_static"):  # edges of the transform tree
                     children.update(pm.child_frames(msg) if role == "pose" else ())
                     pm.add_transforms(tree, msg, static=role == "tf_static")
@@ -376,14 +406,14 @@ class BagRecording:
             conns = {
                 r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
             }
-            for conn, _t, raw in reader.messages(connections=conns["left"] + conns["right"]):
+            for conn, t_ns, raw in _messages(reader, self.path, conns["left"] + conns["right"]):
                 role = "left" if conn in conns["left"] else "right"
                 n = counts[role]
                 counts[role] += 1
                 ks = want[role].get(n)
                 if ks is None:
                     continue
-                image = decode_image(reader.deserialize(raw, conn.msgtype), conn.topic)
+                image = decode_image(_deserialize(reader, raw, conn, t_ns), conn.topic)
                 if image.dtype == np.uint16:
                     shift = (self.pixel_bits or 16) - 8
                     image = np.minimum(image >> shift, 255).astype(np.uint8)

@@ -550,3 +550,40 @@ def test_a_ros2_bag_without_message_definitions_is_read(tmp_path):
     assert len(got) == len(want) == 2
     for pair, (left, right) in zip(got, want, strict=True):
         assert np.array_equal(pair.left, left) and np.array_equal(pair.right, right)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+@pytest.mark.parametrize("role", ["left", "pose"])
+def test_a_message_that_does_not_deserialize_is_named_with_its_topic(tmp_path, ros, role):
+    """A message cut short (a recorder killed mid-write, a type whose definition changed) raised
+    rosbags' AnyReaderError as a traceback."""
+    path = _bag(tmp_path, ros)
+    with DriverBag(path, ros) as bag:
+        _stereo(bag, [1.0, 1.05])
+        bag.writer.write(bag.conns[f"/{role}"], int(1.1e9), b"\x01\x02\x03")
+    with pytest.raises(
+        RecordingError, match=rf"^/{role}: the message logged at 1.100000000 s is not a valid "
+    ):
+        list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+
+
+@pytest.mark.parametrize(("compression", "magic"), [("BZ2", b"BZh"), ("LZ4", b"\x04\x22\x4d\x18")])
+def test_a_damaged_compressed_chunk_is_named(tmp_path, compression, magic):
+    """A ROS 1 bag of bz2 / lz4 chunks reads as the uncompressed one; a chunk damaged after the
+    start raised bz2's OSError or lz4's RuntimeError as a traceback (rosbags passes them on)."""
+    from rosbags.rosbag1 import Writer
+
+    path = _bag(tmp_path, 1)
+    bag = DriverBag(path, 1)
+    bag.writer.set_compression(getattr(Writer.CompressionFormat, compression))
+    bag.writer.chunk_threshold = 200  # several chunks
+    with bag:
+        _stereo(bag, [1.0 + 0.05 * k for k in range(6)])
+    pairs = list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+    assert len(pairs) == 6 and np.array_equal(pairs[5].left, _gray(5))
+    raw = bytearray(path.read_bytes())
+    at = raw.find(magic, len(raw) // 2)
+    raw[at + 8 : at + 60] = b"\xff" * 52
+    path.write_bytes(bytes(raw))
+    with pytest.raises(RecordingError, match=r"b.bag: the bag is damaged after its start \("):
+        list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
