@@ -491,10 +491,16 @@ def test_ros_camera_info_pair_with_the_equidistant_model_rectifies_a_fisheye_pai
         paths.append(tmp_path / f"{name}.yaml")
         paths[-1].write_text(yaml.safe_dump(info))
     _check_fisheye_rectification(load_stereo_calibration(*paths))
-    info["distortion_coefficients"] = _matrix(np.zeros(5))
+    # the RealSense T265 driver's five, the fifth 0 (realsenseai/realsense-ros#1989): the same rig
+    info["distortion_coefficients"] = _matrix(np.r_[FISH_D, 0.0])
+    paths[1].write_text(yaml.safe_dump(info))
+    _check_fisheye_rectification(load_stereo_calibration(*paths))
+    info["distortion_coefficients"] = _matrix(np.r_[FISH_D, 0.01])
     paths[1].write_text(yaml.safe_dump(info))
     with pytest.raises(
-        CalibrationError, match="right.yaml: distortion_coefficients: must have 4 numbers, got 5"
+        CalibrationError,
+        match=r"right.yaml: distortion_coefficients: the equidistant \(fisheye\) model has 4 coefficients "
+        r"k1..k4, got 5 with non-zero ones past the fourth \(\[0.01\]\)",
     ):
         load_stereo_calibration(*paths)
 

@@ -45,6 +45,19 @@ MIN_BASELINE_M = 0.003
 FISHEYE_MODELS = ("equidistant", "fisheye")
 
 
+def fisheye_coefficients(value: Any, source: str, field: str) -> np.ndarray:
+    """The equidistant model's four coefficients k1..k4. A driver that fills the plumb_bob-sized
+    five (the RealSense T265's ROS driver, realsenseai/realsense-ros#1989) has a fifth that means
+    nothing: zeros past the fourth are dropped, anything else there is refused."""
+    d = numbers(value, tuple(range(4, 15)), source, field)
+    if np.any(d[4:]):
+        raise CalibrationError(
+            f"{source}: {field}: the equidistant (fisheye) model has 4 coefficients k1..k4, got {d.size} "
+            f"with non-zero ones past the fourth ({d[4:].tolist()})"
+        )
+    return d[:4]
+
+
 def _read_yaml(path: Path) -> Any:
     return read_calibration_yaml(path)
 
@@ -91,12 +104,11 @@ class CameraInfo:
         )
         if k[0, 0] <= 0 or k[1, 1] <= 0:
             raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
-        d = numbers(
-            field_value(data, source, "distortion_coefficients", "d", "D"),
-            4 if model in FISHEYE_MODELS else (0, 4, 5, 8, 12, 14),
-            source,
-            "distortion_coefficients",
-        )
+        d = field_value(data, source, "distortion_coefficients", "d", "D")
+        if model in FISHEYE_MODELS:
+            d = fisheye_coefficients(d, source, "distortion_coefficients")
+        else:
+            d = numbers(d, (0, 4, 5, 8, 12, 14), source, "distortion_coefficients")
         r = numbers(
             data.get("rectification_matrix", data.get("r", data.get("R", np.eye(3)))),
             9,
@@ -234,12 +246,9 @@ class KalibrCamera:
             raise CalibrationError(
                 f"{source}: distortion_model: {model!r} is not supported (radial-tangential or equidistant)"
             )
-        d = numbers(
-            field_value(data, source, "distortion_coefficients", "distortion_coeffs"),
-            4 if fisheye else (0, 4, 5),
-            source,
-            "distortion_coefficients",
-        )
+        d = field_value(data, source, "distortion_coefficients", "distortion_coeffs")
+        field = "distortion_coefficients"
+        d = fisheye_coefficients(d, source, field) if fisheye else numbers(d, (0, 4, 5), source, field)
         w, h = numbers(field_value(data, source, "resolution"), 2, source, "resolution")
         pose = numbers(field_value(data, source, pose_field), 16, source, pose_field).reshape(4, 4)
         rot = pose[:3, :3]
