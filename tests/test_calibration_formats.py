@@ -127,6 +127,26 @@ def test_middlebury_calib_txt(tmp_path):
         load_stereo_calibration(path)
 
 
+@pytest.mark.parametrize(
+    ("line", "field"),
+    [("ndisp=-5", "ndisp"), ("ndisp=0", "ndisp"), ("ndisp=120.5", "ndisp"), ("width=640.5", "width"),
+     ("height=0", "height"), ("baseline=nan", "baseline"), ("doffs=inf", "doffs")],
+)  # fmt: skip
+def test_middlebury_numbers_that_cannot_be_are_refused_naming_the_field(tmp_path, line, field):
+    """A negative ndisp reached the matcher as 'need 0 < min_depth < max_depth, got -1.0, inf', a
+    width of 640.5 was cut to 640: each is now refused by its field."""
+    good = {"cam0": "[1000 0 300; 0 1000 200; 0 0 1]", "cam1": "[1000 0 320; 0 1000 200; 0 0 1]",
+            "doffs": "20", "baseline": "176", "width": "640", "height": "400", "ndisp": "120"}  # fmt: skip
+    key, value = line.split("=")
+    path = tmp_path / "calib.txt"
+    path.write_text("".join(f"{k}={value if k == key else v}\n" for k, v in good.items()))
+    with pytest.raises(
+        CalibrationError, match=rf"calib.txt: {field}: must be a (whole|finite) number"
+    ) as info:
+        load_stereo_calibration(path)
+    assert "\n" not in str(info.value)
+
+
 def test_an_opencv_matrix_whose_rows_and_cols_miss_its_data_is_refused_naming_both(tmp_path):
     text = _opencv_storage({"M1": K1, "D1": D1, "M2": K2, "D2": D2, "R": R, "T": T})
     text = text.replace("rows: 3\n   cols: 3", "rows: 3\n   cols: 2", 1) + f"image_size: {list(SIZE)}\n"

@@ -47,9 +47,18 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
                 return default
             raise CalibrationError(f"{source}: {name}: required field is missing")
         try:
-            return float(values[name])
+            value = float(values[name])
         except ValueError:
             raise CalibrationError(f"{source}: {name}: not a number (got {values[name]!r})") from None
+        if not np.isfinite(value):
+            raise CalibrationError(f"{source}: {name}: must be a finite number (got {values[name]!r})")
+        return value
+
+    def whole(name: str) -> int:
+        value = number(name)
+        if not (value == int(value) and value > 0):  # int(): inf is refused as not a number above
+            raise CalibrationError(f"{source}: {name}: must be a whole number > 0 (got {values[name]!r})")
+        return int(value)
 
     cam0, cam1 = matrix("cam0"), matrix("cam1")
     baseline_mm = number("baseline")
@@ -62,8 +71,8 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
         )
     size = None
     if "width" in values and "height" in values:
-        size = (int(number("width")), int(number("height")))
-    ndisp = int(number("ndisp")) if "ndisp" in values else None
+        size = (whole("width"), whole("height"))
+    ndisp = whole("ndisp") if "ndisp" in values else None
     return StereoCalibration(
         fx=float(cam0[0, 0]),
         fy=float(cam0[1, 1]),
