@@ -99,6 +99,18 @@ distortion_coefficients: [-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05]
 """
 
 
+@pytest.mark.parametrize("resolution", ["[-752, 480]", "[0, 480]", "[752.5, 480]"])
+def test_euroc_resolution_that_cannot_be_is_refused_naming_it(tmp_path, resolution):
+    """A negative width reached OpenCV as a cv2.error traceback (an 18-exabyte allocation), a zero
+    one as 'the second camera must be to the right', 752.5 was cut to 752."""
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0.replace("[752, 480]", resolution))
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    with pytest.raises(
+        CalibrationError, match=r"cam0.yaml: resolution: must be \[width, height\], two whole"
+    ):
+        load_stereo_calibration(tmp_path / "cam0.yaml", tmp_path / "cam1.yaml")
+
+
 def test_euroc_sensor_yaml_pair(tmp_path):
     (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
     (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)

@@ -250,6 +250,10 @@ class KalibrCamera:
         field = "distortion_coefficients"
         d = fisheye_coefficients(d, source, field) if fisheye else numbers(d, (0, 4, 5), source, field)
         w, h = numbers(field_value(data, source, "resolution"), 2, source, "resolution")
+        if not (w == int(w) and h == int(h) and w > 0 and h > 0):
+            raise CalibrationError(
+                f"{source}: resolution: must be [width, height], two whole numbers > 0 (got [{w:g}, {h:g}])"
+            )
         pose = numbers(field_value(data, source, pose_field), 16, source, pose_field).reshape(4, 4)
         rot = pose[:3, :3]
         if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
