@@ -76,6 +76,11 @@ def _camera_info(msg: Any, where: str) -> CameraInfo:
     return CameraInfo.from_dict(data, where)
 
 
+def _one_line(exc: Exception) -> str:
+    """rosbags' and its parsers' messages (a YAML error spans lines) on one line."""
+    return " ".join(str(exc).split())
+
+
 def _bag_path(path: Path) -> Path:
     if not path.exists():
         raise RecordingError(f"{path}: no such bag")
@@ -108,7 +113,7 @@ def _open_reader(path: Path) -> Iterator[Any]:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except (AnyReaderError, OSError) as exc:
-        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({_one_line(exc)})") from None
     try:
         yield reader
     finally:
@@ -127,7 +132,7 @@ def _messages(reader: Any, path: Path, connections: list) -> Iterator[tuple[Any,
             return
         except Exception as exc:
             raise RecordingError(
-                f"{path}: the bag is damaged after its start ({type(exc).__name__}: {exc})"
+                f"{path}: the bag is damaged after its start ({type(exc).__name__}: {_one_line(exc)})"
             ) from None
         yield item
 
@@ -141,7 +146,7 @@ def _deserialize(reader: Any, raw: bytes, conn: Any, t_ns: int) -> Any:
     except AnyReaderError as exc:
         raise RecordingError(
             f"{conn.topic}: the message logged at {t_ns / 1e9:.9f} s is not a valid "
-            f"{_type_name(conn.msgtype)} ({len(raw)} bytes; {exc})"
+            f"{_type_name(conn.msgtype)} ({len(raw)} bytes; {_one_line(exc)})"
         ) from None
 
 

@@ -587,3 +587,20 @@ def test_a_damaged_compressed_chunk_is_named(tmp_path, compression, magic):
     path.write_bytes(bytes(raw))
     with pytest.raises(RecordingError, match=r"b.bag: the bag is damaged after its start \("):
         list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+
+
+@pytest.mark.parametrize(
+    ("metadata", "words"),
+    [
+        ("rosbag2_bagfile_information: [\n", "Could not load YAML"),  # PyYAML's error spans lines
+        ("foo: 1\n", "rosbag2_bagfile_information"),
+    ],
+)
+def test_a_damaged_metadata_yaml_is_named_on_one_line(tmp_path, metadata, words):
+    path = _bag(tmp_path, 2)
+    with DriverBag(path, 2) as bag:
+        _stereo(bag, [1.0])
+    (path / "metadata.yaml").write_text(metadata)
+    with pytest.raises(RecordingError, match="not a readable ROS 1 or ROS 2 bag") as info:
+        BagRecording(path, "/left", "/right", "/pose", CALIB)
+    assert words in str(info.value) and "\n" not in str(info.value), str(info.value)
