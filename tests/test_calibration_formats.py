@@ -445,17 +445,57 @@ def test_an_empty_file_is_called_empty(tmp_path):
             load_stereo_calibration(*args)
 
 
-def test_a_txt_that_is_not_middlebury_says_what_was_expected(tmp_path):
-    """ROS camera_calibration's tarball holds ost.txt beside left.yaml and right.yaml."""
-    path = tmp_path / "ost.txt"
-    path.write_text(
-        "# oST version 5.0 parameters\n\n\n[image]\n\nwidth\n320\n\nheight\n240\n\n"
-        "[narrow_stereo/left]\n\ncamera matrix\n300 0 161\n0 301 118\n0 0 1\n"
-    )
+def test_a_txt_of_neither_text_form_says_what_was_expected(tmp_path):
+    path = tmp_path / "notes.txt"
+    path.write_text("left camera: fx 300, cx 161\n")
     with pytest.raises(
-        CalibrationError, match=r"ost.txt: cam0: required field is missing .*left.yaml and right.yaml"
+        CalibrationError, match=r"notes.txt: cam0: required field is missing .*Middlebury .* ost.txt"
     ):
         load_stereo_calibration(path)
+
+
+def _ost_block(name: str, k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray) -> str:
+    """One camera as ROS camera_calibration's calibrator writes it to ost.txt (numbers as %8f)."""
+    rows = lambda m: "\n".join(" ".join(f"{v:8f}" for v in row) for row in np.atleast_2d(m))  # noqa: E731
+    return (
+        f"# oST version 5.0 parameters\n\n\n[image]\n\nwidth\n{SIZE[0]}\n\nheight\n{SIZE[1]}\n\n"
+        f"[{name}]\n\ncamera matrix\n{rows(k)}\n\ndistortion\n{rows(d)}\n\n"
+        f"rectification\n{rows(r)}\n\nprojection\n{rows(p)}\n\n"
+    )
+
+
+def test_ros_camera_calibration_ost_txt_and_ini_files_load_as_their_yaml(tmp_path):
+    """ROS camera_calibration's tarball holds ost.txt (both cameras, INI form) beside left.yaml and
+    right.yaml; camera_info_manager reads .ini files too (ros-perception/image_common#33). Both
+    were refused ('cam0: required field is missing', 'not valid YAML'); they give the YAML's rig."""
+    r1, r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    want = load_stereo_calibration(*_camera_infos(tmp_path))
+    left = _ost_block("narrow_stereo/left", K1, D1, r1, p1)
+    right = _ost_block("narrow_stereo/right", K2, D2, r2, p2)
+    (tmp_path / "ost.txt").write_text(left + right)
+    (tmp_path / "left.ini").write_text(left)
+    (tmp_path / "right.ini").write_text(right)
+    for got in (
+        load_stereo_calibration(tmp_path / "ost.txt"),
+        load_stereo_calibration(tmp_path / "left.ini", tmp_path / "right.ini"),
+        load_stereo_calibration(tmp_path / "left.yaml", tmp_path / "right.ini"),
+    ):
+        for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-5), field
+        assert got.image_size == SIZE and got.maps is not None
+    eight = _ost_block("cam", K1, np.r_[D1, 0.01, 0.0, 0.0], r1, p1)  # rational_polynomial
+    (tmp_path / "left8.ini").write_text(eight)
+    assert load_stereo_calibration(tmp_path / "left8.ini", tmp_path / "right.ini").baseline > 0
+    with pytest.raises(CalibrationError, match=r"left.ini: a camera_info INI file describes one camera"):
+        load_stereo_calibration(tmp_path / "left.ini")
+    (tmp_path / "bad.ini").write_text(left.replace("distortion\n", "distortion\n0.1 x 0.2\n", 1))
+    with pytest.raises(
+        CalibrationError,
+        match=r"bad.ini: \[narrow_stereo/left\]: distortion_coefficients: line \d+: not numbers",
+    ):
+        load_stereo_calibration(tmp_path / "bad.ini", tmp_path / "right.ini")
 
 
 # -- equidistant (fisheye) cameras ----------------------------------------------------------------

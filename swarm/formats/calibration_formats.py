@@ -1,6 +1,7 @@
 """Stereo calibrations in the forms users have, read into a ``StereoCalibration``.
 
-* ROS ``camera_info`` (one per camera): the YAML of ``camera_calibration_parsers``
+* ROS ``camera_info`` (one per camera; ``swarm.formats.camera_info_ini`` for the INI form and
+  ``camera_calibration``'s two-camera ``ost.txt``): the YAML of ``camera_calibration_parsers``
   (``image_width``, ``camera_matrix``, ``distortion_coefficients``, ``rectification_matrix``,
   ``projection_matrix``) or the fields of a ``sensor_msgs/CameraInfo`` message (``k d r p``,
   ROS 1's ``K D R P``). The right camera's ``P[0][3]`` is ``-fx * baseline``.
@@ -26,6 +27,7 @@ import numpy as np
 
 from swarm.formats.calibration_schema import field_value, numbers, whole_number
 from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
+from swarm.formats.camera_info_ini import camera_info_ini, is_camera_info_ini
 from swarm.formats.middlebury_calib import load_middlebury
 from swarm.formats.stereo_calibration import (
     CalibrationError,
@@ -129,8 +131,20 @@ class CameraInfo:
 
     @classmethod
     def load(cls, path: str | Path) -> CameraInfo:
+        """One camera's camera_info file: YAML, or the INI form (``camera_calibration_parsers``)."""
         path = Path(path)
-        return cls.from_dict(_read_yaml(path), str(path))
+        cameras = _ini_cameras(path)
+        if cameras is None:
+            return cls.from_dict(_read_yaml(path), str(path))
+        if len(cameras) != 1:
+            raise CalibrationError(f"{path}: holds {len(cameras)} cameras; give it alone (--calib)")
+        return cls.from_dict(cameras[0][1], f"{path}: [{cameras[0][0]}]")
+
+
+def _ini_cameras(path: Path) -> list[tuple[str, dict]] | None:
+    """The cameras of a camera_info INI file or ``ost.txt``, None for a file of another form."""
+    text = read_calibration_text(path)
+    return camera_info_ini(text, str(path)) if is_camera_info_ini(text) else None
 
 
 def _binning(data: dict, name: str, source: str) -> int:
@@ -327,6 +341,22 @@ def load_stereo_calibration(
     beside ``intrinsics.yml``). ``image_size`` (width, height) is the images' size, used by an
     OpenCV calibration that states none. Raises CalibrationError naming the file and field."""
     path = Path(path)
+    cameras = _ini_cameras(path)
+    if cameras is not None:  # camera_info INI: one camera, or ROS camera_calibration's stereo ost.txt
+        if len(cameras) == 2 and right is None:
+            (left_name, left), (right_name, right_info) = cameras
+            return stereo_from_camera_infos(
+                CameraInfo.from_dict(left, f"{path}: [{left_name}]"),
+                CameraInfo.from_dict(right_info, f"{path}: [{right_name}]"),
+            )
+        if len(cameras) == 2:
+            raise CalibrationError(f"{right}: {path} holds both cameras (ost.txt); give it alone")
+        if right is None:
+            raise CalibrationError(
+                f"{path}: a camera_info INI file describes one camera; give the right camera's too "
+                "(--calib-left LEFT.ini --calib-right RIGHT.ini)"
+            )
+        return stereo_from_camera_infos(CameraInfo.load(path), CameraInfo.load(right))
     if path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0="):
         if right is not None:
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")

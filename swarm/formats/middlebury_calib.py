@@ -27,11 +27,11 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
             key, value = line.split("=", 1)
             values[key.strip()] = value.strip()
 
-    if "cam0" not in values:  # e.g. the ost.txt beside ROS camera_calibration's left/right.yaml
+    if "cam0" not in values:
         raise CalibrationError(
             f"{source}: cam0: required field is missing (a .txt calibration is read as a Middlebury "
-            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1]; of ROS camera_calibration's output give "
-            "left.yaml and right.yaml, not ost.txt)"
+            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1], or as ROS camera_calibration's ost.txt, an "
+            "[image] section then one per camera)"
         )
 
     def matrix(name: str) -> np.ndarray:
