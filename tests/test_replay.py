@@ -222,3 +222,30 @@ def test_a_replay_that_fails_stops_its_agent(tmp_path, monkeypatch):
     with pytest.raises(RecordingError, match="1403715275312143104.png: missing or not a readable image"):
         run_replay(rec, default_mission(rec), ReplayOptions(out=tmp_path / "run", quiet=True))
     assert len(started) == 2 and all(p.poll() is not None for p in started)  # server and agent
+
+
+@pytest.mark.parametrize("row", ["nan,0.87,0.93", "inf,2.2,0.93", "0.86,2.2,0.93,0,0,0,0"])
+def test_asl_pose_rows_that_are_not_poses_are_left_out_and_counted(tmp_path, row):
+    """A ground-truth row of NaN, inf or a zero quaternion went through as a NaN pose (or a
+    ValueError naming no file); it is now left out and counted, as the bag reader does."""
+    import shutil
+
+    from replay.asl import UNUSABLE_POSE_ROW, AslRecording, RecordingError
+
+    folder = tmp_path / "euroc"
+    shutil.copytree(EUROC, folder)
+    gt = folder / "mav0" / "cam0_groundtruth" / "data.csv"
+    lines = gt.read_text().splitlines()
+    bad = row.split(",")
+
+    def spoilt(line: str) -> str:
+        stamp, *numbers = line.split(",")
+        return ",".join([stamp, *bad, *numbers[len(bad) :]])
+
+    gt.write_text("\n".join([lines[0], spoilt(lines[1]), *lines[2:]]) + "\n")
+    rec = AslRecording(folder)
+    assert len(rec) == 3 and rec.matched.dropped[UNUSABLE_POSE_ROW] == 1
+    assert np.isfinite(rec.positions()).all()
+    gt.write_text("\n".join([lines[0], *map(spoilt, lines[1:])]) + "\n")
+    with pytest.raises(RecordingError, match=r"data.csv: none of its 4 poses is usable"):
+        AslRecording(folder)
