@@ -105,6 +105,10 @@ def test_cli_imports_a_color_ot(tmp_path):
     [
         (b"# Octomap OcTree binary file", ["header ends after its first line"]),
         (
+            b"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n",
+            ["not an OctoMap file", "(.bt)", "(.ot)"],
+        ),
+        (
             b"# Octomap OcTree file\nid OcTree\nsize 3\nres 0.1\ndata\n" + bytes(4) + b"\x03" + bytes(1),
             ["truncated"],
         ),

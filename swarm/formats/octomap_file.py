@@ -239,8 +239,15 @@ def read_octree(path: str | Path) -> OctreeLeaves:
     """Every leaf of an OctoMap file: a binary ``.bt`` (:func:`read_bt`) or a full ``.ot``
     (:func:`read_ot`), told apart by the first line. Raises OctomapFileError naming the file."""
     path = Path(path)
-    if _read_bytes(path).startswith(OT_MAGIC):
+    raw = _read_bytes(path)
+    if raw.startswith(OT_MAGIC):
         return read_ot(path)
+    if not raw.startswith(MAGIC):
+        first = raw.split(b"\n", 1)[0][:60].decode("ascii", "replace")
+        raise OctomapFileError(
+            f"{path}: not an OctoMap file: the first line is {first!r}, not {MAGIC.decode()!r} (.bt) "
+            f"or {OT_MAGIC.decode()!r} (.ot)"
+        )
     return read_bt(path)
 
 
