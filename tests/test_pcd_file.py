@@ -79,3 +79,47 @@ def test_swarm_ingest_reads_a_pcd(tmp_path, capsys):
     assert code == 0 and out.is_file()
     report = json.loads(capsys.readouterr().out)
     assert report["points"] == 50 and report["skipped_nonfinite"] == 1  # point 7 is NaN
+
+
+def test_binary_compressed_data_stored_uncompressed_is_read(tmp_path):
+    """MapIV/pypcd4#37: a writer that found LZF no smaller stored the raw bytes in the
+    binary_compressed layout (both sizes equal)."""
+    head, body = (DATA / "xyzir_binary.pcd").read_bytes().split(b"DATA binary\n", 1)
+    record = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<u2")])
+    table = np.frombuffer(body, record, 50)
+    fields = b"".join(table[n].tobytes() for n in record.names)
+    sizes = np.array([len(fields), len(fields)], "<u4").tobytes()
+    path = tmp_path / "stored.pcd"
+    path.write_bytes(head + b"DATA binary_compressed\n" + sizes + fields)
+    np.testing.assert_array_equal(read_point_cloud(path), read_point_cloud(DATA / "xyzir_binary.pcd"))
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary", "binary_compressed"])
+def test_padding_fields_and_counts_are_skipped_over(tmp_path, encoding):
+    """PDAL/PDAL#3255, mrdoob/three.js#24278: '_' padding and COUNT > 1 shift the x, y, z that
+    follow them; a reader that assumed 4-byte single fields read the wrong bytes."""
+    rng = np.random.default_rng(4)
+    record = np.dtype([("_", "<u1", (3,)), ("x", "<f4"), ("normal", "<f4", (3,)), ("y", "<f8"), ("z", "<f4")])
+    table = np.zeros(6, record)
+    table["_"] = 7
+    for name in ("x", "y", "z"):
+        table[name] = rng.uniform(-3, 3, 6)
+    table["normal"] = 1.0
+    head = (
+        "VERSION .7\nFIELDS _ x normal y z\nSIZE 1 4 4 8 4\nTYPE U F F F F\nCOUNT 3 1 3 1 1\n"
+        f"WIDTH 3\nHEIGHT 2\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 6\nDATA {encoding}\n"
+    ).encode()
+    if encoding == "ascii":
+        rows = [f"7 7 7 {float(r['x'])!r} 1 1 1 {float(r['y'])!r} {float(r['z'])!r}\n" for r in table]
+        body = "".join(rows).encode()
+    elif encoding == "binary":
+        body = table.tobytes()
+    else:  # an LZF stream of literal runs (up to 32 bytes each, a length byte before)
+        fields = b"".join(table[n].tobytes() for n in record.names)
+        runs = [fields[i : i + 32] for i in range(0, len(fields), 32)]
+        packed = b"".join(bytes([len(run) - 1]) + run for run in runs)
+        body = np.array([len(packed), len(fields)], "<u4").tobytes() + packed
+    path = tmp_path / "padded.pcd"
+    path.write_bytes(head + body)
+    want = np.stack([table[c].astype(np.float64) for c in "xyz"], axis=1)
+    np.testing.assert_allclose(read_point_cloud(path), want, rtol=1e-6)

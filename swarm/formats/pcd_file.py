@@ -7,7 +7,11 @@ The header (one keyword a line, ``#`` comments): ``FIELDS`` names, ``SIZE`` byte
 * ``ascii``: one point a line, the fields' elements in order;
 * ``binary``: the points' records packed, little-endian (what PCL writes on x86 and ARM);
 * ``binary_compressed``: two uint32 (compressed and raw sizes), then the LZF-compressed data
-  laid out field by field (every point's x, then every point's y, ...).
+  laid out field by field (every point's x, then every point's y, ...); data of equal sizes
+  that is not LZF is taken as stored uncompressed (some Python writers do so).
+
+Padding fields (named ``_``, PCL's) and fields of several elements (``COUNT`` > 1) are skipped
+over.
 
 NaN coordinates (an organised cloud's pixels without a return) are kept: they mean "no
 return", as in the other formats. Errors raise ``PointCloudError`` naming the file and the
@@ -149,7 +153,9 @@ def _compressed(path: Path, body: bytes, dtype: np.dtype, count: int, error: typ
     try:
         flat = lzf_decompress(body[8 : 8 + packed], raw)
     except ValueError as exc:
-        raise error(f"{path}: DATA binary_compressed: {exc}") from None
+        if packed != raw:
+            raise error(f"{path}: DATA binary_compressed: {exc}") from None
+        flat = body[8 : 8 + packed]  # stored as it is, not compressed (MapIV/pypcd4#37's writer)
     columns, at = {}, 0
     for name in dtype.names:  # field by field: every point's value of one field, then the next
         base = dtype[name].base
