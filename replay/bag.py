@@ -111,6 +111,7 @@ def _open_reader(path: Path) -> Iterator[Any]:
         )
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.readers = [_DefinedConnections(r) for r in reader.readers]
         reader.open()
     except (AnyReaderError, OSError) as exc:
         raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({_one_line(exc)})") from None
@@ -118,6 +119,39 @@ def _open_reader(path: Path) -> Iterator[Any]:
         yield reader
     finally:
         reader.close()
+
+
+class _DefinedConnections:
+    """One of rosbags' bag readers, its connections without those whose message definition the
+    recorder left empty (rosbag2 does so for a type it cannot find, ros2/rosbag2#1350): AnyReader
+    would register such a type with no fields and refuse the whole bag on its hash, though the
+    topics read here are others. (A bag with no definitions at all, Foxy's and Humble's, is read
+    with the default typestore.) A topic left out is reported as not in the bag."""
+
+    def __init__(self, reader: Any) -> None:
+        self._reader = reader
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._reader, name)
+
+    def __enter__(self) -> _DefinedConnections:
+        self._reader.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> Any:
+        return self._reader.__exit__(*exc)
+
+    @property
+    def connections(self) -> list:
+        from rosbags.interfaces import MessageDefinitionFormat
+
+        every = self._reader.connections
+        empty = [
+            c for c in every if c.msgdef.format != MessageDefinitionFormat.NONE and not c.msgdef.data.strip()
+        ]
+        if not empty or len(empty) == len(every):
+            return every
+        return [c for c in every if c not in empty]
 
 
 def _messages(reader: Any, path: Path, connections: list) -> Iterator[tuple[Any, int, bytes]]:

@@ -604,3 +604,32 @@ def test_a_damaged_metadata_yaml_is_named_on_one_line(tmp_path, metadata, words)
     with pytest.raises(RecordingError, match="not a readable ROS 1 or ROS 2 bag") as info:
         BagRecording(path, "/left", "/right", "/pose", CALIB)
     assert words in str(info.value) and "\n" not in str(info.value), str(info.value)
+
+
+def test_a_custom_topic_with_an_empty_definition_does_not_refuse_the_bag(tmp_path):
+    """rosbag2 leaves the definition of a type it cannot find empty (ros2/rosbag2#1922, #1350)
+    but stores its hash: rosbags refused the whole bag on that hash, though the stereo topics are
+    standard ones with good definitions."""
+    import sqlite3
+
+    from rosbags.typesys import get_types_from_msg
+
+    path = _bag(tmp_path, 2)
+    bag = DriverBag(path, 2)
+    bag.store.register(
+        get_types_from_msg("float64 exposure\nint32 gain\n", "realsense2_camera_msgs/msg/Metadata")
+    )
+    with bag:
+        _stereo(bag, [1.0, 1.05])
+        meta = bag.store.types["realsense2_camera_msgs/msg/Metadata"](exposure=1.0, gain=2)
+        bag.write("/meta", "realsense2_camera_msgs/msg/Metadata", meta, 1.0)
+    con = sqlite3.connect(next(path.glob("*.db3")))
+    con.execute(
+        "UPDATE message_definitions SET encoded_message_definition = '' WHERE topic_type LIKE 'realsense%'"
+    )
+    con.commit()
+    con.close()
+    pairs = list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+    assert len(pairs) == 2 and np.array_equal(pairs[1].left, _gray(1))
+    with pytest.raises(RecordingError, match=r"topic /meta \(pose\) is not in the bag"):
+        BagRecording(path, "/left", "/right", "/meta", CALIB)
