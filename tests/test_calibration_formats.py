@@ -703,3 +703,41 @@ def test_camera_info_file_with_a_region_of_interest_is_refused_by_name(tmp_path,
     with pytest.raises(CalibrationError, match=r"left.yaml: roi: ") as info:
         load_stereo_calibration(left, right)
     assert "\n" not in str(info.value)
+
+
+def test_camchain_extrinsics_from_the_imu_transforms(tmp_path):
+    """Without cam1.T_cn_cnm1 the pair's pose follows from both cameras' IMU transforms: Kalibr's
+    T_cam_imu (X_cam = T X_imu) or T_imu_cam, what OpenVINS's kalibr_imucam_chain.yaml holds
+    (X_imu = T X_cam). Both were refused as 'cam1: T_cn_cnm1: required field is missing'."""
+    right_from_left = np.eye(4)
+    right_from_left[:3, :3], right_from_left[:3, 3] = R, T
+    cam0_from_imu = np.eye(4)
+    cam0_from_imu[:3, :3] = cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))[0]
+    cam0_from_imu[:3, 3] = [0.05, -0.02, 0.01]
+    cam1_from_imu = right_from_left @ cam0_from_imu
+    cams = [{"camera_model": "pinhole", "intrinsics": [float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])],
+             "distortion_model": "radtan", "distortion_coeffs": d[:4].tolist(), "resolution": list(SIZE)}
+            for k, d in ((K1, D1), (K2, D2))]  # fmt: skip
+    want = rectify_stereo(K1, np.r_[D1[:4]], K2, np.r_[D2[:4]], R, T, SIZE)
+    forms = {
+        "cn_cnm1": ({}, {"T_cn_cnm1": right_from_left.tolist()}),
+        "cam_imu": ({"T_cam_imu": cam0_from_imu.tolist()}, {"T_cam_imu": cam1_from_imu.tolist()}),
+        "imu_cam": ({"T_imu_cam": np.linalg.inv(cam0_from_imu).tolist()},
+                    {"T_imu_cam": np.linalg.inv(cam1_from_imu).tolist()}),
+    }  # fmt: skip
+    for name, (extra0, extra1) in forms.items():
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump({"cam0": {**cams[0], **extra0}, "cam1": {**cams[1], **extra1}}))
+        got = load_stereo_calibration(path)
+        for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9), (name, field)
+    bent = cam1_from_imu.copy()
+    bent[0, 0] = 2.0
+    path = tmp_path / "bent.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {"cam0": {**cams[0], **forms["cam_imu"][0]}, "cam1": {**cams[1], "T_cam_imu": bent.tolist()}}
+        )
+    )
+    with pytest.raises(CalibrationError, match=r"bent.yaml: cam1.T_cam_imu: not a rigid transform"):
+        load_stereo_calibration(path)

@@ -302,19 +302,48 @@ def stereo_from_kalibr(
 
 
 def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
-    """Kalibr ``camchain.yaml``: ``cam0`` and ``cam1``, the latter with ``T_cn_cnm1`` (X1 = T X0)."""
+    """Kalibr ``camchain.yaml``: ``cam0`` and ``cam1``, the latter with ``T_cn_cnm1`` (X1 = T X0);
+    without it, both cameras' ``T_cam_imu`` (Kalibr's camchain-imucam: X_cam = T X_imu) or
+    ``T_imu_cam`` (OpenVINS's kalibr_imucam_chain.yaml: X_imu = T X_cam) give the pair's pose."""
     for name in ("cam0", "cam1"):
         if not isinstance(data.get(name), dict):
             raise CalibrationError(f"{source}: {name}: required camera section is missing")
-    identity = {"T_BS": np.eye(4).tolist()}
-    left = KalibrCamera.from_dict({**data["cam0"], **identity}, f"{source}: cam0")
-    right_dict = dict(data["cam1"])
-    right_from_left = numbers(
-        field_value(right_dict, f"{source}: cam1", "T_cn_cnm1"), 16, source, "cam1.T_cn_cnm1"
+    cam0, cam1 = data["cam0"], data["cam1"]
+    if "T_cn_cnm1" in cam1:
+        extrinsics = "cam1.T_cn_cnm1"
+        right_from_left = _rigid(cam1["T_cn_cnm1"], source, extrinsics)
+    elif "T_cam_imu" in cam0 and "T_cam_imu" in cam1:
+        extrinsics = "cam0.T_cam_imu, cam1.T_cam_imu"
+        imu = [_rigid(c["T_cam_imu"], source, f"cam{n}.T_cam_imu") for n, c in enumerate((cam0, cam1))]
+        right_from_left = imu[1] @ np.linalg.inv(imu[0])
+    elif "T_imu_cam" in cam0 and "T_imu_cam" in cam1:
+        extrinsics = "cam0.T_imu_cam, cam1.T_imu_cam"
+        imu = [_rigid(c["T_imu_cam"], source, f"cam{n}.T_imu_cam") for n, c in enumerate((cam0, cam1))]
+        right_from_left = np.linalg.inv(imu[1]) @ imu[0]
+    else:
+        raise CalibrationError(
+            f"{source}: cam1.T_cn_cnm1: required field is missing (or T_cam_imu / T_imu_cam in both cameras)"
+        )
+    left = KalibrCamera.from_dict({**cam0, "T_BS": np.eye(4).tolist()}, f"{source}: cam0")
+    right = KalibrCamera.from_dict(
+        {**cam1, "T_BS": np.linalg.inv(right_from_left).tolist()}, f"{source}: cam1"
     )
-    right_dict["T_BS"] = np.linalg.inv(right_from_left.reshape(4, 4)).tolist()
-    right = KalibrCamera.from_dict(right_dict, f"{source}: cam1")
-    return stereo_from_kalibr(left, right, source, "cam1.T_cn_cnm1")
+    return stereo_from_kalibr(left, right, source, extrinsics)
+
+
+def _rigid(value: Any, source: str, field: str) -> np.ndarray:
+    """A 4x4 rigid transform (rotation, translation, last row 0 0 0 1) from a file's field."""
+    t = numbers(value, 16, source, field).reshape(4, 4)
+    rot = t[:3, :3]
+    if not (
+        np.allclose(rot @ rot.T, np.eye(3), atol=1e-3)
+        and np.linalg.det(rot) > 0
+        and np.allclose(t[3], [0, 0, 0, 1])
+    ):
+        raise CalibrationError(
+            f"{source}: {field}: not a rigid transform (a rotation, a translation, 0 0 0 1)"
+        )
+    return t
 
 
 # -- one entry point -------------------------------------------------------------------------
