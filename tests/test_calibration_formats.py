@@ -715,7 +715,7 @@ def test_camchain_extrinsics_from_the_imu_transforms(tmp_path):
     cam0_from_imu[:3, :3] = cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))[0]
     cam0_from_imu[:3, 3] = [0.05, -0.02, 0.01]
     cam1_from_imu = right_from_left @ cam0_from_imu
-    cams = [{"camera_model": "pinhole", "intrinsics": [float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])],
+    cams = [{"camera_model": "pinhole", "intrinsics": k[[0, 1, 0, 1], [0, 1, 2, 2]].tolist(),
              "distortion_model": "radtan", "distortion_coeffs": d[:4].tolist(), "resolution": list(SIZE)}
             for k, d in ((K1, D1), (K2, D2))]  # fmt: skip
     want = rectify_stereo(K1, np.r_[D1[:4]], K2, np.r_[D2[:4]], R, T, SIZE)
@@ -741,3 +741,23 @@ def test_camchain_extrinsics_from_the_imu_transforms(tmp_path):
     )
     with pytest.raises(CalibrationError, match=r"bent.yaml: cam1.T_cam_imu: not a rigid transform"):
         load_stereo_calibration(path)
+
+
+def test_openvins_imucam_chain_of_euroc_equals_its_sensor_yaml_pair(tmp_path):
+    """rpng/open_vins's config/euroc_mav/kalibr_imucam_chain.yaml form: %YAML:1.0, each camera's
+    T_imu_cam as rows (EuRoC's T_BS: the body is the IMU), no T_cn_cnm1."""
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    want = load_stereo_calibration(tmp_path / "cam0.yaml", tmp_path / "cam1.yaml")
+    chain = {}
+    for name, text in (("cam0", EUROC_CAM0), ("cam1", EUROC_CAM1)):
+        sensor = yaml.safe_load(text.split("\n", 1)[1])
+        pose = np.reshape(sensor["T_BS"]["data"], (4, 4)).tolist()
+        chain[name] = {"T_imu_cam": pose, "camera_model": "pinhole", "distortion_model": "radtan",
+                       "distortion_coeffs": sensor["distortion_coefficients"],
+                       "intrinsics": sensor["intrinsics"], "resolution": sensor["resolution"]}  # fmt: skip
+    path = tmp_path / "kalibr_imucam_chain.yaml"
+    path.write_text("%YAML:1.0\n\n" + yaml.safe_dump(chain, default_flow_style=None))
+    got = load_stereo_calibration(path)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+        assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9), field
