@@ -304,28 +304,3 @@ def test_mode_is_read_in_any_case_as_nav2_does(tmp_path, mode):
     want = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode.lower()))
     got = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode))
     assert np.array_equal(got.occupied, want.occupied) and np.array_equal(got.free, want.free)
-
-
-@pytest.mark.parametrize(("free_thresh", "occupied_thresh"), [(0.25, 0.65), (0.196, 0.65), (0.3, 0.9)])
-def test_map_saver_trinary_image_keeps_its_unknown_whatever_the_thresholds(
-    tmp_path, free_thresh, occupied_thresh
-):
-    """Nav2's map_saver wrote free_thresh 0.25 beside trinary images (0 wall, 205 unknown, 254 free):
-    read as written, every unknown cell (p = 0.196) was free (SteveMacenski/slam_toolbox#587;
-    ros-navigation/navigation2#5278 fixed the saver to write 0.196). The saver's shades keep
-    their meaning."""
-    image = np.full((6, 8), 205, dtype=np.int64)
-    image[1:5, 1:7] = 254
-    image[2, 2:6] = 0
-    (tmp_path / "saved.pgm").write_bytes(pgm(image, 255))
-    got = load_ros_map(
-        write_map(tmp_path, "saved.pgm", free_thresh=free_thresh, occupied_thresh=occupied_thresh)
-    )
-    flipped = image[::-1]
-    assert np.array_equal(got.occupied, flipped == 0)
-    assert np.array_equal(got.free, flipped == 254)
-    # another grey (a hand-drawn or scale-mode image) is read with the file's thresholds, as map_server does
-    image[0, 0] = 180  # p = 0.294
-    (tmp_path / "drawn.pgm").write_bytes(pgm(image, 255))
-    drawn = load_ros_map(write_map(tmp_path, "drawn.pgm", free_thresh=0.3, occupied_thresh=0.65))
-    assert drawn.free[-1, 0] and drawn.free[0, 0]  # 180 and 205 both below free_thresh 0.3

@@ -14,11 +14,7 @@ A pixel's shade s in [0, 1] is the mean of its colour channels, scaled as its fo
 defines (:mod:`swarm.formats.map_image`). Its occupancy is p = 1 - s (p = s with ``negate``).
 ``trinary``: p > occupied_thresh is occupied, else p < free_thresh is free, else unknown; an
 alpha channel is averaged in with the colour channels (as map_server does, so transparent
-pixels read darker). An image of map_saver's three trinary shades only (0, 205, 254) is read
-with the thresholds map_saver writes for them (0.65, 0.196), whatever the file says: Nav2's
-saver wrote its ``free_thresh_default`` 0.25 beside such images, which turns every unknown
-cell (p = 0.196) free (slam_toolbox#587, fixed in the saver by navigation2#5278).
-``scale``: a pixel that is not fully opaque is unknown, the rest as
+pixels read darker). ``scale``: a pixel that is not fully opaque is unknown, the rest as
 trinary. ``raw``: the value round(255 s) is the occupancy in percent (0..100; above 100
 unknown), occupied above occupied_thresh x 100, free below free_thresh x 100.
 """
@@ -107,17 +103,6 @@ class RosMapSpec(BaseModel):
         raise ValueError(f"must be 0, 1, true or false (got {value!r})")
 
 
-#: The thresholds map_saver writes for a trinary map (navigation2#5278): its three shades,
-#: 0 occupied, 205 unknown, 254 free, lie on either side of them.
-SAVER_TRINARY_THRESHOLDS = (0.65, 0.196)
-
-
-def _saved_trinary(shade: np.ndarray) -> bool:
-    """Whether an image holds map_saver's trinary shades only (0, 205, 254 of 255), unknown among them."""
-    levels = np.unique(np.round(shade * 255))
-    return 205 in levels and set(levels.tolist()) <= {0.0, 205.0, 254.0}
-
-
 def is_ros_map(data: object) -> bool:
     """True when a parsed YAML document looks like a ROS map_server map description."""
     return isinstance(data, dict) and "image" in data and "resolution" in data
@@ -157,12 +142,9 @@ def load_ros_map(path: str | Path) -> RosMap:
         occupied = known & (percent > spec.occupied_thresh * 100)
         free = known & ~occupied & (percent < spec.free_thresh * 100)
     else:
-        occupied_thresh, free_thresh = spec.occupied_thresh, spec.free_thresh
-        if spec.mode == "trinary" and image.alpha is None and not spec.negate and _saved_trinary(shade):
-            occupied_thresh, free_thresh = SAVER_TRINARY_THRESHOLDS
         p = shade if spec.negate else 1.0 - shade
-        occupied = p > occupied_thresh
-        free = ~occupied & (p < free_thresh)
+        occupied = p > spec.occupied_thresh
+        free = ~occupied & (p < spec.free_thresh)
         if spec.mode == "scale" and image.alpha is not None:
             opaque = image.alpha >= 1.0
             occupied &= opaque
