@@ -761,3 +761,18 @@ def test_openvins_imucam_chain_of_euroc_equals_its_sensor_yaml_pair(tmp_path):
     got = load_stereo_calibration(path)
     for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
         assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9), field
+
+
+def test_two_single_camera_opencv_calibrations_are_refused_saying_why(tmp_path):
+    """OpenCV's calibration sample writes one camera (camera_matrix, distortion_coefficients,
+    image_width, no projection or distortion_model; ros-perception/image_common#27): a pair of
+    them has no stereo extrinsics."""
+    paths = []
+    for name, k, d in (("left", K1, D1), ("right", K2, D2)):
+        text = _opencv_storage({"camera_matrix": k, "distortion_coefficients": d.reshape(-1, 1)})
+        text += 'calibration_time: "Mon Oct 27 20:27:45 2014"\n'
+        text += f"image_width: {SIZE[0]}\nimage_height: {SIZE[1]}\navg_reprojection_error: 0.44\n"
+        paths.append(tmp_path / f"{name}.yml")
+        paths[-1].write_text(text)
+    with pytest.raises(CalibrationError, match=r"left.yml: projection_matrix: .* single-camera OpenCV"):
+        load_stereo_calibration(*paths)

@@ -117,6 +117,12 @@ class CameraInfo:
             source,
             "rectification_matrix",
         )
+        if not any(key in data for key in ("projection_matrix", "p", "P")) and "distortion_model" not in data:
+            raise CalibrationError(  # OpenCV's calibration sample (ros-perception/image_common#27)
+                f"{source}: projection_matrix: required field is missing; a single-camera OpenCV "
+                "calibration (camera_matrix, distortion_coefficients) holds no stereo extrinsics: give a "
+                "stereo calibration (K1 D1 K2 D2 R T) or each camera's ROS camera_info"
+            )
         p = numbers(field_value(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
         p = p.reshape(3, 4)
         if p[0, 0] <= 0 or p[1, 1] <= 0:
