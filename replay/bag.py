@@ -76,7 +76,7 @@ def _camera_info(msg: Any, where: str) -> CameraInfo:
     return CameraInfo.from_dict(data, where)
 
 
-def _one_line(exc: Exception) -> str:
+def _one_line(exc: object) -> str:
     """rosbags' and its parsers' messages (a YAML error spans lines) on one line."""
     return " ".join(str(exc).split())
 
@@ -85,6 +85,8 @@ def _bag_path(path: Path) -> Path:
     if not path.exists():
         raise RecordingError(f"{path}: no such bag")
     if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
+        if path.suffix in (".db3", ".mcap") and not (path.parent / "metadata.yaml").is_file():
+            return path  # copied without its metadata.yaml: rosbags reads the file alone
         return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
     return path
 
@@ -113,7 +115,9 @@ def _open_reader(path: Path) -> Iterator[Any]:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.readers = [_DefinedConnections(r) for r in reader.readers]
         reader.open()
-    except (AnyReaderError, OSError) as exc:
+    except Exception as exc:  # rosbags' own code only; a cut-short .mcap raises its TypeError
+        if not isinstance(exc, AnyReaderError | OSError):
+            exc = f"{type(exc).__name__}: {exc}"
         raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({_one_line(exc)})") from None
     try:
         yield reader

@@ -215,7 +215,8 @@ def test_a_camera_info_topic_without_messages_is_named(tmp_path, ros):
             b"#ROSBAG V2.0\n",
             r"run.bag.active: an unfinished ROS 1 recording .*rosbag reindex",
         ),
-        ("ros2/run_0.mcap", b"\x89MCAP0\r\n", r"ros2: a ROS 2 bag is a folder with its metadata.yaml"),
+        ("ros2/run_0.mcap", b"\x89MCAP0\r\n", r"run_0.mcap: not a readable ROS 1 or ROS 2 bag"),
+        ("ros2/run_0.db3.zstd", b"\x28\xb5\x2f\xfd", r"ros2: a ROS 2 bag is a folder with its metadata.yaml"),
     ],
 )
 def test_a_bag_that_cannot_be_read_is_named(tmp_path, name, content, error):
@@ -633,3 +634,26 @@ def test_a_custom_topic_with_an_empty_definition_does_not_refuse_the_bag(tmp_pat
     assert len(pairs) == 2 and np.array_equal(pairs[1].left, _gray(1))
     with pytest.raises(RecordingError, match=r"topic /meta \(pose\) is not in the bag"):
         BagRecording(path, "/left", "/right", "/meta", CALIB)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_ros2_bag_file_copied_without_its_metadata_is_read(tmp_path, storage):
+    """A .mcap or .db3 copied alone (its metadata.yaml left behind) was refused with 'ros2 bag
+    reindex'; rosbags reads either file by itself."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    path = _bag(tmp_path, 2)
+    bag = DriverBag(path, 2)
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    bag.writer = Writer(path, version=9, storage_plugin=plugin)
+    with bag:
+        _stereo(bag, [1.0, 1.05])
+    (single,) = [f for f in path.iterdir() if f.suffix in (".db3", ".mcap")]
+    alone = tmp_path / "copied" / single.name
+    alone.parent.mkdir()
+    alone.write_bytes(single.read_bytes())
+    want = list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
+    got = list(BagRecording(alone, "/left", "/right", "/pose", CALIB).pairs())
+    assert len(got) == len(want) == 2
+    for a, b in zip(got, want, strict=True):
+        assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
