@@ -776,3 +776,21 @@ def test_two_single_camera_opencv_calibrations_are_refused_saying_why(tmp_path):
         paths[-1].write_text(text)
     with pytest.raises(CalibrationError, match=r"left.yml: projection_matrix: .* single-camera OpenCV"):
         load_stereo_calibration(*paths)
+
+
+@pytest.mark.parametrize("model", ["kannala_brandt", "Kannala-Brandt", "FISHEYE", " equidistant"])
+def test_the_fisheye_model_s_other_names_and_cases_are_read(tmp_path, model):
+    """ros2/common_interfaces#160: the equidistant model is Kalibr's 'equidistant', OpenCV's
+    'fisheye', camodocal's 'kannala-brandt'; a driver writing another of them, or capitals, was
+    refused as an unsupported model."""
+    r1, r2, p1, p2, _q = cv2.fisheye.stereoRectify(
+        FISH_K, FISH_D, FISH_K, FISH_D, FISH_SIZE, FISH_R, FISH_T.reshape(3, 1), cv2.CALIB_ZERO_DISPARITY
+    )
+    paths = []
+    for name, r, p in (("left", r1, p1), ("right", r2, p2)):
+        info = {"image_width": FISH_SIZE[0], "image_height": FISH_SIZE[1], "distortion_model": model}
+        info |= {"camera_matrix": _matrix(FISH_K), "distortion_coefficients": _matrix(FISH_D)}
+        info |= {"rectification_matrix": _matrix(r), "projection_matrix": _matrix(p)}
+        paths.append(tmp_path / f"{name}.yaml")
+        paths[-1].write_text(yaml.safe_dump(info))
+    _check_fisheye_rectification(load_stereo_calibration(*paths))

@@ -42,9 +42,10 @@ from swarm.formats.stereo_calibration import (
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "none", "")
 #: A camera_info pair whose baseline comes out shorter (m) wrote the baseline alone in P[0][3].
 MIN_BASELINE_M = 0.003
-#: The equidistant (Kannala-Brandt) fisheye model's names, ROS's and Kalibr's: four coefficients,
-#: rectified with ``cv2.fisheye``.
-FISHEYE_MODELS = ("equidistant", "fisheye")
+#: The equidistant (Kannala-Brandt) fisheye model's names: ROS's and Kalibr's, OpenCV's, camodocal's
+#: (ros2/common_interfaces#160 lists them); four coefficients, rectified with ``cv2.fisheye``.
+#: Model names are read in any case.
+FISHEYE_MODELS = ("equidistant", "fisheye", "kannala_brandt", "kannala-brandt")
 
 
 def fisheye_coefficients(value: Any, source: str, field: str) -> np.ndarray:
@@ -95,7 +96,7 @@ class CameraInfo:
             raise CalibrationError(
                 f"{source}: image_width, image_height: must be positive integers (got {width!r}, {height!r})"
             )
-        model = str(data.get("distortion_model", "plumb_bob") or "")
+        model = str(data.get("distortion_model", "plumb_bob") or "").strip().lower()
         if model not in PINHOLE_MODELS + FISHEYE_MODELS:
             raise CalibrationError(
                 f"{source}: distortion_model: {model!r} is not supported "
@@ -260,7 +261,7 @@ class KalibrCamera:
         fu, fv, cu, cv = numbers(field_value(data, source, "intrinsics"), 4, source, "intrinsics")
         if fu <= 0 or fv <= 0:
             raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
-        model = str(data.get("distortion_model", "radial-tangential"))
+        model = str(data.get("distortion_model", "radial-tangential")).strip().lower()
         fisheye = model in FISHEYE_MODELS
         if model not in ("radial-tangential", "radtan", "plumb_bob", "none") and not fisheye:
             raise CalibrationError(
