@@ -33,6 +33,8 @@ from swarm.formats.errors import InputError
 from swarm.formats.stereo_calibration import StereoCalibration
 
 NS = 1e-9
+#: how pose rows left out are counted (``AslRecording.matched.dropped``)
+UNUSABLE_POSE_ROW = "unusable pose row (NaN, inf or a zero quaternion)"
 
 
 class RecordingError(InputError):
@@ -100,17 +102,27 @@ class PoseTrack:
     positions: np.ndarray
     rotations: np.ndarray
     source: str
+    unusable: int = 0  # rows left out: NaN, inf or a zero quaternion
 
 
-def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(stamps ns, positions (N, 3), quaternions (N, 4) w x y z, rows left out): a row whose
+    numbers are not a pose (NaN or inf, a zero quaternion: a tracker that lost itself) is left
+    out and counted, as the bag reader does."""
     rows = _rows(path, 8)
     try:
         stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
         values = np.array([[float(c) for c in r[1:8]] for r in rows])
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
+    usable = np.isfinite(values).all(axis=1) & (np.linalg.norm(values[:, 3:7], axis=1) > 0)
+    if not usable.any():
+        raise RecordingError(
+            f"{path}: none of its {len(values)} poses is usable (NaN, inf or a zero quaternion)"
+        )
+    stamps, values = stamps[usable], values[usable]
     order = np.argsort(stamps, kind="stable")
-    return stamps[order], values[order, 0:3], values[order, 3:7]
+    return stamps[order], values[order, 0:3], values[order, 3:7], int((~usable).sum())
 
 
 def load_poses(mav0: Path, left: KalibrCamera) -> PoseTrack:
@@ -118,17 +130,17 @@ def load_poses(mav0: Path, left: KalibrCamera) -> PoseTrack:
     cam_file = mav0 / "cam0_groundtruth" / "data.csv"
     body_file = mav0 / "state_groundtruth_estimate0" / "data.csv"
     if cam_file.is_file():
-        stamps, pos, quat = _pose_rows(cam_file)
+        stamps, pos, quat, unusable = _pose_rows(cam_file)
         rot = np.stack([quaternion_matrix(*q).T for q in quat])  # world->camera: transpose
-        return PoseTrack(stamps, pos, rot, str(cam_file))
+        return PoseTrack(stamps, pos, rot, str(cam_file), unusable)
     if body_file.is_file():
-        stamps, pos, quat = _pose_rows(body_file)
+        stamps, pos, quat, unusable = _pose_rows(body_file)
         cams = [
             camera_from_body(p, quaternion_matrix(*q), left.body_from_camera)
             for p, q in zip(pos, quat, strict=True)
         ]
         return PoseTrack(
-            stamps, np.array([c[0] for c in cams]), np.array([c[1] for c in cams]), str(body_file)
+            stamps, np.array([c[0] for c in cams]), np.array([c[1] for c in cams]), str(body_file), unusable
         )
     raise RecordingError(
         f"{mav0}: no poses: expected cam0_groundtruth/data.csv or state_groundtruth_estimate0/data.csv"
@@ -171,6 +183,8 @@ class AslRecording:
         for cam, missing in (("cam0", left_missing), ("cam1", right_missing)):
             if missing:
                 self.matched.dropped[f"{cam} image file missing"] += missing
+        if self.poses.unusable:
+            self.matched.dropped[UNUSABLE_POSE_ROW] += self.poses.unusable
 
     def __len__(self) -> int:
         return len(self.matched.reference)

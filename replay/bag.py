@@ -29,7 +29,7 @@ import numpy as np
 
 from replay import pose_messages as pm
 from replay.asl import RecordingError
-from replay.bag_files import bag_path, open_reader, topic_connections
+from replay.bag_files import bag_path, deserialize, messages, open_reader, topic_connections
 from replay.frames import RecordedPair, fit_image_size
 from replay.image_messages import SignificantBits, camera_info, decode_image, split_side_by_side, to_8_bits
 from replay.matching import Matched, match_stamps
@@ -93,15 +93,15 @@ class BagRecording:
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
                 raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
-            for conn, _t, raw in reader.messages(connections=[c for cs in conns.values() for c in cs]):
+            for conn, t_ns, raw in messages(reader, path, [c for cs in conns.values() for c in cs]):
                 role = next(r for r, cs in conns.items() if conn in cs)
                 if role in ("left_info", "right_info"):
                     if role not in infos:
                         infos[role] = camera_info(
-                            reader.deserialize(raw, conn.msgtype), f"{path}: {conn.topic}"
+                            deserialize(reader, raw, conn, t_ns), f"{path}: {conn.topic}"
                         )
                     continue
-                msg = reader.deserialize(raw, conn.msgtype)
+                msg = deserialize(reader, raw, conn, t_ns)
                 if tree is not None and role in ("pose", "tf_static"):  # edges of the transform tree
                     children.update(pm.child_frames(msg) if role == "pose" else ())
                     pm.add_transforms(tree, msg, static=role == "tf_static")
@@ -253,7 +253,7 @@ class BagRecording:
         nxt = start
         with open_reader(self.path) as reader:
             conns = {r: [c for c in reader.connections if c.topic == self.topics[r]] for r in roles}
-            for conn, _t, raw in reader.messages(connections=[c for r in roles for c in conns[r]]):
+            for conn, t_ns, raw in messages(reader, self.path, [c for r in roles for c in conns[r]]):
                 role = next(r for r in roles if conn in conns[r])
                 n = counts[role]
                 counts[role] += 1
@@ -261,7 +261,7 @@ class BagRecording:
                 if not any(n in want[side] for side in sides):
                     continue
                 image = to_8_bits(
-                    decode_image(reader.deserialize(raw, conn.msgtype), conn.topic), self.pixel_bits
+                    decode_image(deserialize(reader, raw, conn, t_ns), conn.topic), self.pixel_bits
                 )
                 halves = split_side_by_side(image, conn.topic) if role == "stereo" else (image,)
                 for side, half in zip(sides, halves, strict=True):

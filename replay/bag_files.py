@@ -44,14 +44,21 @@ def bag_path(path: Path) -> Path:
     if not path.exists():
         raise RecordingError(f"{path}: no such bag")
     if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
+        if path.suffix in (".db3", ".mcap") and not (path.parent / "metadata.yaml").is_file():
+            return path  # copied without its metadata.yaml: rosbags reads the file alone
         return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
     return path
 
 
 @contextmanager
 def open_reader(path: Path) -> Iterator[Any]:
-    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it."""
+    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it.
+
+    A ROS 2 bag recorded before Iron (Foxy, Humble) holds no message definitions; its standard
+    messages (the only ones read here) are read with Humble's, which these distributions share.
+    """
     from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
 
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         raise RecordingError(
@@ -64,14 +71,85 @@ def open_reader(path: Path) -> Iterator[Any]:
             "'rosbag reindex' it and rename it to .bag"
         )
     try:
-        reader = AnyReader([path])
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.readers = [_DefinedConnections(r) for r in reader.readers]
         reader.open()
-    except (AnyReaderError, OSError) as exc:
-        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    except Exception as exc:  # rosbags' own code only; a cut-short .mcap raises its TypeError
+        if not isinstance(exc, AnyReaderError | OSError):
+            exc = f"{type(exc).__name__}: {exc}"
+        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({one_line(exc)})") from None
     try:
         yield reader
     finally:
         reader.close()
+
+
+def one_line(exc: object) -> str:
+    """rosbags' and its parsers' messages (a YAML error spans lines) on one line."""
+    return " ".join(str(exc).split())
+
+
+class _DefinedConnections:
+    """One of rosbags' bag readers, its connections without those whose message definition the
+    recorder left empty (rosbag2 does so for a type it cannot find, ros2/rosbag2#1350): AnyReader
+    would register such a type with no fields and refuse the whole bag on its hash, though the
+    topics read here are others. (A bag with no definitions at all, Foxy's and Humble's, is read
+    with the default typestore.) A topic left out is reported as not in the bag."""
+
+    def __init__(self, reader: Any) -> None:
+        self._reader = reader
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._reader, name)
+
+    def __enter__(self) -> _DefinedConnections:
+        self._reader.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> Any:
+        return self._reader.__exit__(*exc)
+
+    @property
+    def connections(self) -> list:
+        from rosbags.interfaces import MessageDefinitionFormat
+
+        every = self._reader.connections
+        empty = [
+            c for c in every if c.msgdef.format != MessageDefinitionFormat.NONE and not c.msgdef.data.strip()
+        ]
+        if not empty or len(empty) == len(every):
+            return every
+        return [c for c in every if c not in empty]
+
+
+def messages(reader: Any, path: Path, connections: list) -> Iterator[tuple[Any, int, bytes]]:
+    """``reader.messages(connections)``; a chunk that does not read (damaged, cut short) is a
+    RecordingError naming the bag. rosbags passes its decompressors' errors on as they are (bz2's
+    OSError, lz4's RuntimeError, ...), so any error of the reader here is the file's."""
+    stream = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(stream)
+        except StopIteration:
+            return
+        except Exception as exc:
+            raise RecordingError(
+                f"{path}: the bag is damaged after its start ({type(exc).__name__}: {one_line(exc)})"
+            ) from None
+        yield item
+
+
+def deserialize(reader: Any, raw: bytes, conn: Any, t_ns: int) -> Any:
+    """One message; one that does not deserialize as its type is a RecordingError naming its topic."""
+    from rosbags.highlevel import AnyReaderError
+
+    try:
+        return reader.deserialize(raw, conn.msgtype)
+    except AnyReaderError as exc:
+        raise RecordingError(
+            f"{conn.topic}: the message logged at {t_ns / 1e9:.9f} s is not a valid "
+            f"{type_name(conn.msgtype)} ({len(raw)} bytes; {one_line(exc)})"
+        ) from None
 
 
 def topic_connections(

@@ -54,7 +54,18 @@ ENCODINGS = tuple(_ENCODINGS)
 def decode_image(msg: Any, where: str) -> np.ndarray:
     """A uint8/uint16 image from a sensor_msgs Image or CompressedImage message."""
     if hasattr(msg, "format"):  # CompressedImage
-        image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        data = np.asarray(msg.data, dtype=np.uint8)
+        if "compresseddepth" in str(msg.format).lower():
+            raise RecordingError(
+                f"{where}: format {msg.format!r}: a compressedDepth image is a depth map; "
+                "--left and --right take the cameras' images"
+            )
+        if data.size == 0:  # a recorder that dropped the payload (rosjava/android_core#29)
+            raise RecordingError(f"{where}: compressed image ({msg.format!r}) holds no data (0 bytes)")
+        try:
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            image = None
         if image is None:
             raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
         # image_transport's format is "ENCODING; png compressed [TARGET]": a Bayer image is
@@ -138,25 +149,16 @@ def to_8_bits(image: np.ndarray, bits: int | None) -> np.ndarray:
 
 
 def camera_info(msg: Any, where: str) -> CameraInfo:
-    """The CameraInfo of the images as published: REP-104 keeps the calibrated (full) size, K and P
-    in the message, and says how the images were binned; a binned camera's are scaled to them. A
-    region of interest is refused (RecordingError naming ``where``)."""
+    """The CameraInfo of the images as published (binning and region of interest as
+    ``CameraInfo.from_dict`` reads them, the same as in a camera_info file)."""
     data: dict[str, Any] = {"width": int(msg.width), "height": int(msg.height)}
     data["distortion_model"] = msg.distortion_model
     for name in ("k", "d", "r", "p"):  # ROS 2 names; ROS 1 spells them K D R P
         data[name] = list(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()))
+    data["binning_x"], data["binning_y"] = int(msg.binning_x), int(msg.binning_y)
     roi = msg.roi
-    if (roi.x_offset or roi.y_offset) or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height)):
-        raise RecordingError(
-            f"{where}: roi: images of a region of interest ({roi.width}x{roi.height} at {roi.x_offset}, "
-            f"{roi.y_offset} of {msg.width}x{msg.height}) are not supported"
-        )
-    bx, by = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
-    if (bx, by) != (1, 1) and len(data["k"]) == 9 and len(data["p"]) == 12:
-        scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
-        data["k"] = (scale @ np.reshape(data["k"], (3, 3))).reshape(-1).tolist()
-        data["p"] = (scale @ np.reshape(data["p"], (3, 4))).reshape(-1).tolist()
-        data["width"], data["height"] = data["width"] // bx, data["height"] // by
+    data["roi"] = {"x_offset": int(roi.x_offset), "y_offset": int(roi.y_offset)}
+    data["roi"].update(width=int(roi.width), height=int(roi.height))
     return CameraInfo.from_dict(data, where)
 
 

@@ -99,6 +99,18 @@ distortion_coefficients: [-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05]
 """
 
 
+@pytest.mark.parametrize("resolution", ["[-752, 480]", "[0, 480]", "[752.5, 480]"])
+def test_euroc_resolution_that_cannot_be_is_refused_naming_it(tmp_path, resolution):
+    """A negative width reached OpenCV as a cv2.error traceback (an 18-exabyte allocation), a zero
+    one as 'the second camera must be to the right', 752.5 was cut to 752."""
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0.replace("[752, 480]", resolution))
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    with pytest.raises(
+        CalibrationError, match=r"cam0.yaml: resolution: must be \[width, height\], two whole"
+    ):
+        load_stereo_calibration(tmp_path / "cam0.yaml", tmp_path / "cam1.yaml")
+
+
 def test_euroc_sensor_yaml_pair(tmp_path):
     (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
     (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
@@ -125,6 +137,26 @@ def test_middlebury_calib_txt(tmp_path):
     path.write_text("cam0=[1000 0 300; 0 1000 200; 0 0 1]\ncam1=[1000 0 320; 0 1000 200; 0 0 1]\nwidth=640\n")
     with pytest.raises(CalibrationError, match="calib.txt: baseline: required field is missing"):
         load_stereo_calibration(path)
+
+
+@pytest.mark.parametrize(
+    ("line", "field"),
+    [("ndisp=-5", "ndisp"), ("ndisp=0", "ndisp"), ("ndisp=120.5", "ndisp"), ("width=640.5", "width"),
+     ("height=0", "height"), ("baseline=nan", "baseline"), ("doffs=inf", "doffs")],
+)  # fmt: skip
+def test_middlebury_numbers_that_cannot_be_are_refused_naming_the_field(tmp_path, line, field):
+    """A negative ndisp reached the matcher as 'need 0 < min_depth < max_depth, got -1.0, inf', a
+    width of 640.5 was cut to 640: each is now refused by its field."""
+    good = {"cam0": "[1000 0 300; 0 1000 200; 0 0 1]", "cam1": "[1000 0 320; 0 1000 200; 0 0 1]",
+            "doffs": "20", "baseline": "176", "width": "640", "height": "400", "ndisp": "120"}  # fmt: skip
+    key, value = line.split("=")
+    path = tmp_path / "calib.txt"
+    path.write_text("".join(f"{k}={value if k == key else v}\n" for k, v in good.items()))
+    with pytest.raises(
+        CalibrationError, match=rf"calib.txt: {field}: must be a (whole|finite) number"
+    ) as info:
+        load_stereo_calibration(path)
+    assert "\n" not in str(info.value)
 
 
 def test_an_opencv_matrix_whose_rows_and_cols_miss_its_data_is_refused_naming_both(tmp_path):
@@ -413,17 +445,57 @@ def test_an_empty_file_is_called_empty(tmp_path):
             load_stereo_calibration(*args)
 
 
-def test_a_txt_that_is_not_middlebury_says_what_was_expected(tmp_path):
-    """ROS camera_calibration's tarball holds ost.txt beside left.yaml and right.yaml."""
-    path = tmp_path / "ost.txt"
-    path.write_text(
-        "# oST version 5.0 parameters\n\n\n[image]\n\nwidth\n320\n\nheight\n240\n\n"
-        "[narrow_stereo/left]\n\ncamera matrix\n300 0 161\n0 301 118\n0 0 1\n"
-    )
+def test_a_txt_of_neither_text_form_says_what_was_expected(tmp_path):
+    path = tmp_path / "notes.txt"
+    path.write_text("left camera: fx 300, cx 161\n")
     with pytest.raises(
-        CalibrationError, match=r"ost.txt: cam0: required field is missing .*left.yaml and right.yaml"
+        CalibrationError, match=r"notes.txt: cam0: required field is missing .*Middlebury .* ost.txt"
     ):
         load_stereo_calibration(path)
+
+
+def _ost_block(name: str, k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray) -> str:
+    """One camera as ROS camera_calibration's calibrator writes it to ost.txt (numbers as %8f)."""
+    rows = lambda m: "\n".join(" ".join(f"{v:8f}" for v in row) for row in np.atleast_2d(m))  # noqa: E731
+    return (
+        f"# oST version 5.0 parameters\n\n\n[image]\n\nwidth\n{SIZE[0]}\n\nheight\n{SIZE[1]}\n\n"
+        f"[{name}]\n\ncamera matrix\n{rows(k)}\n\ndistortion\n{rows(d)}\n\n"
+        f"rectification\n{rows(r)}\n\nprojection\n{rows(p)}\n\n"
+    )
+
+
+def test_ros_camera_calibration_ost_txt_and_ini_files_load_as_their_yaml(tmp_path):
+    """ROS camera_calibration's tarball holds ost.txt (both cameras, INI form) beside left.yaml and
+    right.yaml; camera_info_manager reads .ini files too (ros-perception/image_common#33). Both
+    were refused ('cam0: required field is missing', 'not valid YAML'); they give the YAML's rig."""
+    r1, r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    want = load_stereo_calibration(*_camera_infos(tmp_path))
+    left = _ost_block("narrow_stereo/left", K1, D1, r1, p1)
+    right = _ost_block("narrow_stereo/right", K2, D2, r2, p2)
+    (tmp_path / "ost.txt").write_text(left + right)
+    (tmp_path / "left.ini").write_text(left)
+    (tmp_path / "right.ini").write_text(right)
+    for got in (
+        load_stereo_calibration(tmp_path / "ost.txt"),
+        load_stereo_calibration(tmp_path / "left.ini", tmp_path / "right.ini"),
+        load_stereo_calibration(tmp_path / "left.yaml", tmp_path / "right.ini"),
+    ):
+        for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-5), field
+        assert got.image_size == SIZE and got.maps is not None
+    eight = _ost_block("cam", K1, np.r_[D1, 0.01, 0.0, 0.0], r1, p1)  # rational_polynomial
+    (tmp_path / "left8.ini").write_text(eight)
+    assert load_stereo_calibration(tmp_path / "left8.ini", tmp_path / "right.ini").baseline > 0
+    with pytest.raises(CalibrationError, match=r"left.ini: a camera_info INI file describes one camera"):
+        load_stereo_calibration(tmp_path / "left.ini")
+    (tmp_path / "bad.ini").write_text(left.replace("distortion\n", "distortion\n0.1 x 0.2\n", 1))
+    with pytest.raises(
+        CalibrationError,
+        match=r"bad.ini: \[narrow_stereo/left\]: distortion_coefficients: line \d+: not numbers",
+    ):
+        load_stereo_calibration(tmp_path / "bad.ini", tmp_path / "right.ini")
 
 
 # -- equidistant (fisheye) cameras ----------------------------------------------------------------
@@ -491,10 +563,16 @@ def test_ros_camera_info_pair_with_the_equidistant_model_rectifies_a_fisheye_pai
         paths.append(tmp_path / f"{name}.yaml")
         paths[-1].write_text(yaml.safe_dump(info))
     _check_fisheye_rectification(load_stereo_calibration(*paths))
-    info["distortion_coefficients"] = _matrix(np.zeros(5))
+    # the RealSense T265 driver's five, the fifth 0 (realsenseai/realsense-ros#1989): the same rig
+    info["distortion_coefficients"] = _matrix(np.r_[FISH_D, 0.0])
+    paths[1].write_text(yaml.safe_dump(info))
+    _check_fisheye_rectification(load_stereo_calibration(*paths))
+    info["distortion_coefficients"] = _matrix(np.r_[FISH_D, 0.01])
     paths[1].write_text(yaml.safe_dump(info))
     with pytest.raises(
-        CalibrationError, match="right.yaml: distortion_coefficients: must have 4 numbers, got 5"
+        CalibrationError,
+        match=r"right.yaml: distortion_coefficients: the equidistant \(fisheye\) model has 4 coefficients "
+        r"k1..k4, got 5 with non-zero ones past the fourth \(\[0.01\]\)",
     ):
         load_stereo_calibration(*paths)
 
@@ -529,3 +607,190 @@ def test_a_misspelt_field_of_a_sensor_yaml_is_pointed_at(tmp_path):
         CalibrationError, match=r"intrinsics: required field is missing \(is intrinsic a misspelling"
     ):
         load_stereo_calibration(tmp_path / "sensor.yaml", euroc / "cam1/sensor.yaml")
+
+
+def _expected_rectification() -> tuple[float, float]:
+    """fx and baseline of the reference rig, from cv2.stereoRectify itself."""
+    _r1, _r2, p1, p2, *_ = cv2.stereoRectify(
+        K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    return float(p1[0, 0]), float(-p2[0, 3] / p2[0, 0])
+
+
+def _write_storage(path: Path, fields: dict) -> Path:
+    """A FileStorage file written by OpenCV itself; its encoding follows the name (.yml, .xml, .gz)."""
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, value in fields.items():
+        storage.write(name, value)
+    storage.release()
+    return path
+
+
+@pytest.mark.parametrize("name", ["stereo.xml", "stereo.xml.gz", "stereo.yml.gz", "stereo.yml"])
+@pytest.mark.parametrize("flat", [False, True])
+def test_opencv_writes_any_filestorage_encoding_and_it_loads(tmp_path, name, flat):
+    """cv::FileStorage writes XML and gzip as readily as YAML (OpenCV's calibration samples take
+    ``-o out.xml``), and a 1-D array as ``!!opencv-nd-matrix`` (opencv/opencv#22118 and #5836 are
+    about other readers failing on these files): all load as the YAML form does."""
+    shape = (lambda a: np.asarray(a).ravel()) if flat else np.atleast_2d
+    fields = {"M1": K1, "D1": shape(D1), "M2": K2, "D2": shape(D2), "R": R, "T": shape(T)}
+    fields["image_size"] = np.array(SIZE, np.int32) if flat else np.array([SIZE], np.int32)
+    cal = load_stereo_calibration(_write_storage(tmp_path / name, fields))
+    fx, baseline = _expected_rectification()
+    assert cal.fx == pytest.approx(fx, rel=1e-9) and cal.baseline == pytest.approx(baseline, rel=1e-9)
+    assert cal.image_size == SIZE
+
+
+def test_stereo_calib_sample_in_xml_loads_from_its_two_files(tmp_path):
+    intrinsics = _write_storage(tmp_path / "intrinsics.xml", {"M1": K1, "D1": D1, "M2": K2, "D2": D2})
+    extrinsics = _write_storage(tmp_path / "extrinsics.xml", {"R": R, "T": T})
+    cal = load_stereo_calibration(intrinsics, extrinsics, image_size=SIZE)
+    assert cal.baseline == pytest.approx(_expected_rectification()[1], rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (b'<?xml version="1.0"?>\n<opencv_storage>\n<M1 type_id="opencv-matrix"><rows>3</rows>\n'
+         b"</opencv_storage>\n", ["not a readable OpenCV FileStorage XML file", "closing tag"]),
+        (b"\x1f\x8b\x08\x00broken", ["a damaged gzip file"]),
+    ],
+)  # fmt: skip
+def test_broken_filestorage_files_are_refused_on_one_line(tmp_path, content, words):
+    path = tmp_path / "stereo.xml"
+    path.write_bytes(content)
+    with pytest.raises(CalibrationError) as info:
+        load_stereo_calibration(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message
+    for word in words:
+        assert word in message, message
+
+
+@pytest.mark.parametrize("binning", [2, 4])
+def test_camera_info_file_of_a_binned_camera_is_scaled_as_a_topic_is(tmp_path, binning):
+    """A CameraInfo saved with ``ros2 topic echo`` from a binning driver keeps the full sensor's size,
+    K and P with ``binning_x``, ``binning_y`` (REP-104): the file gives the binned images'
+    calibration, as the bag's CameraInfo topic does, instead of a size mismatch on the images."""
+    full = load_stereo_calibration(*_camera_infos(tmp_path))
+    for path in _camera_infos(tmp_path):
+        info = yaml.safe_load(path.read_text())
+        path.write_text(yaml.safe_dump({**info, "binning_x": binning, "binning_y": binning}))
+    binned = load_stereo_calibration(tmp_path / "left.yaml", tmp_path / "right.yaml")
+    assert binned.image_size == (SIZE[0] // binning, SIZE[1] // binning)
+    for field in ("fx", "fy", "cx", "cy", "cx_right"):
+        assert getattr(binned, field) == pytest.approx(getattr(full, field) / binning, rel=1e-12)
+    assert binned.baseline == pytest.approx(full.baseline, rel=1e-12)
+    raw = np.zeros((SIZE[1] // binning, SIZE[0] // binning), np.uint8)
+    assert binned.rectify(raw, raw)[0].shape == raw.shape
+
+
+@pytest.mark.parametrize(
+    ("roi", "refused"),
+    [
+        ({"x_offset": 0, "y_offset": 0, "width": 0, "height": 0, "do_rectify": False}, False),
+        ({"x_offset": 0, "y_offset": 0, "width": SIZE[0], "height": SIZE[1], "do_rectify": False}, False),
+        ({"x_offset": 8, "y_offset": 4, "width": 200, "height": 100, "do_rectify": True}, True),
+        ("all", True),
+    ],
+)
+def test_camera_info_file_with_a_region_of_interest_is_refused_by_name(tmp_path, roi, refused):
+    left, right = _camera_infos(tmp_path)
+    left.write_text(yaml.safe_dump({**yaml.safe_load(left.read_text()), "roi": roi}))
+    if not refused:
+        assert load_stereo_calibration(left, right).image_size == SIZE
+        return
+    with pytest.raises(CalibrationError, match=r"left.yaml: roi: ") as info:
+        load_stereo_calibration(left, right)
+    assert "\n" not in str(info.value)
+
+
+def test_camchain_extrinsics_from_the_imu_transforms(tmp_path):
+    """Without cam1.T_cn_cnm1 the pair's pose follows from both cameras' IMU transforms: Kalibr's
+    T_cam_imu (X_cam = T X_imu) or T_imu_cam, what OpenVINS's kalibr_imucam_chain.yaml holds
+    (X_imu = T X_cam). Both were refused as 'cam1: T_cn_cnm1: required field is missing'."""
+    right_from_left = np.eye(4)
+    right_from_left[:3, :3], right_from_left[:3, 3] = R, T
+    cam0_from_imu = np.eye(4)
+    cam0_from_imu[:3, :3] = cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))[0]
+    cam0_from_imu[:3, 3] = [0.05, -0.02, 0.01]
+    cam1_from_imu = right_from_left @ cam0_from_imu
+    cams = [{"camera_model": "pinhole", "intrinsics": k[[0, 1, 0, 1], [0, 1, 2, 2]].tolist(),
+             "distortion_model": "radtan", "distortion_coeffs": d[:4].tolist(), "resolution": list(SIZE)}
+            for k, d in ((K1, D1), (K2, D2))]  # fmt: skip
+    want = rectify_stereo(K1, np.r_[D1[:4]], K2, np.r_[D2[:4]], R, T, SIZE)
+    forms = {
+        "cn_cnm1": ({}, {"T_cn_cnm1": right_from_left.tolist()}),
+        "cam_imu": ({"T_cam_imu": cam0_from_imu.tolist()}, {"T_cam_imu": cam1_from_imu.tolist()}),
+        "imu_cam": ({"T_imu_cam": np.linalg.inv(cam0_from_imu).tolist()},
+                    {"T_imu_cam": np.linalg.inv(cam1_from_imu).tolist()}),
+    }  # fmt: skip
+    for name, (extra0, extra1) in forms.items():
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump({"cam0": {**cams[0], **extra0}, "cam1": {**cams[1], **extra1}}))
+        got = load_stereo_calibration(path)
+        for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9), (name, field)
+    bent = cam1_from_imu.copy()
+    bent[0, 0] = 2.0
+    path = tmp_path / "bent.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {"cam0": {**cams[0], **forms["cam_imu"][0]}, "cam1": {**cams[1], "T_cam_imu": bent.tolist()}}
+        )
+    )
+    with pytest.raises(CalibrationError, match=r"bent.yaml: cam1.T_cam_imu: not a rigid transform"):
+        load_stereo_calibration(path)
+
+
+def test_openvins_imucam_chain_of_euroc_equals_its_sensor_yaml_pair(tmp_path):
+    """rpng/open_vins's config/euroc_mav/kalibr_imucam_chain.yaml form: %YAML:1.0, each camera's
+    T_imu_cam as rows (EuRoC's T_BS: the body is the IMU), no T_cn_cnm1."""
+    (tmp_path / "cam0.yaml").write_text(EUROC_CAM0)
+    (tmp_path / "cam1.yaml").write_text(EUROC_CAM1)
+    want = load_stereo_calibration(tmp_path / "cam0.yaml", tmp_path / "cam1.yaml")
+    chain = {}
+    for name, text in (("cam0", EUROC_CAM0), ("cam1", EUROC_CAM1)):
+        sensor = yaml.safe_load(text.split("\n", 1)[1])
+        pose = np.reshape(sensor["T_BS"]["data"], (4, 4)).tolist()
+        chain[name] = {"T_imu_cam": pose, "camera_model": "pinhole", "distortion_model": "radtan",
+                       "distortion_coeffs": sensor["distortion_coefficients"],
+                       "intrinsics": sensor["intrinsics"], "resolution": sensor["resolution"]}  # fmt: skip
+    path = tmp_path / "kalibr_imucam_chain.yaml"
+    path.write_text("%YAML:1.0\n\n" + yaml.safe_dump(chain, default_flow_style=None))
+    got = load_stereo_calibration(path)
+    for field in ("fx", "fy", "cx", "cy", "baseline", "cx_right"):
+        assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9), field
+
+
+def test_two_single_camera_opencv_calibrations_are_refused_saying_why(tmp_path):
+    """OpenCV's calibration sample writes one camera (camera_matrix, distortion_coefficients,
+    image_width, no projection or distortion_model; ros-perception/image_common#27): a pair of
+    them has no stereo extrinsics."""
+    paths = []
+    for name, k, d in (("left", K1, D1), ("right", K2, D2)):
+        text = _opencv_storage({"camera_matrix": k, "distortion_coefficients": d.reshape(-1, 1)})
+        text += 'calibration_time: "Mon Oct 27 20:27:45 2014"\n'
+        text += f"image_width: {SIZE[0]}\nimage_height: {SIZE[1]}\navg_reprojection_error: 0.44\n"
+        paths.append(tmp_path / f"{name}.yml")
+        paths[-1].write_text(text)
+    with pytest.raises(CalibrationError, match=r"left.yml: projection_matrix: .* single-camera OpenCV"):
+        load_stereo_calibration(*paths)
+
+
+@pytest.mark.parametrize("model", ["kannala_brandt", "Kannala-Brandt", "FISHEYE", " equidistant"])
+def test_the_fisheye_model_s_other_names_and_cases_are_read(tmp_path, model):
+    """ros2/common_interfaces#160: the equidistant model is Kalibr's 'equidistant', OpenCV's
+    'fisheye', camodocal's 'kannala-brandt'; a driver writing another of them, or capitals, was
+    refused as an unsupported model."""
+    r1, r2, p1, p2, _q = cv2.fisheye.stereoRectify(
+        FISH_K, FISH_D, FISH_K, FISH_D, FISH_SIZE, FISH_R, FISH_T.reshape(3, 1), cv2.CALIB_ZERO_DISPARITY
+    )
+    paths = []
+    for name, r, p in (("left", r1, p1), ("right", r2, p2)):
+        info = {"image_width": FISH_SIZE[0], "image_height": FISH_SIZE[1], "distortion_model": model}
+        info |= {"camera_matrix": _matrix(FISH_K), "distortion_coefficients": _matrix(FISH_D)}
+        info |= {"rectification_matrix": _matrix(r), "projection_matrix": _matrix(p)}
+        paths.append(tmp_path / f"{name}.yaml")
+        paths[-1].write_text(yaml.safe_dump(info))
+    _check_fisheye_rectification(load_stereo_calibration(*paths))

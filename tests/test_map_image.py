@@ -251,3 +251,56 @@ def test_missing_image_names_the_key_and_where_it_looked(tmp_path):
     assert str(info.value) == (
         f"{path}: image: file not found: {tmp_path / 'nowhere.pgm'} (taken from the map.yaml's folder)"
     )
+
+
+def _netpbm_files(samples: np.ndarray) -> dict[str, tuple[bytes, bytes, np.ndarray]]:
+    """Binary Netpbm files of one grey image (P5, P6, P7; P4 of its threshold) as (header,
+    raster), and the shade each should give, per the Netpbm pages."""
+    rows, cols = samples.shape
+    bits = samples < 128  # P4: 1 is black
+    grey = samples.astype(np.uint8).tobytes()
+    rgb = np.repeat(samples[..., None], 3, axis=2).astype(np.uint8).tobytes()
+    pam = f"P7\nWIDTH {cols}\nHEIGHT {rows}\nDEPTH 1\nMAXVAL 255\nTUPLTYPE GRAYSCALE\nENDHDR\n"
+    return {
+        "P5": (f"P5\n{cols} {rows}\n255\n".encode(), grey, samples / 255),
+        "P6": (f"P6\n{cols} {rows}\n255\n".encode(), rgb, samples / 255),
+        "P7": (pam.encode(), grey, samples / 255),
+        "P4": (f"P4\n{cols} {rows}\n".encode(), np.packbits(bits, axis=1).tobytes(), (~bits).astype(float)),
+    }
+
+
+@pytest.mark.parametrize("magic", ["P4", "P5", "P6", "P7"])
+def test_header_with_crlf_line_ends_reads_the_raster_after_the_lf(tmp_path, magic):
+    """A header written in text mode on Windows ends its lines in CR LF (asfadmin/ASF_MapReady#95,
+    DGtal-team/DGtal#1130): the raster starts after the LF, not one byte early."""
+    samples = np.array([[0, 205, 254, 40], [254, 0, 205, 90]], dtype=np.int64)  # no byte 10 or 13
+    header, raster, want = _netpbm_files(samples)[magic]
+    path = tmp_path / "crlf.pnm"
+    path.write_bytes(header + raster)
+    np.testing.assert_allclose(read_map_image(path).shade, want)
+    path.write_bytes(header.replace(b"\n", b"\r\n") + raster)
+    np.testing.assert_allclose(read_map_image(path).shade, want)
+
+
+def test_file_written_in_text_mode_is_refused_not_shifted(tmp_path):
+    """Text mode turns every byte 10 of the raster into CR LF too (ssloy/tinyraycaster#9): the
+    samples cannot be recovered, so the image is refused with the cause."""
+    samples = np.array([[0, 10, 254], [254, 10, 205]], dtype=np.uint8)
+    content = b"P5\n3 2\n255\n" + samples.tobytes()
+    path = tmp_path / "text_mode.pgm"
+    path.write_bytes(content.replace(b"\n", b"\r\n"))
+    with pytest.raises(FloorPlanError, match="text mode") as info:
+        read_map_image(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+    # a raster that starts with byte 10 after a lone CR separator is a valid file, read as it is
+    path.write_bytes(b"P5\n3 2\n255\r" + bytes([10, 0, 254, 254, 10, 205]))
+    np.testing.assert_allclose(read_map_image(path).shade * 255, [[10, 0, 254], [254, 10, 205]])
+
+
+@pytest.mark.parametrize("mode", ["Trinary", "SCALE", "Raw"])
+def test_mode_is_read_in_any_case_as_nav2_does(tmp_path, mode):
+    """Nav2's map_mode_from_string lowercases the mode: ``mode: Trinary`` is a trinary map."""
+    (tmp_path / "site.pgm").write_bytes(pgm(room(254, 0), 255))
+    want = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode.lower()))
+    got = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode))
+    assert np.array_equal(got.occupied, want.occupied) and np.array_equal(got.free, want.free)

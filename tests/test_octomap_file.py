@@ -153,7 +153,7 @@ def test_bad_files_name_the_file_and_field(tmp_path: Path):
     (tmp_path / "short.bt").write_bytes(raw[:-3])
     (tmp_path / "size.bt").write_bytes(raw.replace(b"\nsize ", b"\nsize 1"))
     (tmp_path / "text.bt").write_bytes(b"# Octomap OcTree file\nid OcTree\n")
-    (tmp_path / "color.bt").write_bytes(raw.replace(b"id OcTree", b"id ColorOcTree"))
+    (tmp_path / "color.bt").write_bytes(raw.replace(b"id OcTree", b"id CountingOcTree"))
     for name, field in [("short", "truncated"), ("size", "size"), ("text", "not an OctoMap binary"),
                         ("color", "id")]:  # fmt: skip
         with pytest.raises(OctomapFileError, match=field) as err:

@@ -333,3 +333,30 @@ def test_asl_poses_between_the_images_stamps_are_interpolated(tmp_path):
         assert a.t == b.t
         assert np.allclose(a.position, b.position, rtol=0, atol=1e-9)
         assert np.allclose(a.world_R_optical, b.world_R_optical, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("row", ["nan,0.87,0.93", "inf,2.2,0.93", "0.86,2.2,0.93,0,0,0,0"])
+def test_asl_pose_rows_that_are_not_poses_are_left_out_and_counted(tmp_path, row):
+    """A ground-truth row of NaN, inf or a zero quaternion went through as a NaN pose (or a
+    ValueError naming no file); it is now left out and counted, as the bag reader does."""
+    import shutil
+
+    from replay.asl import UNUSABLE_POSE_ROW, AslRecording, RecordingError
+
+    folder = tmp_path / "euroc"
+    shutil.copytree(EUROC, folder)
+    gt = folder / "mav0" / "cam0_groundtruth" / "data.csv"
+    lines = gt.read_text().splitlines()
+    bad = row.split(",")
+
+    def spoilt(line: str) -> str:
+        stamp, *numbers = line.split(",")
+        return ",".join([stamp, *bad, *numbers[len(bad) :]])
+
+    gt.write_text("\n".join([lines[0], spoilt(lines[1]), *lines[2:]]) + "\n")
+    rec = AslRecording(folder)
+    assert len(rec) == 3 and rec.matched.dropped[UNUSABLE_POSE_ROW] == 1
+    assert np.isfinite(rec.positions()).all()
+    gt.write_text("\n".join([lines[0], *map(spoilt, lines[1:])]) + "\n")
+    with pytest.raises(RecordingError, match=r"data.csv: none of its 4 poses is usable"):
+        AslRecording(folder)

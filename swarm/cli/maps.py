@@ -78,13 +78,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     export.set_defaults(run=_run_map_export)
     imp = msub.add_parser(
         "import",
-        help="turn an OctoMap .bt into a map.npz a mission can start from (prior_map:)",
+        help="turn an OctoMap .bt or .ot into a map.npz a mission can start from (prior_map:)",
         description="Read an OctoMap binary tree (.bt) and write a coverage map file at the tree's "
         "resolution over the box of its known nodes, pruned nodes expanded: occupied voxels get "
         "the belief N(1, --sigma), free voxels N(0, --sigma), unknown voxels the uninformative "
         "prior N(0.5, 10 sigma_s(max range)). Name the result as prior_map: in a mission file.",
     )
-    imp.add_argument("bt", type=Path, help="OctoMap .bt file")
+    imp.add_argument("bt", type=Path, help="OctoMap .bt or .ot file")
     imp.add_argument("--out", type=Path, required=True, help="output map file (*.npz)")
     imp.add_argument(
         "--sigma",

@@ -77,8 +77,8 @@ def check_mission(mission: Mission) -> None:
     if prior is not None:
         if not prior.is_file():
             fail("prior_map", f"file not found: {prior}")
-        if prior.suffix.lower() not in (".npz", ".bt"):
-            fail("prior_map", f"{prior}: must be a map .npz or an OctoMap .bt")
+        if prior.suffix.lower() not in (".npz", ".bt", ".ot"):
+            fail("prior_map", f"{prior}: must be a map .npz or an OctoMap .bt or .ot")
 
     if mission.floor_plan is not None:
         from swarm.formats.floor_plan import FloorPlanError

@@ -40,7 +40,7 @@ class Mission(Section):
     mission: str = Field(default="default", pattern=NAME_PATTERN)
     workspace: WorkspaceConfig
     floor_plan: str | FloorPlanRef | None = None
-    #: a previous map (map.npz or OctoMap .bt) the mission starts from (paper section II.C.1)
+    #: a previous map (map.npz or OctoMap .bt or .ot) the mission starts from (paper section II.C.1)
     prior_map: str | None = None
     robots: list[RobotSpec] = Field(min_length=1)
     rig: RigConfig = RigConfig()

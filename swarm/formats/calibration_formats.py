@@ -1,6 +1,7 @@
 """Stereo calibrations in the forms users have, read into a ``StereoCalibration``.
 
-* ROS ``camera_info`` (one per camera): the YAML of ``camera_calibration_parsers``
+* ROS ``camera_info`` (one per camera; ``swarm.formats.camera_info_ini`` for the INI form and
+  ``camera_calibration``'s two-camera ``ost.txt``): the YAML of ``camera_calibration_parsers``
   (``image_width``, ``camera_matrix``, ``distortion_coefficients``, ``rectification_matrix``,
   ``projection_matrix``) or the fields of a ``sensor_msgs/CameraInfo`` message (``k d r p``,
   ROS 1's ``K D R P``). The right camera's ``P[0][3]`` is ``-fx * baseline``.
@@ -26,6 +27,7 @@ import numpy as np
 
 from swarm.formats.calibration_schema import field_value, numbers, whole_number
 from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
+from swarm.formats.camera_info_ini import camera_info_ini, is_camera_info_ini
 from swarm.formats.middlebury_calib import load_middlebury
 from swarm.formats.stereo_calibration import (
     CalibrationError,
@@ -40,9 +42,23 @@ from swarm.formats.stereo_calibration import (
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "none", "")
 #: A camera_info pair whose baseline comes out shorter (m) wrote the baseline alone in P[0][3].
 MIN_BASELINE_M = 0.003
-#: The equidistant (Kannala-Brandt) fisheye model's names, ROS's and Kalibr's: four coefficients,
-#: rectified with ``cv2.fisheye``.
-FISHEYE_MODELS = ("equidistant", "fisheye")
+#: The equidistant (Kannala-Brandt) fisheye model's names: ROS's and Kalibr's, OpenCV's, camodocal's
+#: (ros2/common_interfaces#160 lists them); four coefficients, rectified with ``cv2.fisheye``.
+#: Model names are read in any case.
+FISHEYE_MODELS = ("equidistant", "fisheye", "kannala_brandt", "kannala-brandt")
+
+
+def fisheye_coefficients(value: Any, source: str, field: str) -> np.ndarray:
+    """The equidistant model's four coefficients k1..k4. A driver that fills the plumb_bob-sized
+    five (the RealSense T265's ROS driver, realsenseai/realsense-ros#1989) has a fifth that means
+    nothing: zeros past the fourth are dropped, anything else there is refused."""
+    d = numbers(value, tuple(range(4, 15)), source, field)
+    if np.any(d[4:]):
+        raise CalibrationError(
+            f"{source}: {field}: the equidistant (fisheye) model has 4 coefficients k1..k4, got {d.size} "
+            f"with non-zero ones past the fourth ({d[4:].tolist()})"
+        )
+    return d[:4]
 
 
 def _read_yaml(path: Path) -> Any:
@@ -54,7 +70,11 @@ def _read_yaml(path: Path) -> Any:
 
 @dataclass(frozen=True)
 class CameraInfo:
-    """One camera's ROS calibration: size, K (3x3), D, R (3x3), P (3x4), distortion model."""
+    """One camera's ROS calibration: size, K (3x3), D, R (3x3), P (3x4), distortion model.
+
+    Of the images as published: a binned camera's (``binning_x``, ``binning_y`` > 1; REP-104
+    keeps the full sensor's size, K and P in the message) are scaled to its binned images; a
+    region of interest (``roi``) is refused."""
 
     width: int
     height: int
@@ -76,7 +96,7 @@ class CameraInfo:
             raise CalibrationError(
                 f"{source}: image_width, image_height: must be positive integers (got {width!r}, {height!r})"
             )
-        model = str(data.get("distortion_model", "plumb_bob") or "")
+        model = str(data.get("distortion_model", "plumb_bob") or "").strip().lower()
         if model not in PINHOLE_MODELS + FISHEYE_MODELS:
             raise CalibrationError(
                 f"{source}: distortion_model: {model!r} is not supported "
@@ -87,28 +107,76 @@ class CameraInfo:
         )
         if k[0, 0] <= 0 or k[1, 1] <= 0:
             raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
-        d = numbers(
-            field_value(data, source, "distortion_coefficients", "d", "D"),
-            4 if model in FISHEYE_MODELS else (0, 4, 5, 8, 12, 14),
-            source,
-            "distortion_coefficients",
-        )
+        d = field_value(data, source, "distortion_coefficients", "d", "D")
+        if model in FISHEYE_MODELS:
+            d = fisheye_coefficients(d, source, "distortion_coefficients")
+        else:
+            d = numbers(d, (0, 4, 5, 8, 12, 14), source, "distortion_coefficients")
         r = numbers(
             data.get("rectification_matrix", data.get("r", data.get("R", np.eye(3)))),
             9,
             source,
             "rectification_matrix",
         )
+        if not any(key in data for key in ("projection_matrix", "p", "P")) and "distortion_model" not in data:
+            raise CalibrationError(  # OpenCV's calibration sample (ros-perception/image_common#27)
+                f"{source}: projection_matrix: required field is missing; a single-camera OpenCV "
+                "calibration (camera_matrix, distortion_coefficients) holds no stereo extrinsics: give a "
+                "stereo calibration (K1 D1 K2 D2 R T) or each camera's ROS camera_info"
+            )
         p = numbers(field_value(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
         p = p.reshape(3, 4)
         if p[0, 0] <= 0 or p[1, 1] <= 0:
             raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
+        _refuse_region_of_interest(data.get("roi"), width, height, source)
+        bx, by = (_binning(data, name, source) for name in ("binning_x", "binning_y"))
+        if (bx, by) != (1, 1):  # REP-104: K, P and the size are the full sensor's
+            scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
+            k, p = scale @ k, scale @ p
+            width, height = width // bx, height // by
         return cls(int(width), int(height), k, d, r.reshape(3, 3), p, model, source)
 
     @classmethod
     def load(cls, path: str | Path) -> CameraInfo:
+        """One camera's camera_info file: YAML, or the INI form (``camera_calibration_parsers``)."""
         path = Path(path)
-        return cls.from_dict(_read_yaml(path), str(path))
+        cameras = _ini_cameras(path)
+        if cameras is None:
+            return cls.from_dict(_read_yaml(path), str(path))
+        if len(cameras) != 1:
+            raise CalibrationError(f"{path}: holds {len(cameras)} cameras; give it alone (--calib)")
+        return cls.from_dict(cameras[0][1], f"{path}: [{cameras[0][0]}]")
+
+
+def _ini_cameras(path: Path) -> list[tuple[str, dict]] | None:
+    """The cameras of a camera_info INI file or ``ost.txt``, None for a file of another form."""
+    text = read_calibration_text(path)
+    return camera_info_ini(text, str(path)) if is_camera_info_ini(text) else None
+
+
+def _binning(data: dict, name: str, source: str) -> int:
+    """``binning_x`` / ``binning_y`` of a CameraInfo: 0 and 1 both mean none (REP-104)."""
+    value = whole_number(data.get(name, 0))
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise CalibrationError(f"{source}: {name}: must be a whole number >= 0 (got {value!r})")
+    return max(value, 1)
+
+
+def _refuse_region_of_interest(roi: Any, width: int, height: int, source: str) -> None:
+    """A CameraInfo ``roi`` other than none (all zero) or the whole image is refused: its images
+    are a crop of the calibrated ones."""
+    if roi is None:
+        return
+    if not isinstance(roi, dict):
+        raise CalibrationError(f"{source}: roi: expected x_offset, y_offset, width, height (got {roi!r})")
+    x, y, w, h = (whole_number(roi.get(key, 0)) for key in ("x_offset", "y_offset", "width", "height"))
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (x, y, w, h)):
+        raise CalibrationError(f"{source}: roi: x_offset, y_offset, width, height must be whole numbers")
+    if (x or y) or (w, h) not in ((0, 0), (width, height)):
+        raise CalibrationError(
+            f"{source}: roi: images of a region of interest ({w}x{h} at {x}, {y} of {width}x{height}) "
+            "are not supported"
+        )
 
 
 def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalibration:
@@ -193,19 +261,20 @@ class KalibrCamera:
         fu, fv, cu, cv = numbers(field_value(data, source, "intrinsics"), 4, source, "intrinsics")
         if fu <= 0 or fv <= 0:
             raise CalibrationError(f"{source}: intrinsics: focal lengths fu, fv must be > 0")
-        model = str(data.get("distortion_model", "radial-tangential"))
+        model = str(data.get("distortion_model", "radial-tangential")).strip().lower()
         fisheye = model in FISHEYE_MODELS
         if model not in ("radial-tangential", "radtan", "plumb_bob", "none") and not fisheye:
             raise CalibrationError(
                 f"{source}: distortion_model: {model!r} is not supported (radial-tangential or equidistant)"
             )
-        d = numbers(
-            field_value(data, source, "distortion_coefficients", "distortion_coeffs"),
-            4 if fisheye else (0, 4, 5),
-            source,
-            "distortion_coefficients",
-        )
+        d = field_value(data, source, "distortion_coefficients", "distortion_coeffs")
+        field = "distortion_coefficients"
+        d = fisheye_coefficients(d, source, field) if fisheye else numbers(d, (0, 4, 5), source, field)
         w, h = numbers(field_value(data, source, "resolution"), 2, source, "resolution")
+        if not (w == int(w) and h == int(h) and w > 0 and h > 0):
+            raise CalibrationError(
+                f"{source}: resolution: must be [width, height], two whole numbers > 0 (got [{w:g}, {h:g}])"
+            )
         pose = numbers(field_value(data, source, pose_field), 16, source, pose_field).reshape(4, 4)
         rot = pose[:3, :3]
         if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
@@ -240,19 +309,48 @@ def stereo_from_kalibr(
 
 
 def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
-    """Kalibr ``camchain.yaml``: ``cam0`` and ``cam1``, the latter with ``T_cn_cnm1`` (X1 = T X0)."""
+    """Kalibr ``camchain.yaml``: ``cam0`` and ``cam1``, the latter with ``T_cn_cnm1`` (X1 = T X0);
+    without it, both cameras' ``T_cam_imu`` (Kalibr's camchain-imucam: X_cam = T X_imu) or
+    ``T_imu_cam`` (OpenVINS's kalibr_imucam_chain.yaml: X_imu = T X_cam) give the pair's pose."""
     for name in ("cam0", "cam1"):
         if not isinstance(data.get(name), dict):
             raise CalibrationError(f"{source}: {name}: required camera section is missing")
-    identity = {"T_BS": np.eye(4).tolist()}
-    left = KalibrCamera.from_dict({**data["cam0"], **identity}, f"{source}: cam0")
-    right_dict = dict(data["cam1"])
-    right_from_left = numbers(
-        field_value(right_dict, f"{source}: cam1", "T_cn_cnm1"), 16, source, "cam1.T_cn_cnm1"
+    cam0, cam1 = data["cam0"], data["cam1"]
+    if "T_cn_cnm1" in cam1:
+        extrinsics = "cam1.T_cn_cnm1"
+        right_from_left = _rigid(cam1["T_cn_cnm1"], source, extrinsics)
+    elif "T_cam_imu" in cam0 and "T_cam_imu" in cam1:
+        extrinsics = "cam0.T_cam_imu, cam1.T_cam_imu"
+        imu = [_rigid(c["T_cam_imu"], source, f"cam{n}.T_cam_imu") for n, c in enumerate((cam0, cam1))]
+        right_from_left = imu[1] @ np.linalg.inv(imu[0])
+    elif "T_imu_cam" in cam0 and "T_imu_cam" in cam1:
+        extrinsics = "cam0.T_imu_cam, cam1.T_imu_cam"
+        imu = [_rigid(c["T_imu_cam"], source, f"cam{n}.T_imu_cam") for n, c in enumerate((cam0, cam1))]
+        right_from_left = np.linalg.inv(imu[1]) @ imu[0]
+    else:
+        raise CalibrationError(
+            f"{source}: cam1.T_cn_cnm1: required field is missing (or T_cam_imu / T_imu_cam in both cameras)"
+        )
+    left = KalibrCamera.from_dict({**cam0, "T_BS": np.eye(4).tolist()}, f"{source}: cam0")
+    right = KalibrCamera.from_dict(
+        {**cam1, "T_BS": np.linalg.inv(right_from_left).tolist()}, f"{source}: cam1"
     )
-    right_dict["T_BS"] = np.linalg.inv(right_from_left.reshape(4, 4)).tolist()
-    right = KalibrCamera.from_dict(right_dict, f"{source}: cam1")
-    return stereo_from_kalibr(left, right, source, "cam1.T_cn_cnm1")
+    return stereo_from_kalibr(left, right, source, extrinsics)
+
+
+def _rigid(value: Any, source: str, field: str) -> np.ndarray:
+    """A 4x4 rigid transform (rotation, translation, last row 0 0 0 1) from a file's field."""
+    t = numbers(value, 16, source, field).reshape(4, 4)
+    rot = t[:3, :3]
+    if not (
+        np.allclose(rot @ rot.T, np.eye(3), atol=1e-3)
+        and np.linalg.det(rot) > 0
+        and np.allclose(t[3], [0, 0, 0, 1])
+    ):
+        raise CalibrationError(
+            f"{source}: {field}: not a rigid transform (a rotation, a translation, 0 0 0 1)"
+        )
+    return t
 
 
 # -- one entry point -------------------------------------------------------------------------
@@ -279,6 +377,22 @@ def load_stereo_calibration(
     beside ``intrinsics.yml``). ``image_size`` (width, height) is the images' size, used by an
     OpenCV calibration that states none. Raises CalibrationError naming the file and field."""
     path = Path(path)
+    cameras = _ini_cameras(path)
+    if cameras is not None:  # camera_info INI: one camera, or ROS camera_calibration's stereo ost.txt
+        if len(cameras) == 2 and right is None:
+            (left_name, left), (right_name, right_info) = cameras
+            return stereo_from_camera_infos(
+                CameraInfo.from_dict(left, f"{path}: [{left_name}]"),
+                CameraInfo.from_dict(right_info, f"{path}: [{right_name}]"),
+            )
+        if len(cameras) == 2:
+            raise CalibrationError(f"{right}: {path} holds both cameras (ost.txt); give it alone")
+        if right is None:
+            raise CalibrationError(
+                f"{path}: a camera_info INI file describes one camera; give the right camera's too "
+                "(--calib-left LEFT.ini --calib-right RIGHT.ini)"
+            )
+        return stereo_from_camera_infos(CameraInfo.load(path), CameraInfo.load(right))
     if path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0="):
         if right is not None:
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")

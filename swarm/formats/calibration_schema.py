@@ -52,6 +52,8 @@ def _matrix(value: Any, shape: tuple[int, int]) -> np.ndarray:
         if not (isinstance(rows, int) and isinstance(cols, int) and rows * cols == count):
             raise ValueError(f"rows x cols is {rows} x {cols} but data holds {count} numbers")
         value = data
+    elif isinstance(value, dict) and "data" in value:  # !!opencv-nd-matrix: sizes, dt, data
+        value = value["data"]
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -96,11 +96,27 @@ class _Header:
             raise self.fail(f"{name} must be in [{lo}, {hi}], got {value}")
         return value
 
-    def raster_start(self) -> int:
-        """Offset of a binary raster: one whitespace byte after the last header token."""
-        if self.pos >= len(self.data):
-            return self.pos
-        return self.pos + 1
+    def raster_start(self, size: int) -> int:
+        """Offset of a binary raster of ``size`` bytes: one whitespace byte after the last token.
+
+        A header whose lines end in CR LF (written in text mode on Windows, or by an editor)
+        has its raster after the LF when the file holds exactly ``size`` bytes from there.
+        When every LF byte of the raster became CR LF too (the whole file written in text
+        mode), the samples cannot be told apart and the file is refused.
+        """
+        start = min(self.pos + 1, len(self.data))
+        if self.data[self.pos : self.pos + 2] != b"\r\n":
+            return start
+        rest = len(self.data) - (start + 1)
+        if rest == size:
+            return start + 1
+        crlf = self.data.count(b"\r\n", start + 1)
+        if rest > size and rest - crlf == size:
+            raise self.fail(
+                "the file was written in text mode: its line ends and every byte 10 of the raster "
+                "became CR LF, which shifts the samples; write it again in binary mode"
+            )
+        return start
 
 
 def _read_netpbm(data: bytes, path: Path) -> MapImage:
@@ -121,14 +137,24 @@ def _read_netpbm(data: bytes, path: Path) -> MapImage:
     elif magic == b"P4":
         row_bytes = (width + 7) // 8
         raster = _take(
-            data, head.raster_start(), row_bytes * height, path, magic, f"{height} rows of {row_bytes} bytes"
+            data,
+            head.raster_start(row_bytes * height),
+            row_bytes * height,
+            path,
+            magic,
+            f"{height} rows of {row_bytes} bytes",
         )
         bits = np.unpackbits(np.frombuffer(raster, np.uint8).reshape(height, row_bytes), axis=1)
         samples = bits[:, :width].reshape(-1)
     else:
         size = 1 if maxval < 256 else 2
         raster = _take(
-            data, head.raster_start(), count * size, path, magic, f"{count:,} samples of {size} byte(s)"
+            data,
+            head.raster_start(count * size),
+            count * size,
+            path,
+            magic,
+            f"{count:,} samples of {size} byte(s)",
         )
         samples = np.frombuffer(raster, np.uint8 if size == 1 else ">u2")
         _check_maxval(samples, maxval, path, magic)
@@ -161,7 +187,9 @@ def _read_pam(head: _Header) -> MapImage:
         raise head.fail(f"{width} x {height} pixels is more than a map image holds ({MAX_PIXELS:,})")
     size = 1 if maxval < 256 else 2
     count = width * height * depth
-    raster = _take(head.data, head.raster_start(), count * size, head.path, b"P7", f"{count:,} samples")
+    raster = _take(
+        head.data, head.raster_start(count * size), count * size, head.path, b"P7", f"{count:,} samples"
+    )
     samples = np.frombuffer(raster, np.uint8 if size == 1 else ">u2")
     _check_maxval(samples, maxval, head.path, b"P7")
     value = samples.astype(np.float64).reshape(height, width, depth) / maxval

@@ -27,11 +27,11 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
             key, value = line.split("=", 1)
             values[key.strip()] = value.strip()
 
-    if "cam0" not in values:  # e.g. the ost.txt beside ROS camera_calibration's left/right.yaml
+    if "cam0" not in values:
         raise CalibrationError(
             f"{source}: cam0: required field is missing (a .txt calibration is read as a Middlebury "
-            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1]; of ROS camera_calibration's output give "
-            "left.yaml and right.yaml, not ost.txt)"
+            "calib.txt, cam0=[f 0 cx; 0 f cy; 0 0 1], or as ROS camera_calibration's ost.txt, an "
+            "[image] section then one per camera)"
         )
 
     def matrix(name: str) -> np.ndarray:
@@ -47,9 +47,18 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
                 return default
             raise CalibrationError(f"{source}: {name}: required field is missing")
         try:
-            return float(values[name])
+            value = float(values[name])
         except ValueError:
             raise CalibrationError(f"{source}: {name}: not a number (got {values[name]!r})") from None
+        if not np.isfinite(value):
+            raise CalibrationError(f"{source}: {name}: must be a finite number (got {values[name]!r})")
+        return value
+
+    def whole(name: str) -> int:
+        value = number(name)
+        if not (value == int(value) and value > 0):  # int(): inf is refused as not a number above
+            raise CalibrationError(f"{source}: {name}: must be a whole number > 0 (got {values[name]!r})")
+        return int(value)
 
     cam0, cam1 = matrix("cam0"), matrix("cam1")
     baseline_mm = number("baseline")
@@ -62,8 +71,8 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
         )
     size = None
     if "width" in values and "height" in values:
-        size = (int(number("width")), int(number("height")))
-    ndisp = int(number("ndisp")) if "ndisp" in values else None
+        size = (whole("width"), whole("height"))
+    ndisp = whole("ndisp") if "ndisp" in values else None
     return StereoCalibration(
         fx=float(cam0[0, 0]),
         fy=float(cam0[1, 1]),

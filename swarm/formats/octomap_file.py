@@ -20,6 +20,7 @@ below it. Only maximum-likelihood states are stored: free or occupied, no probab
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +32,11 @@ TREE_DEPTH = 16
 #: key of the voxel whose min corner is the world origin
 KEY_ORIGIN = 1 << (TREE_DEPTH - 1)
 MAGIC = b"# Octomap OcTree binary file"
+#: the first line of a full ``.ot`` file (``AbstractOcTree::write``)
+OT_MAGIC = b"# Octomap OcTree file"
+#: bytes of a node's data in a ``.ot`` file, by tree type: float log-odds, then a ColorOcTree's
+#: r, g, b or an OcTreeStamped's uint32 stamp. (A ``.bt`` holds the same data for all three.)
+OT_NODE_BYTES = {"OcTree": 4, "ColorOcTree": 7, "OcTreeStamped": 8}
 FREE, OCCUPIED, INNER = 1, 2, 3  # the 2-bit child codes
 
 
@@ -170,12 +176,13 @@ def write_bt(path: str | Path, resolution: float, key: np.ndarray, occupied: np.
 # -- reading -------------------------------------------------------------------------------
 
 
-def _read_header(path: Path, raw: bytes) -> tuple[dict[str, str], int]:
-    """Header fields and the offset of the tree data."""
-    if not raw.startswith(MAGIC):
-        raise OctomapFileError(f"{path}: not an OctoMap binary file (first line is not {MAGIC.decode()!r})")
+def _read_header(path: Path, raw: bytes, magic: bytes) -> tuple[dict[str, str], int]:
+    """Header fields and the offset of the tree data (after the ``data`` line)."""
+    first = raw.find(b"\n")
+    if first < 0:
+        raise OctomapFileError(f"{path}: header ends after its first line (no 'data' line)")
     fields: dict[str, str] = {}
-    pos = raw.index(b"\n") + 1
+    pos = first + 1
     while True:
         end = raw.find(b"\n", pos)
         if end < 0:
@@ -189,20 +196,13 @@ def _read_header(path: Path, raw: bytes) -> tuple[dict[str, str], int]:
         fields[words[0]] = words[1] if len(words) > 1 else ""
 
 
-def read_bt(path: str | Path) -> OctreeLeaves:
-    """Every leaf of an OctoMap ``.bt`` file (pruned leaves kept whole; see :class:`OctreeLeaves`).
-
-    Raises OctomapFileError naming the file and the field for a bad header (type other than
-    ``OcTree``, resolution not positive), truncated data or a node count other than ``size``.
-    """
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise OctomapFileError(f"{path}: cannot read: {exc}") from exc
-    fields, pos = _read_header(path, raw)
-    if fields.get("id") != "OcTree":
-        raise OctomapFileError(f"{path}: id: only 'OcTree' trees are supported, got {fields.get('id')!r}")
+def _header_numbers(path: Path, fields: dict[str, str], node_bytes: dict[str, int]) -> tuple[float, int]:
+    """``res`` and ``size`` of a header whose ``id`` is one of ``node_bytes``'s tree types."""
+    tree = fields.get("id")
+    if tree not in node_bytes:
+        raise OctomapFileError(
+            f"{path}: id: only occupancy trees ({', '.join(node_bytes)}) are supported, got {tree!r}"
+        )
     try:
         resolution = float(fields["res"])
         size = int(fields.get("size", "0"))
@@ -210,6 +210,64 @@ def read_bt(path: str | Path) -> OctreeLeaves:
         raise OctomapFileError(f"{path}: res/size: missing or not a number ({exc})") from exc
     if not (np.isfinite(resolution) and resolution > 0):
         raise OctomapFileError(f"{path}: res: must be a positive number, got {fields['res']!r}")
+    if size < 0:
+        raise OctomapFileError(f"{path}: size: must be >= 0, got {size}")
+    return resolution, size
+
+
+def _leaves(resolution: float, codes: list[int], depths: list[int], occupied: list[bool]) -> OctreeLeaves:
+    depth_arr = np.asarray(depths, dtype=np.int64)
+    code_arr = np.asarray(codes, dtype=np.uint64) << (
+        np.uint64(3) * (TREE_DEPTH - depth_arr).astype(np.uint64)
+    )
+    return OctreeLeaves(
+        resolution=resolution,
+        key=unmorton(code_arr) if len(code_arr) else np.zeros((0, 3), np.int64),
+        depth=depth_arr,
+        occupied=np.asarray(occupied, dtype=bool),
+    )
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise OctomapFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+
+
+def read_octree(path: str | Path) -> OctreeLeaves:
+    """Every leaf of an OctoMap file: a binary ``.bt`` (:func:`read_bt`) or a full ``.ot``
+    (:func:`read_ot`), told apart by the first line. Raises OctomapFileError naming the file."""
+    path = Path(path)
+    raw = _read_bytes(path)
+    if raw.startswith(OT_MAGIC):
+        return read_ot(path)
+    if not raw.startswith(MAGIC):
+        first = raw.split(b"\n", 1)[0][:60].decode("ascii", "replace")
+        raise OctomapFileError(
+            f"{path}: not an OctoMap file: the first line is {first!r}, not {MAGIC.decode()!r} (.bt) "
+            f"or {OT_MAGIC.decode()!r} (.ot)"
+        )
+    return read_bt(path)
+
+
+def read_bt(path: str | Path) -> OctreeLeaves:
+    """Every leaf of an OctoMap ``.bt`` file (pruned leaves kept whole; see :class:`OctreeLeaves`).
+
+    The ``id`` may be any occupancy tree (``OcTree``, ``ColorOcTree``, ``OcTreeStamped``: their
+    binary data is the same, colours and stamps are not in it). Raises OctomapFileError naming the
+    file and the field for a bad header (another type, resolution not positive), truncated data or
+    a node count other than ``size``.
+    """
+    path = Path(path)
+    raw = _read_bytes(path)
+    if not raw.startswith(MAGIC):
+        hint = " (a full .ot file: read_octree reads both)" if raw.startswith(OT_MAGIC) else ""
+        raise OctomapFileError(
+            f"{path}: not an OctoMap binary file (first line is not {MAGIC.decode()!r}){hint}"
+        )
+    fields, pos = _read_header(path, raw, MAGIC)
+    resolution, size = _header_numbers(path, fields, OT_NODE_BYTES)
     codes: list[int] = []
     depths: list[int] = []
     states: list[int] = []
@@ -241,13 +299,48 @@ def read_bt(path: str | Path) -> OctreeLeaves:
             stack.extend(reversed(inner))
         if nodes != size:
             raise OctomapFileError(f"{path}: size: the header says {size} nodes, the data holds {nodes}")
-    depth_arr = np.asarray(depths, dtype=np.int64)
-    code_arr = np.asarray(codes, dtype=np.uint64) << (
-        np.uint64(3) * (TREE_DEPTH - depth_arr).astype(np.uint64)
-    )
-    return OctreeLeaves(
-        resolution=resolution,
-        key=unmorton(code_arr) if len(code_arr) else np.zeros((0, 3), np.int64),
-        depth=depth_arr,
-        occupied=np.asarray(states, dtype=np.uint8) == OCCUPIED,
-    )
+    return _leaves(resolution, codes, depths, [s == OCCUPIED for s in states])
+
+
+def read_ot(path: str | Path) -> OctreeLeaves:
+    """Every leaf of an OctoMap full ``.ot`` file (``AbstractOcTree::write``): after the header,
+    the nodes depth first, each its float32 log-odds (then a ``ColorOcTree``'s 3 colour bytes or an
+    ``OcTreeStamped``'s 4-byte stamp) and a byte whose bit ``i`` says child ``i`` follows. A leaf is
+    occupied when its log-odds is >= 0 (OctoMap's default threshold, probability 0.5); colours and
+    stamps are dropped. Raises OctomapFileError naming the file and the field."""
+    path = Path(path)
+    raw = _read_bytes(path)
+    if not raw.startswith(OT_MAGIC):
+        raise OctomapFileError(f"{path}: not an OctoMap .ot file (first line is not {OT_MAGIC.decode()!r})")
+    fields, pos = _read_header(path, raw, OT_MAGIC)
+    resolution, size = _header_numbers(path, fields, OT_NODE_BYTES)
+    value_bytes = OT_NODE_BYTES[fields["id"]]
+    data = raw[pos:]
+    codes: list[int] = []
+    depths: list[int] = []
+    occupied: list[bool] = []
+    stack = [(0, 0)] if size > 0 else []
+    at = nodes = 0
+    while stack:
+        code, depth = stack.pop()
+        if at + value_bytes + 1 > len(data):
+            raise OctomapFileError(f"{path}: data: the tree is truncated at byte {pos + at}")
+        (log_odds,) = struct.unpack_from("<f", data, at)
+        children = data[at + value_bytes]
+        at += value_bytes + 1
+        nodes += 1
+        if not np.isfinite(log_odds):
+            raise OctomapFileError(f"{path}: data: node {nodes} holds a log-odds of {log_odds}")
+        if children == 0:
+            codes.append(code)
+            depths.append(depth)
+            occupied.append(log_odds >= 0.0)
+            continue
+        if depth >= TREE_DEPTH:
+            raise OctomapFileError(f"{path}: data: the tree is deeper than {TREE_DEPTH} levels")
+        stack.extend(
+            ((code << 3) | child, depth + 1) for child in reversed(range(8)) if children >> child & 1
+        )
+    if nodes != size:
+        raise OctomapFileError(f"{path}: size: the header says {size} nodes, the data holds {nodes}")
+    return _leaves(resolution, codes, depths, occupied)

@@ -159,12 +159,16 @@ def export_bt(path, cmap: CoverageMap, max_sigma: float = DEFAULT_MAX_SIGMA, ali
 
 
 def import_bt(path, out, known_sigma: float = DEFAULT_KNOWN_SIGMA, sensor: SensorModel | None = None) -> str:
-    """Turn an OctoMap ``.bt`` into a coverage ``map.npz`` (beliefs: module doc); returns a summary."""
+    """Turn an OctoMap ``.bt`` or ``.ot`` into a coverage ``map.npz`` (beliefs: module doc); returns a
+    summary. Raises OctomapFileError naming the file."""
     from swarm.formats.map_file import save_map
-    from swarm.formats.octomap_file import read_bt
+    from swarm.formats.octomap_file import OctomapFileError, read_octree
 
-    leaves = read_bt(path)
-    grid, states = leaves_to_states(leaves)
+    leaves = read_octree(path)
+    try:
+        grid, states = leaves_to_states(leaves)
+    except ValueError as exc:  # an empty tree (size 0) or one too large to expand
+        raise OctomapFileError(f"{path}: {exc}") from None
     save_map(out, states_to_prior(grid, states, sensor, known_sigma))
     occupied, free = int(np.count_nonzero(states == 2)), int(np.count_nonzero(states == 1))
     pruned = int(np.count_nonzero(leaves.depth < TREE_DEPTH))

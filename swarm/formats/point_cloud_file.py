@@ -1,4 +1,5 @@
-"""Reading point clouds: .npy/.npz (N x 3), ASCII ``x y z`` lines (plain or .bz2/.gz) and PLY.
+"""Reading point clouds: .npy/.npz (N x 3), ASCII ``x y z`` lines (plain or .bz2/.gz), PLY and
+PCL's PCD (``swarm.formats.pcd_file``).
 
 Every problem raises :class:`PointCloudError` with one line naming the file, where in it
 (the header line, the data line, the element) and the counts involved, e.g.
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.formats.errors import InputError
+from swarm.formats.pcd_file import is_pcd, read_pcd
 
 
 class PointCloudError(InputError):
@@ -54,6 +56,8 @@ def read_point_cloud(path: str | Path, *, allow_empty: bool = False) -> np.ndarr
                 points = _check_array(data[key], path, key)
         elif name.endswith(".ply"):
             points = _read_ply(path)
+        elif name.endswith(".pcd") or _starts_as_pcd(path):
+            points = read_pcd(path, PointCloudError)
         else:
             points = _read_xyz(path)
     except PointCloudError:
@@ -63,6 +67,13 @@ def read_point_cloud(path: str | Path, *, allow_empty: bool = False) -> np.ndarr
     if len(points) == 0 and not allow_empty:
         raise PointCloudError(f"{path}: the file holds no points")
     return np.ascontiguousarray(points[:, :3], dtype=np.float64)
+
+
+def _starts_as_pcd(path: Path) -> bool:
+    if path.name.lower().endswith((".gz", ".bz2")):
+        return False
+    with open(path, "rb") as f:
+        return is_pcd(f.read(256))
 
 
 def _check_array(array: np.ndarray, path: Path, key: str) -> np.ndarray:

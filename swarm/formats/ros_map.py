@@ -8,7 +8,7 @@
     negate: 0                # 1 (or true): dark is free
     occupied_thresh: 0.65
     free_thresh: 0.196
-    mode: trinary            # trinary | scale | raw
+    mode: trinary            # trinary | scale | raw (any case, as Nav2 reads it)
 
 A pixel's shade s in [0, 1] is the mean of its colour channels, scaled as its format
 defines (:mod:`swarm.formats.map_image`). Its occupancy is p = 1 - s (p = s with ``negate``).
@@ -130,6 +130,11 @@ class RosMapSpec(BaseModel):
         if isinstance(value, list | tuple) and len(value) == 3:
             return value
         raise ValueError(f"must be [x, y, yaw], 3 numbers (got {value!r})")
+
+    @field_validator("mode", mode="before")
+    @classmethod
+    def _any_case(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value  # Nav2's map_mode_from_string does so
 
     @field_validator("negate", mode="before")
     @classmethod

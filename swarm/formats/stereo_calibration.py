@@ -14,8 +14,8 @@ Rectified rig (images already rectified; pixels, metres)::
     height: 120
 
 Full OpenCV stereo calibration (as ``cv2.stereoCalibrate`` gives it; ``M1``/``M2`` are
-accepted for ``K1``/``K2``, and OpenCV's own ``%YAML:1.0`` files with ``!!opencv-matrix``
-nodes load too)::
+accepted for ``K1``/``K2``, and OpenCV's own FileStorage files load too: ``%YAML:1.0`` with
+``!!opencv-matrix`` nodes, XML, gzip; ``swarm.formats.calibration_text``)::
 
     K1: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
     D1: [k1, k2, p1, p2, k3]      # any OpenCV distortion length, or []

@@ -39,17 +39,17 @@ class PriorMapError(InputError):
 
 
 def load_previous_map(path: str | Path, sensor: SensorModel | None = None) -> CoverageMap:
-    """A previous map from a ``.npz`` map file or an OctoMap ``.bt``; raises PriorMapError."""
+    """A previous map from a ``.npz`` map file or an OctoMap ``.bt`` / ``.ot``; raises PriorMapError."""
     from swarm.formats.map_file import MapFileError, load_map
-    from swarm.formats.octomap_file import OctomapFileError, read_bt
+    from swarm.formats.octomap_file import OctomapFileError, read_octree
     from swarm.formats.octomap_map import leaves_to_states, states_to_prior
 
     path = Path(path)
     if not path.exists():
         raise PriorMapError(f"{path}: no such file")
     try:
-        if path.suffix.lower() == ".bt":
-            grid, states = leaves_to_states(read_bt(path))
+        if path.suffix.lower() in (".bt", ".ot"):
+            grid, states = leaves_to_states(read_octree(path))
             return states_to_prior(grid, states, sensor)
         return load_map(path)
     except (MapFileError, OctomapFileError, ValueError) as exc:
