@@ -222,9 +222,14 @@ class TeamMap:
             raise ValueError("lo and hi must be 3 finite numbers each")
         if np.any(hi < lo):
             raise ValueError(f"hi {hi.tolist()} must be >= lo {lo.tolist()} on every axis")
-        first = self.grid.index_of(lo)
-        upper = np.ceil((hi - self.grid.lo) / self.grid.voxel - 1e-9).astype(np.int64) - 1
-        last = np.minimum(np.maximum(upper, first), np.asarray(self.grid.shape) - 1)
+        shape = np.asarray(self.grid.shape)
+        # voxel coordinates, clipped to one voxel beyond the grid before they become integers: a
+        # box 1e19 m away is past int64, whose cast wraps (it gave the whole grid, not nothing)
+        lo_v = np.clip((lo - self.grid.lo) / self.grid.voxel, -1.0, shape + 1.0)
+        hi_v = np.clip((hi - self.grid.lo) / self.grid.voxel, -1.0, shape + 1.0)
+        first = np.floor(lo_v).astype(np.int64)
+        upper = np.ceil(hi_v - 1e-9).astype(np.int64) - 1
+        last = np.minimum(np.maximum(upper, first), shape - 1)
         first = np.maximum(first, 0)
         counts = np.maximum(last - first + 1, 0)
         n = int(np.prod(counts))

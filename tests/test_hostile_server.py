@@ -238,3 +238,25 @@ def test_two_finite_times_too_far_apart_for_a_float_span_do_not_break_the_bound(
     budget.charge(1e308, 10.0)
     assert budget.check(bound, -1e308, 10.0) is None  # a liar about t gets a larger budget
     assert bound.allowed(float("inf")) == float("inf") and bound.allowed(1.0) == 1e6 * 23
+
+
+def test_a_region_far_outside_the_grid_is_empty(tmp_path: Path):
+    """Boxes beyond int64 voxels (1e19 m, 1e300 m away) gave the whole grid or a slab of it."""
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    far = [
+        ([1e19] * 3, [1e19] * 3),
+        ([1e300, 0, 0], [1e300, 1, 1]),
+        ([-1e300, 0, 0], [-1e300, 1, 1]),
+        ([-1e19, -1e19, -1e19], [-1e19, 1e19, 1e19]),
+    ]
+    with (
+        running_server(mission, tmp_path / "store", OPTIONS) as (_server, endpoint),
+        client_session(endpoint) as session,
+    ):
+        client = MapClient(session, mission.mission, timeout=5.0, endpoint=endpoint)
+        for lo, hi in far:
+            assert len(client.region(lo, hi)) == 0, (lo, hi)
+        assert len(client.region([-1e300] * 3, [1e300] * 3)) == grid.size  # clipped to the grid
+        assert len(client.region([0.05, 0.05, 0.05], [0.05, 0.05, 0.05])) == 1  # a point
+        assert len(client.region([0, 0, 0], [1e300, 1e300, 0.0])) == 30 * 20  # a face: one layer
