@@ -303,12 +303,19 @@ class CoordinatorState:
 
     def handle_request(self, payload: bytes, now: float) -> Answer:
         """Decode and answer a ``coord/assign`` payload; WireError (counted) if it is malformed."""
+        return self.answer_request(self.decode_request(payload), now)
+
+    def decode_request(self, payload: bytes) -> AssignRequest:
+        """A ``coord/assign`` payload's request, counted; WireError (counted) if it is malformed."""
         self.counts["requests"] += 1
         try:
-            request = AssignRequest.decode(payload)
+            return AssignRequest.decode(payload)
         except WireError:
             self.counts["requests_rejected"] += 1
             raise
+
+    def answer_request(self, request: AssignRequest, now: float) -> Answer:
+        """:meth:`answer`, with a request it refuses (a pose outside the workspace) counted."""
         try:
             return self.answer(request, now)
         except WireError:

@@ -1,0 +1,144 @@
+"""A stranger's attack on a running coordinator over real Zenoh (loopback, explicit endpoints,
+scouting off): hostile assign requests and statuses, and a robot asking in a loop. Each bad
+message gets a named refusal, the other robots still get their answers in time."""
+
+from __future__ import annotations
+
+import time
+
+import msgpack
+import pytest
+
+from coordinator.assignment import CoordinationParams
+from coordinator.requests import RequestQueue
+from coordinator.role import Coordinator
+from swarm.protocol import bus
+from swarm.protocol.coord_client import ask_for_target, coordinator_stats
+from swarm.protocol.wire import AssignReply, AssignRequest, Snapshot
+from tests.test_coordinator import MapServerStandIn, corridor_map, mission, pose, query
+
+NAN, INF = float("nan"), float("inf")
+SCALARS = [
+    None,
+    True,
+    "x",
+    b"x",
+    [],
+    {},
+    [1.0],
+    NAN,
+    INF,
+    -INF,
+    -1,
+    0,
+    2**64 - 1,
+    -(2**63),
+    1e308,
+    "r" * 5000,
+]
+
+
+@pytest.fixture(scope="module")
+def coordinated():
+    """A coordinator on a corridor map (its snapshot from a stand-in server) and a client session."""
+    m = mission()
+    full = corridor_map(m)
+    server = MapServerStandIn(m.mission, Snapshot(full.grid, full.lam, full.eta))
+    coord_session = bus.open_session(connect=[server.endpoint])
+    client = bus.open_session(connect=[server.endpoint])
+    params = CoordinationParams(beta=0.1, footprint_radius=2.0)
+    coordinator = Coordinator(m, coord_session, params, snapshot_timeout=5.0)
+    coordinator.start()
+    try:
+        yield m, coordinator, server, client
+    finally:
+        coordinator.stop()
+        coord_session.close()
+        client.close()
+        server.close()
+
+
+def hostile_requests() -> list[bytes]:
+    """Every field of an assign request made hostile, one at a time."""
+    base = msgpack.unpackb(AssignRequest("r1", pose("r1")).encode(), raw=False)
+    out = [b"", b"\xc1", msgpack.packb([1, 2]), b"\x91" * 100_000 + b"\x01"]
+    for name in ("v", "robot", "pose"):
+        for value in SCALARS:
+            msg = dict(base)
+            if value is None:
+                del msg[name]
+            else:
+                msg[name] = value
+            out.append(msgpack.packb(msg, use_bin_type=True))
+    for part in ("xyz", "ypr"):
+        for value in [
+            *SCALARS,
+            [NAN, 1, 0],
+            [1, INF, 0],
+            [1, 1],
+            [1e308, 1e308, 1e308],
+            [-1, -1, 0],
+            [1, 2, 3, 4],
+        ]:
+            wire = dict(base["pose"])
+            if value is None:
+                del wire[part]
+            else:
+                wire[part] = value
+            msg = {**base, "pose": wire}
+            out.append(msgpack.packb(msg, use_bin_type=True))
+    return out
+
+
+def test_hostile_assign_requests_get_error_replies_and_others_still_get_answers(coordinated):
+    m, coordinator, _server, client = coordinated
+    before = dict(coordinator.counts)
+    answered = 0
+    for payload in hostile_requests():
+        reply = query(client, m.mission, payload)
+        if reply.ok is not None:  # a well-formed request after all: an answer
+            AssignReply.decode(reply.ok.payload.to_bytes())
+            answered += 1
+        else:
+            text = reply.err.payload.to_bytes()
+            assert text.startswith(b"coord/assign: ") and len(text) < 400, text[:100]
+    counts = coordinator.counts
+    assert counts["requests_failed"] == before.get("requests_failed", 0) and counts["worker_errors"] == 0
+    rejected = counts["requests_rejected"] - before.get("requests_rejected", 0)
+    assert rejected + answered == len(hostile_requests())
+    assert ask_for_target(client, m.mission, "r2", pose("r2"), timeout=5.0) is not None
+
+
+def test_a_robot_asking_in_a_loop_does_not_hold_back_the_others(coordinated):
+    """r1 sends 200 requests without waiting; r2 still gets its answer within its 1 s timeout
+    (it waited behind r1's whole backlog before), and r1 an answer to its latest."""
+    m, coordinator, _server, client = coordinated
+    flooder = bus.open_session(connect=[_server.endpoint])
+    try:
+        payload = AssignRequest("r1", pose("r1")).encode()
+        key = bus.key(m.mission, "coord", "assign")
+        handles = [flooder.get(key, payload=payload, timeout=30.0) for _ in range(200)]
+        time.sleep(0.2)
+        started = time.perf_counter()
+        reply = ask_for_target(client, m.mission, "r2", pose("r2"), timeout=1.0)
+        waited = time.perf_counter() - started
+        assert reply is not None, f"no answer for r2 within 1 s behind r1's flood ({waited:.2f} s)"
+        replies = [r for h in handles for r in h]
+    finally:
+        flooder.close()
+    assert len(replies) == 200
+    answers = [r for r in replies if r.ok is not None]
+    superseded = [r for r in replies if r.ok is None and b"superseded" in r.err.payload.to_bytes()]
+    assert len(answers) >= 1 and len(answers) + len(superseded) == 200
+    stats = coordinator_stats(client, m.mission, timeout=5.0)
+    assert stats["counts"]["requests_superseded"] >= len(superseded)
+
+
+def test_request_queue_keeps_one_request_per_robot_in_turn():
+    waiting = RequestQueue(max_robots=2)
+    assert waiting.offer("r1", "a") == (None, True)
+    assert waiting.offer("r2", "b") == (None, True)
+    assert waiting.offer("r1", "c") == ("a", True)  # r1's newer request, r1 keeps its place
+    assert waiting.offer("r3", "d") == (None, False)  # two robots wait already
+    assert waiting.take(0.1) == ("r1", "c") and waiting.take(0.1) == ("r2", "b")
+    assert waiting.take(0.01) is None and len(waiting) == 0
