@@ -138,8 +138,8 @@ class Coordinator:
     def _on_merged(self, _key: str, payload: bytes) -> None:
         self._inbox.put(("merged", payload))
 
-    def _on_status(self, _key: str, payload: bytes) -> None:
-        self._inbox.put(("status", payload))
+    def _on_status(self, key: str, payload: bytes) -> None:
+        self._inbox.put(("status", (key, payload)))
 
     def _work(self) -> None:
         """The one thread that changes the replica and the book from the streams, in order."""
@@ -154,7 +154,8 @@ class Coordinator:
                 if kind == "merged":
                     self.state.team.apply_payload(payload)
                 elif kind == "status":
-                    for robot, reason in self.state.on_status(payload, now):
+                    key, status = payload
+                    for robot, reason in self.state.on_status(status, now, key):
                         log.info("released the target of %s: %s", robot, reason)
                 if now - last_expiry >= 0.5:
                     last_expiry = now

@@ -31,7 +31,7 @@ from swarm.navigation.exploration import (
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
-from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError
+from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError, status_on_key
 
 log = logging.getLogger("coordinator")
 
@@ -130,10 +130,11 @@ class CoordinatorState:
             views = [xy for r in sorted(self._views) if r != robot for xy in self._views[r]]
         return tuple(views[-MAX_VIEWS:])
 
-    def on_status(self, payload: bytes, now: float) -> list[tuple[str, str]]:
-        """A ``robot/<rid>/status`` payload; returns released (robot, reason). WireError if malformed."""
+    def on_status(self, payload: bytes, now: float, key: str | None = None) -> list[tuple[str, str]]:
+        """A ``robot/<rid>/status`` payload that came on ``key`` (None: trust its robot field);
+        returns released (robot, reason). WireError if malformed or on another robot's key."""
         try:
-            status = Status.decode(payload)
+            status = Status.decode(payload) if key is None else status_on_key(key, payload)
         except WireError:
             self.counts["status_rejected"] += 1
             raise

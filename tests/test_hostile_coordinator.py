@@ -14,8 +14,8 @@ from coordinator.requests import RequestQueue
 from coordinator.role import Coordinator
 from swarm.protocol import bus
 from swarm.protocol.coord_client import ask_for_target, coordinator_stats
-from swarm.protocol.wire import AssignReply, AssignRequest, Snapshot
-from tests.test_coordinator import MapServerStandIn, corridor_map, mission, pose, query
+from swarm.protocol.wire import AssignReply, AssignRequest, Snapshot, Status, WireError, status_on_key
+from tests.test_coordinator import MapServerStandIn, corridor_map, mission, pose, query, wait_until
 
 NAN, INF = float("nan"), float("inf")
 SCALARS = [
@@ -142,3 +142,30 @@ def test_request_queue_keeps_one_request_per_robot_in_turn():
     assert waiting.offer("r3", "d") == (None, False)  # two robots wait already
     assert waiting.take(0.1) == ("r1", "c") and waiting.take(0.1) == ("r2", "b")
     assert waiting.take(0.01) is None and len(waiting) == 0
+
+
+def test_a_status_on_another_robots_key_is_refused(coordinated):
+    """r1 may put only robot/r1/status on a secured bus; a status there that names r2 ("r2 is
+    done") released r2's target, because the coordinator believed the field, not the key."""
+    m, coordinator, server, client = coordinated
+    assert ask_for_target(client, m.mission, "r2", pose("r2"), timeout=5.0).target is not None
+    assert coordinator.state.book.holder("r2") is not None
+    before = coordinator.counts["status_rejected"]
+    forged = server.session.declare_publisher(bus.key(m.mission, "robot", "r1", "status"))
+    forged.put(Status("r2", 0.0, pose("r2"), None, "done", 0).encode())
+    assert wait_until(lambda: coordinator.counts["status_rejected"] == before + 1), coordinator.counts
+    assert coordinator.state.book.holder("r2") is not None  # r2 keeps its target
+    with pytest.raises(WireError, match="robot 'r2' published on the key of 'r1'"):
+        status_on_key("swarm/m/robot/r1/status", Status("r2", 0.0, pose("r2"), None, "done", 0).encode())
+    assert status_on_key("swarm/m/robot/r2/status", Status("r2", 0.0, pose("r2"), None, "done", 0).encode())
+
+
+def test_the_mission_runner_takes_a_robots_state_from_its_own_key_only():
+    from swarm.mission.runner import TeamMonitor
+
+    monitor = TeamMonitor(mission())
+    done = Status("r2", 0.0, pose("r2"), None, "done", 0).encode()
+    monitor.on_status("swarm/coordtest/robot/r1/status", done)  # r1 says r2 is done
+    assert monitor.states == {} and monitor.rejected == 1
+    monitor.on_status("swarm/coordtest/robot/r2/status", done)
+    assert monitor.states == {"r2": "done"}

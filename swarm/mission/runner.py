@@ -43,7 +43,7 @@ from swarm.mission.role_failure import RoleError
 from swarm.protocol import bus, coord_client
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
-from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
+from swarm.protocol.wire import DeltaMessage, TruthPoses, WireError, status_on_key
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
 
 NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
@@ -165,9 +165,9 @@ class TeamMonitor:
             for rid, (x, y, _yaw) in truth.poses.items():
                 self.trajectories.setdefault(rid, []).append((truth.t, float(x), float(y)))
 
-    def on_status(self, _key: str, payload: bytes) -> None:
+    def on_status(self, key: str, payload: bytes) -> None:
         try:
-            status = Status.decode(payload)
+            status = status_on_key(key, payload)
         except WireError:
             self.rejected += 1
             return

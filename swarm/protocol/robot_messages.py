@@ -26,6 +26,7 @@ from swarm.protocol.codec import (
     pack,
     raw,
     require,
+    short,
     text,
     unpack,
     vec3,
@@ -305,6 +306,21 @@ class Status:
             bytes_sent=integer(require(msg, "bytes_sent", kind), "bytes_sent", kind),
             view=None if view is None else vec3(view, "view", kind),
         )
+
+
+def status_on_key(key: str, payload: Any) -> Status:
+    """The status a ``swarm/<mission>/robot/<rid>/status`` sample carries, checked against the
+    ``<rid>`` of its key: a WireError when it is malformed or names another robot (on a secured
+    bus each agent may put only its own key, so the key says who sent it; the field does not)."""
+    status = Status.decode(payload)
+    parts = str(key).split("/")
+    rid = parts[-2] if len(parts) >= 2 and parts[-1] == "status" else None
+    if status.robot != rid:
+        raise WireError(
+            f"{Status.KIND}: robot {short(status.robot, 40)} published on the key of {short(rid, 40)}",
+            "robot_mismatch",
+        )
+    return status
 
 
 # -- sim/truth ---------------------------------------------------------------------------
