@@ -230,7 +230,7 @@ class MapServer:
             msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
             bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
             with self._lock:
-                return msg if self.team.admit(msg, bound) else None
+                return msg if self.team.admit(msg, bound, now_ns=time.time_ns()) else None
         except Rejected as exc:
             self._reject(robot, msg, exc)
         except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)

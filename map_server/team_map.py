@@ -85,13 +85,16 @@ class TeamMap:
         return n
 
     # -- merging -------------------------------------------------------------------------
-    def admit(self, msg: DeltaMessage, bound: InformationBound | None = None) -> bool:
+    def admit(
+        self, msg: DeltaMessage, bound: InformationBound | None = None, now_ns: int | None = None
+    ) -> bool:
         """True when ``msg`` is new (it is then pending until :meth:`apply` or :meth:`release`);
         False for a delta already applied or pending, which is counted as a duplicate.
 
-        Raises Rejected for a delta the ledger cannot take (``stale_epoch``,
-        ``seq_out_of_window``), one over the robot's information ``bound`` (when given:
-        ``too_much_information``), or one that would lift a voxel over LAM_MAX (``map_overflow``).
+        Raises Rejected for a delta the ledger cannot take (``stale_epoch``; ``future_epoch``
+        against ``now_ns``, the server's clock in ns, when given; ``seq_out_of_window``), one
+        over the robot's information ``bound`` (when given: ``too_much_information``), or one
+        that would lift a voxel over LAM_MAX (``map_overflow``).
         """
         ident = delta_id(msg)
         if msg.robot in self.quarantined:
@@ -99,7 +102,7 @@ class TeamMap:
         if ident in self.ledger or ident in self._pending:
             self.duplicates += 1
             return False
-        refusal = self.ledger.refusal(ident)
+        refusal = self.ledger.refusal(ident, now_ns)
         if refusal is not None:
             raise Rejected(*refusal)
         information = float(np.sum(msg.dlam, dtype=np.float64))

@@ -260,3 +260,27 @@ def test_a_region_far_outside_the_grid_is_empty(tmp_path: Path):
         assert len(client.region([-1e300] * 3, [1e300] * 3)) == grid.size  # clipped to the grid
         assert len(client.region([0.05, 0.05, 0.05], [0.05, 0.05, 0.05])) == 1  # a point
         assert len(client.region([0, 0, 0], [1e300, 1e300, 0.0])) == 30 * 20  # a face: one layer
+
+
+def test_epochs_from_the_far_future_cannot_lock_a_robot_out(tmp_path: Path):
+    """Four deltas of r1 with epochs near 2**64 compacted r1's real epoch away: every later delta
+    of its run was refused (stale_epoch), and after a restart too (the floor is stored)."""
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    now = time.time_ns()
+    with (
+        running_server(mission, tmp_path / "store", OPTIONS) as (_server, endpoint),
+        client_session(endpoint) as session,
+    ):
+        client = MapClient(session, mission.mission, timeout=5.0, endpoint=endpoint)
+        pub = publishers(session, mission.mission, ["r1"])["r1"]
+        pub.put(good(grid, "r1", seq=1))
+        wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10, "r1's first delta")
+        for epoch in (2**64 - 1, 2**63, now + 2 * 24 * 3600 * 10**9, now + 10**15):
+            pub.put(tamper(good(grid, "r1", seq=1), epoch=epoch))
+        pub.put(tamper(good(grid, "r1", seq=1, idx=(9,)), epoch=now + 3600 * 10**9))  # an hour ahead: taken
+        pub.put(good(grid, "r1", seq=2, idx=(7,)))
+        wait_until(lambda: client.acks()["r1"].get(EPOCH) == 2, 10, "r1's second delta")
+        stats = client.stats()
+    assert stats["rejected"]["future_epoch"] == 4 and stats["rejected"]["stale_epoch"] == 0
+    assert stats["robots"]["r1"]["deltas"] == 3
