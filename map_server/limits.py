@@ -29,9 +29,6 @@ from swarm.map.sensor_model import SensorModel
 #: Frames allowed beyond the span of a robot's deltas (the frames before its first delta
 #: and the shutdown flush; the agent shares at its first frame, and flushes once).
 SLACK_FRAMES = 20
-#: No voxel of the team map may hold more information than this (float32 tops at 3.4e38;
-#: mean eta / lam and sigma 1 / sqrt(lam) stay finite well below it).
-LAM_MAX = 1e30
 
 
 def ray_information_bound(sensor: SensorModel, voxel: float) -> float:

@@ -19,8 +19,8 @@ import numpy as np
 
 from map_server.contributions import Contributions
 from map_server.ledger import ETA_TOLERANCE, REJECT_KINDS, DeltaId, Ledger, Rejected
-from map_server.limits import LAM_MAX, InformationBound, RobotBudget
-from swarm.map.coverage_map import CoverageMap, prior_entropy_bits, prior_information
+from map_server.limits import InformationBound, RobotBudget
+from swarm.map.coverage_map import LAM_MAX, CoverageMap, prior_entropy_bits, prior_information
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table

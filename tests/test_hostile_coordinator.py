@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 
 import msgpack
+import numpy as np
 import pytest
 
 from coordinator.assignment import CoordinationParams
@@ -14,7 +15,15 @@ from coordinator.requests import RequestQueue
 from coordinator.role import Coordinator
 from swarm.protocol import bus
 from swarm.protocol.coord_client import ask_for_target, coordinator_stats
-from swarm.protocol.wire import AssignReply, AssignRequest, Snapshot, Status, WireError, status_on_key
+from swarm.protocol.wire import (
+    AssignReply,
+    AssignRequest,
+    DeltaMessage,
+    Snapshot,
+    Status,
+    WireError,
+    status_on_key,
+)
 from tests.test_coordinator import MapServerStandIn, corridor_map, mission, pose, query, wait_until
 
 NAN, INF = float("nan"), float("inf")
@@ -169,3 +178,63 @@ def test_the_mission_runner_takes_a_robots_state_from_its_own_key_only():
     assert monitor.states == {} and monitor.rejected == 1
     monitor.on_status("swarm/coordtest/robot/r2/status", done)
     assert monitor.states == {"r2": "done"}
+
+
+def test_a_forged_merged_delta_cannot_break_the_coordinators_map(coordinated):
+    """On an open bus anyone may put on merged: 3e38 twice on a voxel made its information inf
+    and the team entropy NaN; a repeated index with deta > dlam moved a mean to 1.9. Now a
+    delta that would lift a voxel over 1e30 (9e29 twice) or a mean out of [0, 1] is refused."""
+    m, coordinator, server, _client = coordinated
+    grid = m.workspace.grid()
+    team = coordinator.state.team
+    before = team.counts["rejected"]
+    lam_before, _ = team.copy()
+    huge = np.array([9e29], np.float32)
+    forged = [
+        DeltaMessage("r7", 1, 1, 0.0, grid, np.array([5], np.uint32), huge, huge * 0.5),
+        DeltaMessage("r7", 1, 2, 0.0, grid, np.array([5], np.uint32), huge, huge * 0.5),
+        DeltaMessage(
+            "r7",
+            1,
+            3,
+            0.0,
+            grid,
+            np.array([7, 7], np.uint32),
+            *np.array([[1e5, 1e5], [2e5, 2e5]], np.float32),
+        ),
+    ]
+    for msg in forged:
+        server.merged.put(msg.encode())
+    assert wait_until(lambda: team.counts["rejected"] == before + 2), team.counts
+    after, entropy = team.copy()
+    assert np.isfinite(team.entropy_bits) and np.all(np.isfinite(entropy))
+    assert after.lam[5] == np.float32(lam_before.lam[5]) + huge[0]  # the first one fits
+    assert after.lam[7] == lam_before.lam[7] and after.eta[7] == lam_before.eta[7]
+    assert (("r7", 1, 2) not in team._seen) and (("r7", 1, 1) in team._seen)
+
+
+def test_a_received_delta_is_applied_whole_or_not_at_all_on_out_of_range_results():
+    from swarm.map.coverage_map import CoverageMap
+    from swarm.map.delta import Delta
+
+    grid = mission().workspace.grid()
+    cmap = CoverageMap(grid)
+    lam, eta = cmap.lam.copy(), cmap.eta.copy()
+    f32 = np.float32
+    bad = [
+        Delta(
+            np.array([3, 4, 3], np.uint32), np.array([1, 1, 3e38], f32), np.array([0, 0, 0], f32)
+        ),  # lam > 1e30
+        Delta(
+            np.array([3, 4, 3], np.uint32), np.array([1, 1, 1], f32), np.array([1, 1, 2e6], f32)
+        ),  # mean > 1
+        Delta(np.array([8], np.uint32), np.array([1], f32), np.array([-1e6], f32)),  # mean < 0
+        Delta(np.array([8], np.uint32), np.array([-1e9], f32), np.array([0], f32)),  # lam <= 0
+    ]
+    for delta in bad:
+        with pytest.raises(ValueError, match="outside"):
+            cmap.apply_received(delta)
+        np.testing.assert_array_equal(cmap.lam, lam)
+        np.testing.assert_array_equal(cmap.eta, eta)
+    cmap.apply_received(Delta(np.array([3, 3], np.uint32), np.array([10, 10], f32), np.array([10, 0], f32)))
+    assert cmap.lam[3] == pytest.approx(lam[3] + 20, rel=1e-6)

@@ -134,7 +134,7 @@ class TeamMonitor:
             with self._lock:
                 if (msg.robot, msg.epoch, msg.seq) in self.seen:
                     return  # a resend: already counted
-                self.cmap.apply(delta)
+                self.cmap.apply_received(delta)
                 self.seen.add(msg.robot, msg.epoch, msg.seq)
                 self.applied += 1
                 idx = msg.idx.astype(np.int64)

@@ -156,7 +156,7 @@ class TeamView:
             raise WireError("merged delta on another grid than the snapshot's")
         if not self.applied.add(msg.robot, msg.epoch, msg.seq):
             return
-        self.cmap.apply(Delta(msg.idx, msg.dlam, msg.deta))
+        self.cmap.apply_received(Delta(msg.idx, msg.dlam, msg.deta))
         idx = msg.idx.astype(np.int64)
         self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
         self.deltas += 1
