@@ -197,3 +197,38 @@ def test_truncated_nested_and_overdeclared_msgpack_is_refused_quickly(kind):
         started = time.perf_counter()
         assert decodes_or_refuses(cls, payload) is None, payload[:40]
         assert time.perf_counter() - started < 0.5, payload[:40]
+
+
+def _png_declaring(width: int, height: int) -> bytes:
+    """A small PNG of zeros that declares ``width`` x ``height`` pixels (a decompression bomb)."""
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    packer = zlib.compressobj(9)
+    rows = (
+        b"".join(packer.compress(b"\x00" * (width + 1) * 500) for _ in range(height // 500)) + packer.flush()
+    )
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+
+
+def test_a_png_frame_declaring_a_gigapixel_is_refused_before_it_is_inflated(monkeypatch):
+    """A 0.4 MB PNG declaring 20,000 x 20,000 pixels made the agent inflate 400 MB per image
+    (1 s) before the shape check refused it; the header's size is checked first now."""
+    import cv2
+
+    bomb = _png_declaring(20_000, 20_000)
+    assert len(bomb) < 500_000
+    msg = msgpack.unpackb(VALID["png frame"][1], raw=False)
+    msg["left"] = msg["right"] = bomb
+    inflated = []
+    real = cv2.imdecode
+    monkeypatch.setattr(cv2, "imdecode", lambda *a: inflated.append(1) or real(*a))
+    with pytest.raises(
+        WireError, match=r"not an 8-bit PNG of shape \(3, 4\) \(got a header of shape \(20000, 20000\)\)"
+    ):
+        Frame.decode(msgpack.packb(msg, use_bin_type=True))
+    assert not inflated
+    assert Frame.decode(VALID["png frame"][1]).left.shape == (3, 4) and inflated
