@@ -78,6 +78,12 @@ class Coordinator:
         self.clock = clock
         self.started_from_snapshot = False
         self._inbox: queue.Queue = queue.Queue()
+        #: the latest status payload of each status key not handled yet: a status says where a
+        #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
+        #: costs the worker one status per round, not a backlog that holds merged deltas back
+        self._statuses: dict[str, bytes] = {}
+        self._statuses_lock = threading.Lock()
+        self._refused: Counter[str] = Counter()  # refused stream messages by kind, for the log
         #: waiting coord/assign queries and their requests, the latest of each robot
         self._requests: RequestQueue[tuple[zenoh.Query, AssignRequest]] = RequestQueue()
         self._stop = threading.Event()
@@ -139,10 +145,17 @@ class Coordinator:
         self._inbox.put(("merged", payload))
 
     def _on_status(self, key: str, payload: bytes) -> None:
-        self._inbox.put(("status", (key, payload)))
+        with self._statuses_lock:
+            wake = not self._statuses  # one wake-up in the inbox for the statuses waiting
+            if key in self._statuses:
+                self.state.counts["status_superseded"] += 1
+            self._statuses[key] = payload
+        if wake:
+            self._inbox.put(("statuses", None))
 
     def _work(self) -> None:
-        """The one thread that changes the replica and the book from the streams, in order."""
+        """The one thread that changes the replica and the book from the streams, in order
+        (the statuses waiting at a wake-up together, the latest of each robot)."""
         last_expiry = self.clock()
         while not self._stop.is_set():
             try:
@@ -150,22 +163,34 @@ class Coordinator:
             except queue.Empty:
                 kind = None
             now = self.clock()
-            try:
-                if kind == "merged":
-                    self.state.team.apply_payload(payload)
-                elif kind == "status":
-                    key, status = payload
-                    for robot, reason in self.state.on_status(status, now, key):
-                        log.info("released the target of %s: %s", robot, reason)
-                if now - last_expiry >= 0.5:
-                    last_expiry = now
-                    for robot, reason in self.state.expire(now):
-                        log.info("released the target of %s: %s", robot, reason)
-            except WireError as exc:
-                log.warning("rejected %s message: %s", kind, exc)
-            except Exception:  # never die of one message
-                self.state.counts["worker_errors"] += 1
-                log.exception("error handling a %s message", kind)
+            if kind == "merged":
+                self._handle("merged", self.state.team.apply_payload, payload)
+            elif kind == "statuses":
+                with self._statuses_lock:
+                    statuses, self._statuses = self._statuses, {}
+                for key, status in statuses.items():
+                    self._handle("status", self.state.on_status, status, now, key)
+            if now - last_expiry >= 0.5:
+                last_expiry = now
+                self._handle("expiry", self.state.expire, now)
+
+    def _handle(self, kind: str, handler: Callable, *args) -> None:
+        """Run one message's ``handler``: a refused message is logged (the first ten of a kind,
+        then every thousandth), any other failure counted, and the worker goes on. The targets a
+        status or an expiry released are logged."""
+        try:
+            result = handler(*args)
+        except WireError as exc:
+            self._refused[kind] += 1
+            if self._refused[kind] <= 10 or self._refused[kind] % 1000 == 0:
+                log.warning("rejected %s message (#%d): %s", kind, self._refused[kind], exc)
+            return
+        except Exception:  # never die of one message
+            self.state.counts["worker_errors"] += 1
+            log.exception("error handling a %s message", kind)
+            return
+        for robot, reason in result if kind != "merged" else ():
+            log.info("released the target of %s: %s", robot, reason)
 
     def _on_assign(self, query: zenoh.Query) -> None:
         """Zenoh's callback: decode the request, refuse a malformed one at once, else queue it as

@@ -4,6 +4,7 @@ message gets a named refusal, the other robots still get their answers in time."
 
 from __future__ import annotations
 
+import threading
 import time
 
 import msgpack
@@ -19,6 +20,7 @@ from swarm.protocol.wire import (
     AssignReply,
     AssignRequest,
     DeltaMessage,
+    Pose,
     Snapshot,
     Status,
     WireError,
@@ -238,3 +240,48 @@ def test_a_received_delta_is_applied_whole_or_not_at_all_on_out_of_range_results
         np.testing.assert_array_equal(cmap.eta, eta)
     cmap.apply_received(Delta(np.array([3, 3], np.uint32), np.array([10, 10], f32), np.array([10, 0], f32)))
     assert cmap.lam[3] == pytest.approx(lam[3] + 20, rel=1e-6)
+
+
+def test_a_robot_publishing_statuses_in_a_loop_does_not_hold_back_the_merged_stream(coordinated):
+    """Statuses and merged deltas shared one FIFO: r1's status loop (about 20,000 a second) grew
+    a backlog of tens of thousands the worker never caught up with, and every merged delta waited
+    behind it. A newer status of a robot now replaces its waiting one."""
+    m, coordinator, server, _client = coordinated
+    grid = m.workspace.grid()
+    team = coordinator.state.team
+    flooder = bus.open_session(connect=[server.endpoint])
+    stop = threading.Event()
+
+    def loop() -> None:
+        publisher = flooder.declare_publisher(bus.key(m.mission, "robot", "r1", "status"))
+        n = 0
+        while not stop.is_set():
+            n += 1
+            xy = (1.0 + (n % 50) * 0.1, 2.0, 0.4)
+            publisher.put(Status("r1", 0.0, Pose(xy), (3.0, 2.0, 0.4), "drive", n).encode())
+
+    def merged(seq: int) -> bytes:
+        one = np.array([100 + seq], np.uint32)
+        return DeltaMessage("r5", 1, seq, 0.0, grid, one, *np.ones((2, 1), np.float32)).encode()
+
+    server.merged.put(merged(1))  # the compiled kernels loaded before the clock runs
+    assert wait_until(lambda: ("r5", 1, 1) in team._seen, 10.0)
+    thread = threading.Thread(target=loop)
+    thread.start()
+    waits = []
+    try:
+        time.sleep(3.0)
+        for seq in range(2, 7):
+            applied = team.counts["applied"]
+            started = time.perf_counter()
+            server.merged.put(merged(seq))
+            assert wait_until(lambda a=applied: team.counts["applied"] > a, 10.0), (
+                "a merged delta never applied"
+            )
+            waits.append(time.perf_counter() - started)
+    finally:
+        stop.set()
+        thread.join()
+        flooder.close()
+    assert max(waits) < 0.5, waits
+    assert coordinator.counts["status_superseded"] > 0
