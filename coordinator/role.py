@@ -50,6 +50,10 @@ SNAPSHOT_TIMEOUT_S = 3.0
 #: The answer times ``coord/stats`` summarises: the most recent this many.
 ANSWER_TIMES_KEPT = 10_000
 
+#: The largest ``coord/assign`` payload read (a request is about 100 bytes; up to 256 robots'
+#: requests wait at once, each holding its payload).
+MAX_REQUEST_BYTES = 64 << 10
+
 
 # ---------------------------------------------------------------------------------------
 # The Zenoh role
@@ -197,6 +201,14 @@ class Coordinator:
         its robot's latest (an older one of that robot is refused as superseded). Never raises."""
         started = time.perf_counter()
         try:
+            size = 0 if query.payload is None else len(query.payload)
+            if size > MAX_REQUEST_BYTES:  # refused before it is copied or decoded
+                self.state.counts["requests"] += 1
+                self.state.counts["requests_rejected"] += 1
+                self._refuse(
+                    query, started, f"request of {size:,} bytes over the maximum {MAX_REQUEST_BYTES:,}"
+                )
+                return
             payload = b"" if query.payload is None else query.payload.to_bytes()
             try:
                 request = self.state.decode_request(payload)

@@ -285,3 +285,15 @@ def test_a_robot_publishing_statuses_in_a_loop_does_not_hold_back_the_merged_str
         flooder.close()
     assert max(waits) < 0.5, waits
     assert coordinator.counts["status_superseded"] > 0
+
+
+def test_an_oversized_request_is_refused_before_it_is_read(coordinated):
+    """A well-formed request padded with 4 MB was answered (extra fields are ignored), and up to
+    256 such, one per invented robot id, could wait at once holding their payloads."""
+    m, coordinator, _server, client = coordinated
+    padded = msgpack.unpackb(AssignRequest("r9", pose("r1")).encode(), raw=False) | {"pad": b"\0" * (4 << 20)}
+    before = coordinator.counts["requests_rejected"]
+    reply = query(client, m.mission, msgpack.packb(padded, use_bin_type=True))
+    assert reply.ok is None and b"over the maximum 65,536" in reply.err.payload.to_bytes()
+    assert coordinator.counts["requests_rejected"] == before + 1
+    assert coordinator.state.book.holder("r9") is None
