@@ -27,7 +27,7 @@ from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
-from map_server.team_map import TeamMap, parse_vector
+from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
 from swarm.protocol import bus
 from swarm.protocol.codec import short
@@ -358,12 +358,13 @@ class MapServer:
         try:
             lo = parse_vector(params.get("lo"), "lo")
             hi = parse_vector(params.get("hi"), "hi")
-            with self._lock:
-                region = self.team.region(lo, hi)
+            idx = self.team.region_indices(lo, hi)
         except ValueError as exc:
             query.reply_err(f"map/region: {short(exc, 200)}".encode())
             return
-        query.reply(query.key_expr, region.encode())
+        with self._lock:  # only the gather: a flood of large regions cannot hold the worker back
+            values = self.team.gather(idx)
+        query.reply(query.key_expr, region_of(self.team.grid, idx, *values).encode())
 
     # -- progress ------------------------------------------------------------------------
     def _log_progress(self, force: bool = False) -> None:

@@ -219,7 +219,13 @@ class TeamMap:
         Touching a cell's face does not count, so [0, 0.2] at 0.1 m is two voxels per axis; on an
         axis where lo = hi the voxel holding that coordinate counts, so lo = hi gives the voxel
         holding a point. Raises ValueError for lo > hi or a box of more than MAX_REGION_VOXELS.
+        The server calls the three steps apart, holding its lock for :meth:`gather` only.
         """
+        idx = self.region_indices(lo, hi)
+        return region_of(self.grid, idx, *self.gather(idx))
+
+    def region_indices(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The flat indices (uint32, ascending) of :meth:`region`'s voxels; reads no map value."""
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError("lo and hi must be 3 finite numbers each")
@@ -240,19 +246,29 @@ class TeamMap:
             raise ValueError(
                 f"the box holds {n:,} voxels; a region query returns at most {MAX_REGION_VOXELS:,}"
             )
-        axes = [np.arange(first[a], first[a] + counts[a]) for a in range(3)]
-        ijk = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        idx = self.grid.flat(ijk).astype(np.uint32)
-        mu = self.cmap.mean(idx.astype(np.int64))
-        sigma = self.cmap.sigma(idx.astype(np.int64))
-        return Region(
-            self.grid,
-            idx,
-            mu.astype(np.float32),
-            sigma.astype(np.float32),
-            expected_coverage(mu, sigma).astype(np.float32),
-            self.entropy.values[idx.astype(np.int64)].copy(),
-        )
+        i, j, k = (np.arange(first[a], first[a] + counts[a], dtype=np.int64) for a in range(3))
+        _, ny, nz = self.grid.shape
+        return ((i[:, None, None] * ny + j[None, :, None]) * nz + k[None, None, :]).ravel().astype(np.uint32)
+
+    def gather(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of ``lam``, ``eta`` (float32) and the entropy (bits) of the voxels ``idx``."""
+        at = idx.astype(np.int64)
+        return self.cmap.lam[at], self.cmap.eta[at], self.entropy.values[at]
+
+
+def region_of(grid: Grid, idx: np.ndarray, lam: np.ndarray, eta: np.ndarray, entropy: np.ndarray) -> Region:
+    """The ``map/region`` reply of voxels ``idx`` from their gathered ``lam``, ``eta`` (float32)
+    and entropy: mean, sigma and E[C] of each belief (no map state: callable without a lock)."""
+    mu = eta / lam
+    sigma = 1.0 / np.sqrt(lam)
+    return Region(
+        grid,
+        idx,
+        mu.astype(np.float32),
+        sigma.astype(np.float32),
+        expected_coverage(mu, sigma).astype(np.float32),
+        entropy.astype(np.float32, copy=False),
+    )
 
 
 #: A selector number: ASCII digits, optional sign, fraction and exponent (no "_", no "inf").
