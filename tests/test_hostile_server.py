@@ -342,3 +342,31 @@ def test_a_region_of_two_million_voxels_holds_the_map_lock_only_to_copy_its_valu
         server.store.close()
     assert len(Region.decode(query.replies[0])) == 2_000_000
     assert sum(lock.holds) < 0.25 * took, (lock.holds, took)
+
+
+def test_a_robot_pattern_admits_a_bounded_number_of_invented_ids(tmp_path: Path):
+    """--robot-pattern took every id matching it: on an open bus 300 invented ids cost the
+    server 300 dense contributions (8 bytes per voxel each), queues, budgets and ledger rows."""
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    options = ServerOptions(robot_pattern=r"x[0-9]+", max_pattern_robots=5)
+    invented = [(f"x{i}", good(grid, robot=f"x{i}")) for i in range(300)]
+    with (
+        running_server(mission, tmp_path / "store", options) as (server, endpoint),
+        client_session(endpoint) as session,
+    ):
+        client = MapClient(session, mission.mission, timeout=5.0, endpoint=endpoint)
+        pubs = publishers(session, mission.mission, [rid for rid, _ in invented] + ["r1"])
+        for rid, payload in invented:
+            pubs[rid].put(payload)
+        pubs["r1"].put(good(grid, "r1"))
+        wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10, "r1's delta")
+        wait_until(lambda: client.stats()["deltas_applied"] == 6, 10, "the five admitted ids")
+        stats = client.stats()
+        contributors = len(server.team.contributions.by_robot)
+    assert stats["rejected"]["unknown_robot"] == 295 and contributors == 6
+    restarted = MapServer(mission, tmp_path / "store", options=options)
+    try:  # the store's five count: a sixth id is still refused after a restart
+        assert not restarted.accepts_robot("x299") and restarted.accepts_robot("x0")
+    finally:
+        restarted.store.close()
