@@ -59,11 +59,15 @@ class TeamMap:
             self.counts["rejected"] += 1
             raise
         with self.lock:
-            if not self._seen.add(msg.robot, msg.epoch, msg.seq):
+            if (msg.robot, msg.epoch, msg.seq) in self._seen:
                 self.counts["duplicate"] += 1
                 return "duplicate"
-            delta = Delta(msg.idx, msg.dlam, msg.deta)
-            self.map.apply(delta)
+            try:  # whole or nothing: a delta no server would have applied leaves the map as it was
+                self.map.apply_received(Delta(msg.idx, msg.dlam, msg.deta))
+            except ValueError as exc:
+                self.counts["rejected"] += 1
+                raise WireError(f"delta of {msg.robot}: {exc}") from exc
+            self._seen.add(msg.robot, msg.epoch, msg.seq)
             idx = msg.idx.astype(np.int64)
             self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
             self.columns.add(msg.robot, idx, msg.dlam)

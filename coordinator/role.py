@@ -13,7 +13,8 @@ left", and the agent chooses alone (its own eq. 35, then its 3-D frontier views)
 Layers: :class:`TeamMap` (the replica: idempotent merged deltas), :class:`CoordinatorState`
 (the replica, who holds what, and the planning of one answer; no I/O, callable from tests)
 and :class:`Coordinator` (the Zenoh side: one worker thread applies merged deltas and
-statuses in arrival order, one thread answers queries one at a time). An agent asks with
+statuses in arrival order, one thread answers queries one at a time, the latest of each robot
+in turn: ``coordinator.requests``). An agent asks with
 :func:`swarm.protocol.coord_client.ask_for_target`.
 """
 
@@ -33,11 +34,13 @@ import zenoh
 from coordinator.assignment import (
     CoordinationParams,
 )
+from coordinator.requests import RequestQueue
 from coordinator.state import Answer, CoordinatorState
 from swarm.config import Mission
 from swarm.navigation import planner
 from swarm.protocol import bus, replies
-from swarm.protocol.wire import Snapshot, WireError
+from swarm.protocol.codec import short
+from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
 
@@ -46,6 +49,10 @@ SNAPSHOT_TIMEOUT_S = 3.0
 
 #: The answer times ``coord/stats`` summarises: the most recent this many.
 ANSWER_TIMES_KEPT = 10_000
+
+#: The largest ``coord/assign`` payload read (a request is about 100 bytes; up to 256 robots'
+#: requests wait at once, each holding its payload).
+MAX_REQUEST_BYTES = 64 << 10
 
 
 # ---------------------------------------------------------------------------------------
@@ -75,7 +82,14 @@ class Coordinator:
         self.clock = clock
         self.started_from_snapshot = False
         self._inbox: queue.Queue = queue.Queue()
-        self._queries: queue.Queue = queue.Queue()
+        #: the latest status payload of each status key not handled yet: a status says where a
+        #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
+        #: costs the worker one status per round, not a backlog that holds merged deltas back
+        self._statuses: dict[str, bytes] = {}
+        self._statuses_lock = threading.Lock()
+        self._refused: Counter[str] = Counter()  # refused stream messages by kind, for the log
+        #: waiting coord/assign queries and their requests, the latest of each robot
+        self._requests: RequestQueue[tuple[zenoh.Query, AssignRequest]] = RequestQueue()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._declared: list = []
@@ -108,7 +122,7 @@ class Coordinator:
         ]
         for t in self._threads:
             t.start()
-        self._declared.append(s.declare_queryable(bus.key(name, "coord", "assign"), self._queries.put))
+        self._declared.append(s.declare_queryable(bus.key(name, "coord", "assign"), self._on_assign))
         self._declared.append(s.declare_queryable(bus.key(name, "coord", "stats"), self._on_stats))
         p = self.state.params
         log.info(
@@ -134,11 +148,18 @@ class Coordinator:
     def _on_merged(self, _key: str, payload: bytes) -> None:
         self._inbox.put(("merged", payload))
 
-    def _on_status(self, _key: str, payload: bytes) -> None:
-        self._inbox.put(("status", payload))
+    def _on_status(self, key: str, payload: bytes) -> None:
+        with self._statuses_lock:
+            wake = not self._statuses  # one wake-up in the inbox for the statuses waiting
+            if key in self._statuses:
+                self.state.counts["status_superseded"] += 1
+            self._statuses[key] = payload
+        if wake:
+            self._inbox.put(("statuses", None))
 
     def _work(self) -> None:
-        """The one thread that changes the replica and the book from the streams, in order."""
+        """The one thread that changes the replica and the book from the streams, in order
+        (the statuses waiting at a wake-up together, the latest of each robot)."""
         last_expiry = self.clock()
         while not self._stop.is_set():
             try:
@@ -146,32 +167,88 @@ class Coordinator:
             except queue.Empty:
                 kind = None
             now = self.clock()
+            if kind == "merged":
+                self._handle("merged", self.state.team.apply_payload, payload)
+            elif kind == "statuses":
+                with self._statuses_lock:
+                    statuses, self._statuses = self._statuses, {}
+                for key, status in statuses.items():
+                    self._handle("status", self.state.on_status, status, now, key)
+            if now - last_expiry >= 0.5:
+                last_expiry = now
+                self._handle("expiry", self.state.expire, now)
+
+    def _handle(self, kind: str, handler: Callable, *args) -> None:
+        """Run one message's ``handler``: a refused message is logged (the first ten of a kind,
+        then every thousandth), any other failure counted, and the worker goes on. The targets a
+        status or an expiry released are logged."""
+        try:
+            result = handler(*args)
+        except WireError as exc:
+            self._refused[kind] += 1
+            if self._refused[kind] <= 10 or self._refused[kind] % 1000 == 0:
+                log.warning("rejected %s message (#%d): %s", kind, self._refused[kind], exc)
+            return
+        except Exception:  # never die of one message
+            self.state.counts["worker_errors"] += 1
+            log.exception("error handling a %s message", kind)
+            return
+        for robot, reason in result if kind != "merged" else ():
+            log.info("released the target of %s: %s", robot, reason)
+
+    def _on_assign(self, query: zenoh.Query) -> None:
+        """Zenoh's callback: decode the request, refuse a malformed one at once, else queue it as
+        its robot's latest (an older one of that robot is refused as superseded). Never raises."""
+        started = time.perf_counter()
+        try:
+            size = 0 if query.payload is None else len(query.payload)
+            if size > MAX_REQUEST_BYTES:  # refused before it is copied or decoded
+                self.state.counts["requests"] += 1
+                self.state.counts["requests_rejected"] += 1
+                self._refuse(
+                    query, started, f"request of {size:,} bytes over the maximum {MAX_REQUEST_BYTES:,}"
+                )
+                return
+            payload = b"" if query.payload is None else query.payload.to_bytes()
             try:
-                if kind == "merged":
-                    self.state.team.apply_payload(payload)
-                elif kind == "status":
-                    for robot, reason in self.state.on_status(payload, now):
-                        log.info("released the target of %s: %s", robot, reason)
-                if now - last_expiry >= 0.5:
-                    last_expiry = now
-                    for robot, reason in self.state.expire(now):
-                        log.info("released the target of %s: %s", robot, reason)
+                request = self.state.decode_request(payload)
             except WireError as exc:
-                log.warning("rejected %s message: %s", kind, exc)
-            except Exception:  # never die of one message
-                self.state.counts["worker_errors"] += 1
-                log.exception("error handling a %s message", kind)
+                log.warning("rejected assign request: %s", exc)
+                self._refuse(query, started, str(exc))
+                return
+            replaced, taken = self._requests.offer(request.robot, (query, request))
+            if replaced is not None:
+                self.state.counts["requests_superseded"] += 1
+                self._refuse(
+                    replaced[0], started, f"superseded by a newer request of {short(request.robot, 40)}"
+                )
+            if not taken:
+                self.state.counts["requests_busy"] += 1
+                waiting = self._requests.max_robots
+                self._refuse(query, started, f"busy: {waiting} robots are waiting for an answer; ask again")
+        except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
+            log.exception("coord/assign callback failed")
+
+    def _refuse(self, query: zenoh.Query, started: float, reason: str) -> None:
+        """An error reply ``coord/assign: <reason>``, timed like an answer."""
+        self._timed(started)
+        try:
+            query.reply_err(f"coord/assign: {reason}".encode())
+        finally:
+            query.drop()
 
     def _answer_queries(self) -> None:
         while not self._stop.is_set():
-            try:
-                query = self._queries.get(timeout=0.2)
-            except queue.Empty:
+            waiting = self._requests.take(timeout=0.2)
+            if waiting is None:
                 continue
+            _robot, (query, request) = waiting
             try:
-                self._answer(query, time.perf_counter())
+                self._answer(query, request, time.perf_counter())
             finally:
                 query.drop()
+        for query, _request in self._requests.drain():
+            self._refuse(query, time.perf_counter(), "the coordinator is stopping")
 
     def _timed(self, started: float) -> None:
         """Record one answer's time, before its reply goes out (so coord/stats already counts it)."""
@@ -192,10 +269,9 @@ class Coordinator:
             log.exception("coord/stats failed")
             query.reply_err(f"coord/stats: {exc}".encode())
 
-    def _answer(self, query: zenoh.Query, started: float) -> None:
-        payload = b"" if query.payload is None else query.payload.to_bytes()
+    def _answer(self, query: zenoh.Query, request: AssignRequest, started: float) -> None:
         try:
-            answer = self.state.handle_request(payload, self.clock())
+            answer = self.state.answer_request(request, self.clock())
         except WireError as exc:
             log.warning("rejected assign request: %s", exc)
             self._timed(started)
@@ -205,7 +281,7 @@ class Coordinator:
             self.state.counts["requests_failed"] += 1
             log.exception("assign request failed")
             self._timed(started)
-            query.reply_err(f"coord/assign: internal error: {exc}".encode())
+            query.reply_err(f"coord/assign: internal error: {short(exc)}".encode())
             return
         reply = answer.reply.encode()
         self._timed(started)

@@ -31,7 +31,7 @@ from swarm.navigation.exploration import (
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
-from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError
+from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError, status_on_key
 
 log = logging.getLogger("coordinator")
 
@@ -130,10 +130,11 @@ class CoordinatorState:
             views = [xy for r in sorted(self._views) if r != robot for xy in self._views[r]]
         return tuple(views[-MAX_VIEWS:])
 
-    def on_status(self, payload: bytes, now: float) -> list[tuple[str, str]]:
-        """A ``robot/<rid>/status`` payload; returns released (robot, reason). WireError if malformed."""
+    def on_status(self, payload: bytes, now: float, key: str | None = None) -> list[tuple[str, str]]:
+        """A ``robot/<rid>/status`` payload that came on ``key`` (None: trust its robot field);
+        returns released (robot, reason). WireError if malformed or on another robot's key."""
         try:
-            status = Status.decode(payload)
+            status = Status.decode(payload) if key is None else status_on_key(key, payload)
         except WireError:
             self.counts["status_rejected"] += 1
             raise
@@ -303,12 +304,19 @@ class CoordinatorState:
 
     def handle_request(self, payload: bytes, now: float) -> Answer:
         """Decode and answer a ``coord/assign`` payload; WireError (counted) if it is malformed."""
+        return self.answer_request(self.decode_request(payload), now)
+
+    def decode_request(self, payload: bytes) -> AssignRequest:
+        """A ``coord/assign`` payload's request, counted; WireError (counted) if it is malformed."""
         self.counts["requests"] += 1
         try:
-            request = AssignRequest.decode(payload)
+            return AssignRequest.decode(payload)
         except WireError:
             self.counts["requests_rejected"] += 1
             raise
+
+    def answer_request(self, request: AssignRequest, now: float) -> Answer:
+        """:meth:`answer`, with a request it refuses (a pose outside the workspace) counted."""
         try:
             return self.answer(request, now)
         except WireError:

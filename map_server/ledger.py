@@ -35,7 +35,8 @@ REJECT_KINDS = (
     "too_large",  # payload over the maximum size (refused before decoding)
     "unknown_robot",  # <rid> is not one of the mission's robots (refused before decoding)
     "too_much_information",  # more information than the robot's rig can gather (limits.py)
-    "stale_epoch",  # an epoch of the robot compacted away (or implausibly far in the future)
+    "stale_epoch",  # an epoch of the robot compacted away, or older than the ones kept
+    "future_epoch",  # an epoch more than EPOCH_AHEAD_NS after the server's clock
     "seq_out_of_window",  # seq too far beyond the robot's contiguous ack
     "map_overflow",  # would lift a voxel's information over LAM_MAX
     "quarantined",  # the robot is quarantined (swarm server --quarantine, or at run time)
@@ -140,6 +141,9 @@ class _Seqs:
 MAX_EPOCHS = 4
 #: A seq may run at most this far beyond its epoch's contiguous ack (bounds the set above it).
 SEQ_WINDOW = 16384
+#: An epoch (the agent's start, ns since 1970) may be at most this far ahead of the server's
+#: clock: four epochs in the far future would compact the robot's real one away for good.
+EPOCH_AHEAD_NS = 24 * 3600 * 10**9
 
 
 class Ledger:
@@ -164,10 +168,14 @@ class Ledger:
         seqs = self._seqs.get((robot, epoch))
         return seqs is not None and seq in seqs
 
-    def refusal(self, delta_id: DeltaId) -> tuple[str, str] | None:
-        """(kind, reason) when the ledger cannot take this id (a compacted epoch, a seq out of
-        the window), else None. An id already applied is not refused here (a duplicate)."""
+    def refusal(self, delta_id: DeltaId, now_ns: int | None = None) -> tuple[str, str] | None:
+        """(kind, reason) when the ledger cannot take this id (a compacted epoch, an epoch more
+        than EPOCH_AHEAD_NS after ``now_ns`` when given, a seq out of the window), else None.
+        An id already applied is not refused here (a duplicate)."""
         robot, epoch, seq = delta_id
+        if now_ns is not None and epoch > now_ns + EPOCH_AHEAD_NS:
+            ahead = (epoch - now_ns) / 3.6e12
+            return "future_epoch", f"epoch {epoch} of {robot} is {ahead:,.0f} h ahead of the server's clock"
         if epoch <= self.floors.get(robot, -1):
             return "stale_epoch", f"epoch {epoch} of {robot} was compacted away"
         seqs = self._seqs.get((robot, epoch))

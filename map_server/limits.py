@@ -29,9 +29,6 @@ from swarm.map.sensor_model import SensorModel
 #: Frames allowed beyond the span of a robot's deltas (the frames before its first delta
 #: and the shutdown flush; the agent shares at its first frame, and flushes once).
 SLACK_FRAMES = 20
-#: No voxel of the team map may hold more information than this (float32 tops at 3.4e38;
-#: mean eta / lam and sigma 1 / sqrt(lam) stay finite well below it).
-LAM_MAX = 1e30
 
 
 def ray_information_bound(sensor: SensorModel, voxel: float) -> float:
@@ -54,9 +51,13 @@ class InformationBound:
     slack_frames: int = SLACK_FRAMES
 
     def allowed(self, span_s: float) -> float:
-        """The information of every delta of a robot whose deltas span ``span_s`` seconds."""
-        frames = math.floor(max(span_s, 0.0) / self.frame_period_s) + 1 + self.slack_frames
-        return self.per_frame * frames
+        """The information of every delta of a robot whose deltas span ``span_s`` seconds
+        (infinite when the span in frames overflows a float: ``t`` is the sender's own word,
+        and two finite ``t`` far apart span ``inf`` seconds)."""
+        frames = max(span_s, 0.0) / self.frame_period_s
+        if not math.isfinite(frames):
+            return math.inf
+        return self.per_frame * (math.floor(frames) + 1 + self.slack_frames)
 
 
 def mission_bounds(mission: Mission, slack_frames: int = SLACK_FRAMES) -> dict[str, InformationBound]:

@@ -10,6 +10,10 @@ from map_server.ledger import MAX_EPOCHS
 from map_server.limits import SLACK_FRAMES
 from swarm.map.grid import Grid
 
+#: Robot ids ``--robot-pattern`` admits at most (first come): each costs the server 8 bytes
+#: per voxel (its contribution, map_server.contributions), a queue, a budget and ledger rows.
+MAX_PATTERN_ROBOTS = 64
+
 
 @dataclass(frozen=True)
 class ServerOptions:
@@ -27,6 +31,7 @@ class ServerOptions:
     inbox_bytes: int | None = None
     robots: tuple[str, ...] | None = None
     robot_pattern: str | None = None
+    max_pattern_robots: int = MAX_PATTERN_ROBOTS
     information_bound: bool = True
     slack_frames: int = SLACK_FRAMES
     max_epochs: int = MAX_EPOCHS

@@ -27,7 +27,7 @@ from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
-from map_server.team_map import TeamMap, parse_vector
+from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
 from swarm.protocol import bus
 from swarm.protocol.codec import short
@@ -92,6 +92,10 @@ class MapServer:
         #: a mission with a previous map takes it on delta/prior (no rig: no information bound)
         self.takes_prior = mission.prior_map is not None
         self._robot_pattern = re.compile(self.options.robot_pattern) if self.options.robot_pattern else None
+        #: the ids the pattern admitted (those of the store's past too), at most max_pattern_robots
+        pattern, known = self._robot_pattern, {*self.team.ledger.robots(), *self.team.contributions.by_robot}
+        self._by_pattern = {r for r in known - self.robots if pattern is not None and pattern.fullmatch(r)}
+        self._by_pattern_lock = threading.Lock()
         self.bounds = (
             mission_bounds(mission, self.options.slack_frames) if self.options.information_bound else {}
         )
@@ -170,10 +174,19 @@ class MapServer:
     # -- deltas --------------------------------------------------------------------------
     def accepts_robot(self, robot: str) -> bool:
         """Whether ``delta/<robot>`` is taken: one of the mission's (or configured) robots, or a
-        full match of the configured pattern."""
+        full match of the configured pattern while fewer than ``max_pattern_robots`` ids have
+        matched it (each admitted id costs memory for good: on an open bus anyone could invent
+        ids without end)."""
         if robot in self.robots or (robot == PRIOR_SOURCE and self.takes_prior):
             return True
-        return self._robot_pattern is not None and self._robot_pattern.fullmatch(robot) is not None
+        if self._robot_pattern is None or self._robot_pattern.fullmatch(robot) is None:
+            return False
+        with self._by_pattern_lock:
+            if robot not in self._by_pattern:
+                if len(self._by_pattern) >= self.options.max_pattern_robots:
+                    return False
+                self._by_pattern.add(robot)
+            return True
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh's callback: refuse an unknown robot or an oversized payload before reading it,
@@ -182,7 +195,10 @@ class MapServer:
             robot = str(sample.key_expr).rsplit("/", 1)[-1]
             size = len(sample.payload)
             if not self.accepts_robot(robot):
-                self._reject(robot, None, Rejected("unknown_robot", "not one of the mission's robots"))
+                why = "not one of the mission's robots"
+                if self._robot_pattern is not None and self._robot_pattern.fullmatch(robot):
+                    why = f"--robot-pattern has admitted its {self.options.max_pattern_robots} robots already"
+                self._reject(robot, None, Rejected("unknown_robot", why))
             elif size > self.max_payload:
                 reason = f"payload of {size:,} bytes over the maximum {self.max_payload:,}"
                 self._reject(robot, None, Rejected("too_large", reason))
@@ -230,7 +246,7 @@ class MapServer:
             msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
             bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
             with self._lock:
-                return msg if self.team.admit(msg, bound) else None
+                return msg if self.team.admit(msg, bound, now_ns=time.time_ns()) else None
         except Rejected as exc:
             self._reject(robot, msg, exc)
         except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)
@@ -358,12 +374,13 @@ class MapServer:
         try:
             lo = parse_vector(params.get("lo"), "lo")
             hi = parse_vector(params.get("hi"), "hi")
-            with self._lock:
-                region = self.team.region(lo, hi)
+            idx = self.team.region_indices(lo, hi)
         except ValueError as exc:
             query.reply_err(f"map/region: {short(exc, 200)}".encode())
             return
-        query.reply(query.key_expr, region.encode())
+        with self._lock:  # only the gather: a flood of large regions cannot hold the worker back
+            values = self.team.gather(idx)
+        query.reply(query.key_expr, region_of(self.team.grid, idx, *values).encode())
 
     # -- progress ------------------------------------------------------------------------
     def _log_progress(self, force: bool = False) -> None:

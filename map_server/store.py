@@ -201,7 +201,9 @@ class Store:
                     f"{identity.describe()}. Use another --store folder, or remove {path} to start afresh"
                 )
         else:
-            if path.exists() and any(path.iterdir()):
+            # a start killed before store.json replaced its temporary file leaves only that file
+            leftover = IDENTITY_FILE + ".tmp"
+            if path.exists() and any(p.name != leftover for p in path.iterdir()):
                 raise StoreError(f"{path}: folder is not empty and has no {IDENTITY_FILE}: not a map store")
             path.mkdir(parents=True, exist_ok=True)
             _write_atomic(ident_path, json.dumps(identity.to_json(), indent=1).encode())

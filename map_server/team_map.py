@@ -19,8 +19,8 @@ import numpy as np
 
 from map_server.contributions import Contributions
 from map_server.ledger import ETA_TOLERANCE, REJECT_KINDS, DeltaId, Ledger, Rejected
-from map_server.limits import LAM_MAX, InformationBound, RobotBudget
-from swarm.map.coverage_map import CoverageMap, prior_entropy_bits, prior_information
+from map_server.limits import InformationBound, RobotBudget
+from swarm.map.coverage_map import LAM_MAX, CoverageMap, prior_entropy_bits, prior_information
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
@@ -85,13 +85,16 @@ class TeamMap:
         return n
 
     # -- merging -------------------------------------------------------------------------
-    def admit(self, msg: DeltaMessage, bound: InformationBound | None = None) -> bool:
+    def admit(
+        self, msg: DeltaMessage, bound: InformationBound | None = None, now_ns: int | None = None
+    ) -> bool:
         """True when ``msg`` is new (it is then pending until :meth:`apply` or :meth:`release`);
         False for a delta already applied or pending, which is counted as a duplicate.
 
-        Raises Rejected for a delta the ledger cannot take (``stale_epoch``,
-        ``seq_out_of_window``), one over the robot's information ``bound`` (when given:
-        ``too_much_information``), or one that would lift a voxel over LAM_MAX (``map_overflow``).
+        Raises Rejected for a delta the ledger cannot take (``stale_epoch``; ``future_epoch``
+        against ``now_ns``, the server's clock in ns, when given; ``seq_out_of_window``), one
+        over the robot's information ``bound`` (when given: ``too_much_information``), or one
+        that would lift a voxel over LAM_MAX (``map_overflow``).
         """
         ident = delta_id(msg)
         if msg.robot in self.quarantined:
@@ -99,7 +102,7 @@ class TeamMap:
         if ident in self.ledger or ident in self._pending:
             self.duplicates += 1
             return False
-        refusal = self.ledger.refusal(ident)
+        refusal = self.ledger.refusal(ident, now_ns)
         if refusal is not None:
             raise Rejected(*refusal)
         information = float(np.sum(msg.dlam, dtype=np.float64))
@@ -216,15 +219,26 @@ class TeamMap:
         Touching a cell's face does not count, so [0, 0.2] at 0.1 m is two voxels per axis; on an
         axis where lo = hi the voxel holding that coordinate counts, so lo = hi gives the voxel
         holding a point. Raises ValueError for lo > hi or a box of more than MAX_REGION_VOXELS.
+        The server calls the three steps apart, holding its lock for :meth:`gather` only.
         """
+        idx = self.region_indices(lo, hi)
+        return region_of(self.grid, idx, *self.gather(idx))
+
+    def region_indices(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The flat indices (uint32, ascending) of :meth:`region`'s voxels; reads no map value."""
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError("lo and hi must be 3 finite numbers each")
         if np.any(hi < lo):
             raise ValueError(f"hi {hi.tolist()} must be >= lo {lo.tolist()} on every axis")
-        first = self.grid.index_of(lo)
-        upper = np.ceil((hi - self.grid.lo) / self.grid.voxel - 1e-9).astype(np.int64) - 1
-        last = np.minimum(np.maximum(upper, first), np.asarray(self.grid.shape) - 1)
+        shape = np.asarray(self.grid.shape)
+        # voxel coordinates, clipped to one voxel beyond the grid before they become integers: a
+        # box 1e19 m away is past int64, whose cast wraps (it gave the whole grid, not nothing)
+        lo_v = np.clip((lo - self.grid.lo) / self.grid.voxel, -1.0, shape + 1.0)
+        hi_v = np.clip((hi - self.grid.lo) / self.grid.voxel, -1.0, shape + 1.0)
+        first = np.floor(lo_v).astype(np.int64)
+        upper = np.ceil(hi_v - 1e-9).astype(np.int64) - 1
+        last = np.minimum(np.maximum(upper, first), shape - 1)
         first = np.maximum(first, 0)
         counts = np.maximum(last - first + 1, 0)
         n = int(np.prod(counts))
@@ -232,19 +246,29 @@ class TeamMap:
             raise ValueError(
                 f"the box holds {n:,} voxels; a region query returns at most {MAX_REGION_VOXELS:,}"
             )
-        axes = [np.arange(first[a], first[a] + counts[a]) for a in range(3)]
-        ijk = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        idx = self.grid.flat(ijk).astype(np.uint32)
-        mu = self.cmap.mean(idx.astype(np.int64))
-        sigma = self.cmap.sigma(idx.astype(np.int64))
-        return Region(
-            self.grid,
-            idx,
-            mu.astype(np.float32),
-            sigma.astype(np.float32),
-            expected_coverage(mu, sigma).astype(np.float32),
-            self.entropy.values[idx.astype(np.int64)].copy(),
-        )
+        i, j, k = (np.arange(first[a], first[a] + counts[a], dtype=np.int64) for a in range(3))
+        _, ny, nz = self.grid.shape
+        return ((i[:, None, None] * ny + j[None, :, None]) * nz + k[None, None, :]).ravel().astype(np.uint32)
+
+    def gather(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of ``lam``, ``eta`` (float32) and the entropy (bits) of the voxels ``idx``."""
+        at = idx.astype(np.int64)
+        return self.cmap.lam[at], self.cmap.eta[at], self.entropy.values[at]
+
+
+def region_of(grid: Grid, idx: np.ndarray, lam: np.ndarray, eta: np.ndarray, entropy: np.ndarray) -> Region:
+    """The ``map/region`` reply of voxels ``idx`` from their gathered ``lam``, ``eta`` (float32)
+    and entropy: mean, sigma and E[C] of each belief (no map state: callable without a lock)."""
+    mu = eta / lam
+    sigma = 1.0 / np.sqrt(lam)
+    return Region(
+        grid,
+        idx,
+        mu.astype(np.float32),
+        sigma.astype(np.float32),
+        expected_coverage(mu, sigma).astype(np.float32),
+        entropy.astype(np.float32, copy=False),
+    )
 
 
 #: A selector number: ASCII digits, optional sign, fraction and exponent (no "_", no "inf").

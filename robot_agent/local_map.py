@@ -45,7 +45,7 @@ class LocalMapping:
 
     def apply_external(self, delta: Delta) -> None:
         """Add information another robot gathered (from the team's merged stream)."""
-        self.map.apply(delta)
+        self.map.apply_received(delta)
         self.apply_entropy(delta)
 
     def apply_entropy(self, delta: Delta) -> None:

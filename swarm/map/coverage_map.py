@@ -17,6 +17,11 @@ from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 
 PRIOR_MU = 0.5
+#: No voxel may hold more information than this (float32 tops at 3.4e38; the mean eta / lam and
+#: sigma 1 / sqrt(lam) stay finite well below it).
+LAM_MAX = 1e30
+#: Relative float32 rounding allowed around a voxel's mean range 0 <= eta <= lam.
+MEAN_SLACK = 1e-5
 
 
 def prior_entropy_bits(grid: Grid, sensor: SensorModel) -> float:
@@ -58,12 +63,29 @@ class CoverageMap:
         Raises ValueError when an index is outside the grid or an increment is NaN or inf;
         the map is then unchanged. Indices listed twice add twice.
         """
+        self._add(delta, check_range=False)
+
+    def apply_received(self, delta: Delta) -> None:
+        """:meth:`apply` a delta that came over the bus (the team's merged stream): also refused
+        (ValueError, map unchanged) when a voxel it touches would end with information outside
+        (0, LAM_MAX] or a mean eta / lam outside [0, 1] (within MEAN_SLACK), as the map server
+        refuses it; no honest delta does that, a forged one would make the map's entropy NaN.
+        """
+        self._add(delta, check_range=True)
+
+    def _add(self, delta: Delta, check_range: bool) -> None:
         idx = delta.idx if delta.idx.dtype in (np.uint32, np.int64) else delta.idx.astype(np.int64)
-        status = _add_information(self.lam, self.eta, idx, delta.dlam, delta.deta)
+        status = _add_information(
+            self.lam, self.eta, idx, delta.dlam, delta.deta, check_range, LAM_MAX, MEAN_SLACK
+        )
         if status == _OUTSIDE:
             self.grid.check_flat(delta.idx)  # raises, naming the range
         if status == _NONFINITE:
             raise ValueError("delta holds NaN or inf information")
+        if status == _OUT_OF_RANGE:
+            raise ValueError(
+                f"delta would leave a voxel's information outside (0, {LAM_MAX:g}] or its mean outside [0, 1]"
+            )
 
     def integrate(self, origin: np.ndarray, points: np.ndarray) -> BatchResult:
         """Fuse one batch of hit points seen from ``origin``; returns the batch and its delta."""
@@ -98,13 +120,15 @@ class CoverageMap:
         return np.float32(lam0) * np.float32(1.0 + 1e-5)
 
 
-_OUTSIDE, _NONFINITE = 1, 2
+_OUTSIDE, _NONFINITE, _OUT_OF_RANGE = 1, 2, 3
 
 
 @njit(cache=True, nogil=True)
-def _add_information(lam, eta, idx, dlam, deta):
+def _add_information(lam, eta, idx, dlam, deta, check_range, lam_max, slack):
     """lam[idx] += dlam and eta[idx] += deta in order (repeats add again), or nothing at all:
-    returns 0 when applied, _OUTSIDE for an index outside the map, _NONFINITE for NaN/inf."""
+    returns 0 when applied, _OUTSIDE for an index outside the map, _NONFINITE for NaN/inf,
+    and with ``check_range`` _OUT_OF_RANGE when a touched voxel would end outside
+    0 < lam <= lam_max or -slack lam <= eta <= (1 + slack) lam (its old values put back)."""
     n = idx.shape[0]
     for k in range(n):
         if idx[k] < 0 or idx[k] >= lam.shape[0]:
@@ -112,9 +136,25 @@ def _add_information(lam, eta, idx, dlam, deta):
     for k in range(n):
         if not (np.isfinite(dlam[k]) and np.isfinite(deta[k])):
             return _NONFINITE
+    if not check_range:
+        for k in range(n):
+            lam[idx[k]] += dlam[k]
+            eta[idx[k]] += deta[k]
+        return 0
+    old_lam = np.empty(n, lam.dtype)
+    old_eta = np.empty(n, eta.dtype)
     for k in range(n):
+        old_lam[k] = lam[idx[k]]
+        old_eta[k] = eta[idx[k]]
         lam[idx[k]] += dlam[k]
         eta[idx[k]] += deta[k]
+    for k in range(n):
+        v, e = lam[idx[k]], eta[idx[k]]
+        if not (v > 0 and v <= lam_max and e >= -slack * v and e <= (1 + slack) * v):  # NaN fails
+            for j in range(n - 1, -1, -1):  # backwards: a repeated index ends at its first old value
+                lam[idx[j]] = old_lam[j]
+                eta[idx[j]] = old_eta[j]
+            return _OUT_OF_RANGE
     return 0
 
 

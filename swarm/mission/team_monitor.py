@@ -22,7 +22,7 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE
 from swarm.protocol.applied_deltas import AppliedDeltas
-from swarm.protocol.wire import DeltaMessage, Status, TruthPoses, WireError
+from swarm.protocol.wire import DeltaMessage, TruthPoses, WireError, status_on_key
 
 NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
 
@@ -64,7 +64,7 @@ class TeamMonitor:
             with self._lock:
                 if (msg.robot, msg.epoch, msg.seq) in self.seen:
                     return  # a resend: already counted
-                self.cmap.apply(delta)
+                self.cmap.apply_received(delta)
                 self.seen.add(msg.robot, msg.epoch, msg.seq)
                 self.applied += 1
                 idx = msg.idx.astype(np.int64)
@@ -95,9 +95,9 @@ class TeamMonitor:
             for rid, (x, y, _yaw) in truth.poses.items():
                 self.trajectories.setdefault(rid, []).append((truth.t, float(x), float(y)))
 
-    def on_status(self, _key: str, payload: bytes) -> None:
+    def on_status(self, key: str, payload: bytes) -> None:
         try:
-            status = Status.decode(payload)
+            status = status_on_key(key, payload)
         except WireError:
             self.rejected += 1
             return

@@ -10,6 +10,7 @@ so a positive pitch looks down. A camera's optical frame is x right, y down, z f
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +27,7 @@ from swarm.protocol.codec import (
     pack,
     raw,
     require,
+    short,
     text,
     unpack,
     vec3,
@@ -189,11 +191,27 @@ def _png(image: np.ndarray) -> bytes:
     return data.tobytes()
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_size(value: bytes) -> tuple[int, int] | None:
+    """(height, width) the PNG's IHDR chunk declares, or None when it does not start like a PNG."""
+    if len(value) < 24 or value[:8] != _PNG_SIGNATURE or value[12:16] != b"IHDR":
+        return None
+    width, height = struct.unpack(">II", value[16:24])
+    return height, width
+
+
 def _unpng(value: Any, shape: tuple[int, int], name: str) -> np.ndarray:
     import cv2
 
     if not isinstance(value, bytes | bytearray):
         raise WireError(f"frame: {name} must be PNG bytes")
+    # the declared size first: a few hundred KB of PNG may inflate to a gigapixel
+    declared = _png_size(value)
+    if declared != shape:
+        got = "no PNG header" if declared is None else f"a header of shape {declared}"
+        raise WireError(f"frame: {name} is not an 8-bit PNG of shape {shape} (got {got})")
     image = cv2.imdecode(np.frombuffer(value, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.dtype != np.uint8 or image.shape != shape:
         got = None if image is None else (image.shape, str(image.dtype))
@@ -305,6 +323,21 @@ class Status:
             bytes_sent=integer(require(msg, "bytes_sent", kind), "bytes_sent", kind),
             view=None if view is None else vec3(view, "view", kind),
         )
+
+
+def status_on_key(key: str, payload: Any) -> Status:
+    """The status a ``swarm/<mission>/robot/<rid>/status`` sample carries, checked against the
+    ``<rid>`` of its key: a WireError when it is malformed or names another robot (on a secured
+    bus each agent may put only its own key, so the key says who sent it; the field does not)."""
+    status = Status.decode(payload)
+    parts = str(key).split("/")
+    rid = parts[-2] if len(parts) >= 2 and parts[-1] == "status" else None
+    if status.robot != rid:
+        raise WireError(
+            f"{Status.KIND}: robot {short(status.robot, 40)} published on the key of {short(rid, 40)}",
+            "robot_mismatch",
+        )
+    return status
 
 
 # -- sim/truth ---------------------------------------------------------------------------

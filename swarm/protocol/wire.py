@@ -16,7 +16,16 @@ from __future__ import annotations
 from swarm.protocol.codec import DEPTH_ENCODING, STEREO_ENCODINGS, VERSION, WireError
 from swarm.protocol.coord_messages import AssignReply, AssignRequest
 from swarm.protocol.map_messages import DeltaMessage, Region, Snapshot
-from swarm.protocol.robot_messages import BODY_FROM_OPTICAL, Camera, Cmd, Frame, Pose, Status, TruthPoses
+from swarm.protocol.robot_messages import (
+    BODY_FROM_OPTICAL,
+    Camera,
+    Cmd,
+    Frame,
+    Pose,
+    Status,
+    TruthPoses,
+    status_on_key,
+)
 
 __all__ = [
     "AssignReply",
@@ -34,5 +43,6 @@ __all__ = [
     "Status",
     "TruthPoses",
     "VERSION",
+    "status_on_key",
     "WireError",
 ]

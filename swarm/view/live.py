@@ -29,7 +29,7 @@ from swarm.map.entropy_table import default_table
 from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable, sensor_from_stats
-from swarm.protocol.wire import DeltaMessage, Status, WireError
+from swarm.protocol.wire import DeltaMessage, WireError, status_on_key
 from swarm.view.scene import RobotTrack, log_map, log_robot, require_rerun
 
 log = logging.getLogger("swarm.view")
@@ -90,7 +90,7 @@ class TeamView:
             bus.subscribe(
                 session,
                 bus.key_pattern(mission, "robot", "*", "status"),
-                lambda _k, p: self._inbox.put(("status", p)),
+                lambda k, p: self._inbox.put(("status", (k, p))),
             ),
         ]
         self._worker: threading.Thread | None = None
@@ -172,7 +172,7 @@ class TeamView:
             raise WireError("merged delta on another grid than the snapshot's")
         if not self.applied.add(msg.robot, msg.epoch, msg.seq):
             return
-        self.cmap.apply(Delta(msg.idx, msg.dlam, msg.deta))
+        self.cmap.apply_received(Delta(msg.idx, msg.dlam, msg.deta))
         idx = msg.idx.astype(np.int64)
         self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
         self.deltas += 1
@@ -180,8 +180,8 @@ class TeamView:
         self._set_time(msg.t)
         self.rec.log("plots/entropy", require_rerun().Scalars(float(self.entropy.total)))
 
-    def _on_status(self, payload) -> None:
-        status = Status.decode(payload)
+    def _on_status(self, sample: tuple[str, bytes]) -> None:
+        status = status_on_key(*sample)
         track = self.tracks.setdefault(status.robot, RobotTrack())
         track.path.append(tuple(float(v) for v in status.pose.xyz))
         track.yaw = float(status.pose.ypr[0])
