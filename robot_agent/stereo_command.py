@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-depth",
         type=float,
         default=float("inf"),
-        help="farthest depth to search for (default: infinity); also the far end of the PNG scale",
+        help="farthest depth to search for, in metres (default: infinity); also the far end of the PNG scale",
     )
     parser.add_argument("--block-size", type=int, default=5, help="SGBM block size, odd (default 5)")
     parser.add_argument(
@@ -79,7 +79,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scale",
         type=float,
         default=1.0,
-        help="match at this fraction of the image size (0.5: about 4-5x faster, fewer edge pixels right)",
+        help="match at this fraction of the image size (default 1: full size; 0.5: about 4-5x faster, "
+        "fewer edge pixels right)",
     )
     parser.add_argument(
         "--refine-subpixel",

@@ -54,7 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--kill-coordinator-at",
         type=float,
         metavar="SIM_S",
-        help="fault injection: SIGKILL the coordinator at this sim time (agents must carry on alone)",
+        help="fault injection: SIGKILL the coordinator at this simulated time, in seconds "
+        "(agents must carry on alone)",
     )
     run.add_argument(
         "--view",
