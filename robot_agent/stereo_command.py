@@ -172,14 +172,25 @@ def run(args: argparse.Namespace) -> int:
                 return _fail(f"--png {args.png}: cannot write a PNG there")
     except OSError as exc:
         return _fail(f"cannot write output: {exc}")
-    valid = np.isfinite(depth)
-    summary = f"{wl}x{hl}, {valid.mean():.0%} valid"
-    if valid.any():
-        summary += (
-            f", depth {np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m (median {np.nanmedian(depth):.2f})"
-        )
-    print(f"wrote {args.out} ({summary})" + (f" and {args.png}" if args.png is not None else ""))
+    print(f"wrote {args.out} ({depth_summary(depth)})" + (f" and {args.png}" if args.png is not None else ""))
     return 0
+
+
+def depth_summary(depth: np.ndarray) -> str:
+    """``WxH, V% valid, depth A-B m (median M; 96% of the valid pixels within P2-P98 m)`` of a
+    depth image (metres, NaN unknown). The nearest and farthest depths are often a few stray
+    matches (on Middlebury's Adirondack 9 pixels beyond 10 m, the farthest 2,191 m, where the
+    scene ends at 2.9 m); the 2nd-98th percentile range says where the scene is."""
+    h, w = depth.shape[:2]
+    valid = depth[np.isfinite(depth)]
+    summary = f"{w}x{h}, {valid.size / max(depth.size, 1):.0%} valid"
+    if valid.size:
+        p2, median, p98 = np.percentile(valid, [2, 50, 98])
+        summary += (
+            f", depth {valid.min():.2f}-{valid.max():.2f} m "
+            f"(median {median:.2f}; 96% of the valid pixels within {p2:.2f}-{p98:.2f} m)"
+        )
+    return summary
 
 
 def _picture_range(depth: np.ndarray, max_depth: float) -> tuple[float, float]:
