@@ -201,6 +201,18 @@ def test_benchmark_options_out_of_range_are_refused_by_name(capsys, argv, messag
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_bench_fusion_outside_the_project_folder_says_it_has_nothing_to_measure(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    # its default inputs are the bundled files, relative to the project folder: an empty table
+    # and exit 0 told the user nothing
+    monkeypatch.chdir(tmp_path)
+    code, err = run(capsys, "bench", "fusion")
+    assert code == 2
+    assert err.startswith("swarm: error: nothing to measure: no data/octomap/scan.dat.bz2 and no ")
+    assert "run from the project folder, or give --scan FILE and/or --euroc DIR" in err
+
+
 def test_a_file_that_is_no_npz_is_refused_as_a_map(tmp_path, capsys) -> None:
     (tmp_path / "notes.txt").write_text("hello\n")
     code, err = run(capsys, "map", "info", str(tmp_path / "notes.txt"))

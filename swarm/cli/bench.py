@@ -186,8 +186,14 @@ def _run_bench_octomap(args: argparse.Namespace) -> int:
 def _run_bench_fusion(args: argparse.Namespace) -> int:
     from swarm.bench import fusion
 
+    missing = [path for path in (args.scan, args.euroc / "mav0") if not path.exists()]
+    if len(missing) == 2:  # the defaults are relative to the project folder
+        return fail(
+            f"nothing to measure: no {missing[0]} and no {missing[1]} (run from the project folder, "
+            "or give --scan FILE and/or --euroc DIR)"
+        )
     for path, what in ((args.scan, "scan"), (args.euroc / "mav0", "EuRoC stereo cloud")):
-        if not path.exists():
+        if path in missing:
             print(f"note: {path} not found; skipping the {what}", file=sys.stderr)
     if not args.voxel > 0:  # --repeat is checked by its argparse type (at_least)
         return fail(f"--voxel {args.voxel:g}: must be > 0")
