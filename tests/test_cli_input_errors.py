@@ -236,3 +236,13 @@ def test_security_init_refuses_names_the_mission_would_refuse(tmp_path, capsys, 
     code, err = run(capsys, "security", "init", *options, "--out", str(tmp_path / "team"))
     assert code == 2 and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "team").exists()
+
+
+def test_a_tls_endpoint_without_a_zenoh_config_says_what_it_needs(capsys, monkeypatch) -> None:
+    # as a user copying the endpoint of `swarm sim --secure`'s line without its --zenoh-config
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    port = bus.free_port()
+    code, err = run(capsys, "map", "stats", "--connect", f"tls/127.0.0.1:{port}", "--timeout", "1")
+    assert code == 2
+    assert f"no map server reachable at tls/127.0.0.1:{port}" in err
+    assert "a tls/ endpoint needs --zenoh-config with the mission's CA and a certificate" in err
