@@ -97,3 +97,13 @@ def test_the_stereo_summary_says_where_the_scene_is_beside_stray_far_matches():
     summary = depth_summary(depth)
     assert summary.startswith("100x100, 99% valid, depth 2.00-2191.00 m (median ")
     assert summary.endswith("96% of the valid pixels within 2.00-3.00 m)")
+
+
+def test_the_colour_bar_spans_the_scene_not_a_few_stray_near_matches():
+    from robot_agent.stereo_command import picture_range
+
+    depth = np.tile(np.linspace(1.0, 3.0, 100, dtype=np.float32), (100, 1))
+    depth[-1, :10] = 0.34  # ten stray matches at the nearest depth searched
+    near, far = picture_range(depth, float("inf"))
+    assert 1.0 <= near < 1.1 and 2.9 < far <= 3.0
+    assert picture_range(depth, 2.5)[1] == 2.5  # --max-depth is the far end
