@@ -55,7 +55,9 @@ def serve(
             raise
         try:
             server.start(session)
-            log.info("listening on %s", ", ".join(listen) or f"the endpoints of {zenoh_config}")
+            _conf, endpoints, _ = bus.session_config(listen, connect or [], config_file=zenoh_config)
+            source = "" if listen else f" (from {bus.config_path(zenoh_config)})"
+            log.info("listening on %s%s", ", ".join(endpoints), source)
             while not stop.wait(0.5):
                 if reread.is_set():
                     reread.clear()

@@ -189,8 +189,10 @@ class MapServer:
             return True
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh's callback: refuse an unknown robot or an oversized payload before reading it,
-        else queue it (refused when the robot's queue is full). Never raises into Zenoh."""
+        """Zenoh's callback: refuse an unknown or quarantined robot or an oversized payload
+        before reading it, else queue it (refused when the robot's queue is full). Never raises
+        into Zenoh. (A quarantined robot's agent, never acked, resends its whole outbox every
+        few seconds: hundreds of payloads a second that need not be copied or decoded.)"""
         try:
             robot = str(sample.key_expr).rsplit("/", 1)[-1]
             size = len(sample.payload)
@@ -199,6 +201,8 @@ class MapServer:
                 if self._robot_pattern is not None and self._robot_pattern.fullmatch(robot):
                     why = f"--robot-pattern has admitted its {self.options.max_pattern_robots} robots already"
                 self._reject(robot, None, Rejected("unknown_robot", why))
+            elif robot in self.team.quarantined:  # checked again when applied (set at run time)
+                self._reject(robot, None, Rejected("quarantined", f"{robot} is quarantined"))
             elif size > self.max_payload:
                 reason = f"payload of {size:,} bytes over the maximum {self.max_payload:,}"
                 self._reject(robot, None, Rejected("too_large", reason))

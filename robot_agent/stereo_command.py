@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--png",
         type=Path,
         help="also write a picture of the depth (.png): near red, far blue, unknown black, with a colour bar "
-        "in metres from the nearest depth found to --max-depth (or the 98th percentile)",
+        "in metres from the 2nd percentile of the depths found to --max-depth (or the 98th percentile); "
+        "nearer and farther pixels take the end colours",
     )
     parser.add_argument(
         "--min-depth",
@@ -66,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-depth",
         type=float,
         default=float("inf"),
-        help="farthest depth to search for (default: infinity); also the far end of the PNG scale",
+        help="farthest depth to search for, in metres (default: infinity); also the far end of the PNG scale",
     )
     parser.add_argument("--block-size", type=int, default=5, help="SGBM block size, odd (default 5)")
     parser.add_argument(
@@ -79,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scale",
         type=float,
         default=1.0,
-        help="match at this fraction of the image size (0.5: about 4-5x faster, fewer edge pixels right)",
+        help="match at this fraction of the image size (default 1: full size; 0.5: about 4-5x faster, "
+        "fewer edge pixels right)",
     )
     parser.add_argument(
         "--refine-subpixel",
@@ -167,25 +169,39 @@ def run(args: argparse.Namespace) -> int:
             np.save(fh, depth)
         if args.png is not None:
             args.png.parent.mkdir(parents=True, exist_ok=True)
-            if not cv2.imwrite(str(args.png), depth_picture(depth, *_picture_range(depth, args.max_depth))):
+            if not cv2.imwrite(str(args.png), depth_picture(depth, *picture_range(depth, args.max_depth))):
                 return _fail(f"--png {args.png}: cannot write a PNG there")
     except OSError as exc:
         return _fail(f"cannot write output: {exc}")
-    valid = np.isfinite(depth)
-    summary = f"{wl}x{hl}, {valid.mean():.0%} valid"
-    if valid.any():
-        summary += (
-            f", depth {np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m (median {np.nanmedian(depth):.2f})"
-        )
-    print(f"wrote {args.out} ({summary})" + (f" and {args.png}" if args.png is not None else ""))
+    print(f"wrote {args.out} ({depth_summary(depth)})" + (f" and {args.png}" if args.png is not None else ""))
     return 0
 
 
-def _picture_range(depth: np.ndarray, max_depth: float) -> tuple[float, float]:
-    """The colour bar's range in metres: the nearest depth found to --max-depth (else the 98th percentile)."""
+def depth_summary(depth: np.ndarray) -> str:
+    """``WxH, V% valid, depth A-B m (median M; 96% of the valid pixels within P2-P98 m)`` of a
+    depth image (metres, NaN unknown). The nearest and farthest depths are often a few stray
+    matches (on Middlebury's Adirondack 9 pixels beyond 10 m, the farthest 2,191 m, where the
+    scene ends at 2.9 m); the 2nd-98th percentile range says where the scene is."""
+    h, w = depth.shape[:2]
+    valid = depth[np.isfinite(depth)]
+    summary = f"{w}x{h}, {valid.size / max(depth.size, 1):.0%} valid"
+    if valid.size:
+        p2, median, p98 = np.percentile(valid, [2, 50, 98])
+        summary += (
+            f", depth {valid.min():.2f}-{valid.max():.2f} m "
+            f"(median {median:.2f}; 96% of the valid pixels within {p2:.2f}-{p98:.2f} m)"
+        )
+    return summary
+
+
+def picture_range(depth: np.ndarray, max_depth: float) -> tuple[float, float]:
+    """The colour bar's range in metres: the 2nd percentile of the depths to --max-depth (else
+    the 98th percentile). Not the nearest depth: a few stray matches at the matcher's nearest
+    depth (0.34 m on a EuRoC pair whose nearest surface is the floor 1 m away) squeezed the
+    scene into a third of the colours."""
     valid = depth[np.isfinite(depth) & (depth > 0)]
     if valid.size == 0:
         return 0.0, 1.0
-    near = float(valid.min())
+    near = float(np.percentile(valid, 2))
     far = float(max_depth) if np.isfinite(max_depth) else float(np.percentile(valid, 98))
     return near, max(far, near + 1e-3)

@@ -29,7 +29,11 @@ STARTUP_TIMEOUT_S = 120.0
 
 
 def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("config", nargs="?", help="mission YAML file")
+    parser.add_argument(
+        "config",
+        nargs="?",
+        help="mission YAML file (default: configs/office.yaml, as for swarm sim, unless --map)",
+    )
     parser.add_argument("--map", help="a ROS map_server map.yaml to use instead of a mission")
     parser.add_argument(
         "--robots",
@@ -39,8 +43,19 @@ def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _load(args: argparse.Namespace) -> Mission:
-    if bool(args.config) == bool(args.map):
-        raise ConfigError("give either a mission CONFIG or --map MAP.yaml")
+    """The mission of CONFIG, or of --map, or else of ``args.default_config`` (set by the
+    ``swarm sim`` command line, as ``swarm sim run`` takes it), with --robots applied."""
+    if args.config and args.map:
+        raise ConfigError("give either a mission CONFIG or --map MAP.yaml, not both")
+    if not args.config and not args.map:
+        default = getattr(args, "default_config", None)
+        if default is None:
+            raise ConfigError("give a mission CONFIG or --map MAP.yaml")
+        if not Path(default).exists():
+            raise ConfigError(
+                f"{default}: no such mission file (run from the project folder, or give CONFIG)"
+            )
+        args.config = default
     if args.robots is not None and args.robots < 1:
         raise ConfigError(f"--robots {args.robots}: must be at least 1")
     if args.map:
@@ -74,7 +89,7 @@ def run_render(args: argparse.Namespace) -> int:
         robot_id = args.robot or mission.robot_ids[0]
         spec = mission.robot_spec(robot_id)
     except (ConfigError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"swarm: error: {e}", file=sys.stderr)
         return 2
     rig = mission.rig_for(robot_id)
     overrides = {k: v for k, v in (("width", args.width), ("height", args.height)) if v}
@@ -157,7 +172,7 @@ def run_sim(args: argparse.Namespace) -> int:
     try:
         mission = _load(args)
     except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"swarm: error: {e}", file=sys.stderr)
         return 2
     if not args.progress_every > 0:
         print(f"swarm: error: --progress-every {args.progress_every}: must be positive", file=sys.stderr)

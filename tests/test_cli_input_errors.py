@@ -201,6 +201,18 @@ def test_benchmark_options_out_of_range_are_refused_by_name(capsys, argv, messag
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_bench_fusion_outside_the_project_folder_says_it_has_nothing_to_measure(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    # its default inputs are the bundled files, relative to the project folder: an empty table
+    # and exit 0 told the user nothing
+    monkeypatch.chdir(tmp_path)
+    code, err = run(capsys, "bench", "fusion")
+    assert code == 2
+    assert err.startswith("swarm: error: nothing to measure: no data/octomap/scan.dat.bz2 and no ")
+    assert "run from the project folder, or give --scan FILE and/or --euroc DIR" in err
+
+
 def test_a_file_that_is_no_npz_is_refused_as_a_map(tmp_path, capsys) -> None:
     (tmp_path / "notes.txt").write_text("hello\n")
     code, err = run(capsys, "map", "info", str(tmp_path / "notes.txt"))
@@ -224,3 +236,13 @@ def test_security_init_refuses_names_the_mission_would_refuse(tmp_path, capsys, 
     code, err = run(capsys, "security", "init", *options, "--out", str(tmp_path / "team"))
     assert code == 2 and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "team").exists()
+
+
+def test_a_tls_endpoint_without_a_zenoh_config_says_what_it_needs(capsys, monkeypatch) -> None:
+    # as a user copying the endpoint of `swarm sim --secure`'s line without its --zenoh-config
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    port = bus.free_port()
+    code, err = run(capsys, "map", "stats", "--connect", f"tls/127.0.0.1:{port}", "--timeout", "1")
+    assert code == 2
+    assert f"no map server reachable at tls/127.0.0.1:{port}" in err
+    assert "a tls/ endpoint needs --zenoh-config with the mission's CA and a certificate" in err

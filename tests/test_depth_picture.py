@@ -85,3 +85,25 @@ def test_stereo_depth_options_out_of_range_are_named_one_per_line(pair_files, ca
         "swarm stereo depth: error: --scale 3: must be in (0, 1]",
     ]
     assert not (d / "o.npy").exists()
+
+
+def test_the_stereo_summary_says_where_the_scene_is_beside_stray_far_matches():
+    from robot_agent.stereo_command import depth_summary
+
+    depth = np.full((100, 100), 2.0, np.float32)
+    depth[:, 50:] = 3.0
+    depth[0, 0] = 2191.0  # one stray match, as SGBM gives at a disparity near -doffs
+    depth[1] = np.nan
+    summary = depth_summary(depth)
+    assert summary.startswith("100x100, 99% valid, depth 2.00-2191.00 m (median ")
+    assert summary.endswith("96% of the valid pixels within 2.00-3.00 m)")
+
+
+def test_the_colour_bar_spans_the_scene_not_a_few_stray_near_matches():
+    from robot_agent.stereo_command import picture_range
+
+    depth = np.tile(np.linspace(1.0, 3.0, 100, dtype=np.float32), (100, 1))
+    depth[-1, :10] = 0.34  # ten stray matches at the nearest depth searched
+    near, far = picture_range(depth, float("inf"))
+    assert 1.0 <= near < 1.1 and 2.9 < far <= 3.0
+    assert picture_range(depth, 2.5)[1] == 2.5  # --max-depth is the far end

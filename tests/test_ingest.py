@@ -10,6 +10,7 @@ import pytest
 from swarm.cli import main
 from swarm.formats.map_file import load_map
 from swarm.formats.point_cloud_file import read_point_cloud, write_ply_points
+from swarm.map.ingest import default_bounds
 
 BUNDLED_SCAN = Path(__file__).resolve().parent.parent / "data" / "octomap" / "scan.dat.bz2"
 
@@ -131,3 +132,16 @@ def test_repeated_ingest_returns_one_fusion_of_the_cloud_and_reports_its_times()
     assert 0 < report.fusion_seconds <= report.first_fusion_seconds
     with pytest.raises(ValueError, match="repeat"):
         ingest_cloud(wall_cloud(), np.zeros(3), sensor, 0.1, bounds, repeat=0)
+
+
+def test_the_default_box_lies_on_octomaps_lattice_so_the_map_exports_to_bt(tmp_path, capsys):
+    # a real scan whose extent is no multiple of the voxel: the fitted box's corners are
+    points = read_point_cloud(BUNDLED_SCAN) if BUNDLED_SCAN.exists() else wall_cloud() + 0.0123
+    lo, hi = default_bounds(points, np.array([0.013, -0.021, 0.004]), 5.0, 0.1)
+    for corner in (lo, hi):
+        np.testing.assert_allclose(corner / 0.1, np.round(corner / 0.1), atol=1e-9)
+    out = tmp_path / "scan.npz"
+    np.save(tmp_path / "scan.npy", points)
+    run_json(capsys, tmp_path / "scan.npy", "--out", out, "--origin", "0.013", "-0.021", "0.004")
+    assert main(["map", "export", "--from", str(out), "--out", str(tmp_path / "scan.bt")]) == 0
+    assert "moved by" not in capsys.readouterr().out

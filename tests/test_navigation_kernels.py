@@ -191,12 +191,12 @@ def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> No
     """Numba's own statistics after the agent's warm-up of planning: a fresh interpreter hits the cache."""
     stats = second_run_cache_statistics(
         "from swarm.map import coverage_map as c\n"
-        "from swarm.navigation import grid_kernels as k, planner\n"
+        "from swarm.navigation import grid_kernels as k, planner, view_kernels as v\n"
         "planner.warm_up()",
         "(k.band_occupancy, k.inflate_blocked, k.disc_cells, k.grid_graph, k.segment_is_free,"
-        " c._add_information)",
+        " c._add_information, v.stand_for)",
     )
-    assert len(stats) == 6
+    assert len(stats) == 7
     for name, (hits, misses) in stats.items():
         assert hits >= 1 and misses == 0, (name, stats)
 

@@ -95,7 +95,8 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     """``swarm replay asl`` of three pairs (tests/conftest.py): real server and agent processes."""
     from replay.asl import AslRecording
     from swarm.formats.map_file import load_map
-    from swarm.mission.replay_run import occupied_points
+    from swarm.map.entropy_table import entropy_info
+    from swarm.mission.replay_run import entropy_title, occupied_points
 
     out = euroc_asl_run
     metrics = json.loads((out / "metrics.json").read_text())
@@ -104,6 +105,13 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     for name in ("map.npz", "top_view.png", "view_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
         assert (out / name).is_file(), name
     cmap = load_map(out / "map.npz")
+    # metrics.json's end is the final map's (after the agent's shutdown flush), and so is the
+    # end entropy.png names; the per-frame curve may stop above it (held-back information)
+    final = float(entropy_info(cmap.lam, cmap.eta).sum())
+    assert metrics["entropy_end_bits"] == pytest.approx(final, rel=1e-6)
+    assert f"-> {metrics['entropy_end_bits']:,.0f} bits (start -> final map)" in entropy_title(
+        metrics["entropy_start_bits"], metrics["entropy_end_bits"]
+    )
     points, _ = occupied_points(cmap)
     assert len(points) == metrics["occupied_voxels"]
     camera = AslRecording(EUROC).positions()[0]

@@ -160,3 +160,31 @@ def test_map_tools_find_the_servers_mission_or_name_both(served, capsys, tmp_pat
     code, out, err = swarm(capsys, "map", "export", "--connect", endpoint, "--config", str(config),
                            "--out", str(tmp_path / "m.npz"))  # fmt: skip
     assert code == 0 and "wrote" in out, err
+
+
+def test_a_server_listening_on_its_zenoh_config_names_the_endpoints(tmp_path: Path):
+    # docs/security.md's walk-through starts the server with only --zenoh-config: its log said
+    # "listening on the endpoints of team/server/zenoh.json5", not which
+    import subprocess
+    import sys
+    import time
+
+    from swarm.security.team_setup import init_team
+
+    port = bus.free_port()
+    team = init_team("srvtest", ["r1"], tmp_path / "team", port=port)
+    (tmp_path / "m.yaml").write_text(MISSION_YAML)
+    log = tmp_path / "server.log"
+    cmd = [sys.executable, "-m", "swarm.cli", "server", "--config", str(tmp_path / "m.yaml")]
+    cmd += ["--store", str(tmp_path / "store"), "--zenoh-config", str(team.configs["server"])]
+    with open(log, "w") as out:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while "listening on" not in log.read_text() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    line = next(x for x in log.read_text().splitlines() if "listening on" in x)
+    assert f"listening on tls/0.0.0.0:{port} (from {team.configs['server']})" in line, line

@@ -116,3 +116,33 @@ def _answers(client: MapClient) -> bool:
         return True
     except Exception:  # noqa: BLE001 (not up yet)
         return False
+
+
+class _Payload:
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+class _Sample:
+    def __init__(self, key: str, data: bytes) -> None:
+        self.key_expr, self.payload = key, _Payload(data)
+
+
+def test_a_quarantined_robots_payloads_are_refused_before_they_are_read(tmp_path: Path):
+    # its agent is never acked and resends its whole outbox every few seconds: the server
+    # refuses those as it refuses an unknown robot's, without queueing or decoding them
+    mission = small_mission()
+    server = MapServer(mission, tmp_path / "store", options=ServerOptions(quarantine=("r3",)))
+    try:
+        server._on_sample(_Sample(f"swarm/{mission.mission}/delta/r3", b"not even msgpack"))
+        stats = server.stats()
+        assert stats["rejected"]["quarantined"] == 1 and stats["rejected"]["malformed"] == 0
+        assert stats["inbox"]["queued"] == 0
+    finally:
+        server.stop()

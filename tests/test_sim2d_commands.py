@@ -56,3 +56,20 @@ def test_render_errors(tmp_path, capsys):
     bad.write_text("workspace: {lo: [0, 0, 0], hi: [1, 1, 1], voxel: 0}\nrobots: []\n")
     assert render(str(bad), "--out", str(tmp_path)) == 2
     assert "workspace.voxel: must be > 0" in capsys.readouterr().err
+
+
+def test_render_and_world_take_swarm_sims_default_mission(tmp_path, capsys, monkeypatch):
+    # README: `swarm sim render [CONFIG | --map MAP.yaml]`, as `swarm sim` (configs/office.yaml)
+    from swarm.cli import main
+
+    monkeypatch.chdir(CONFIGS.parent)
+    assert main(["sim", "render", "--out", str(tmp_path / "view")]) == 0
+    assert (tmp_path / "view" / "depth.npy").is_file()
+    monkeypatch.chdir(tmp_path)  # not the project folder: the error says so, as swarm sim's
+    for command in (["sim", "render", "--out", str(tmp_path)], ["sim", "world"]):
+        capsys.readouterr()
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("swarm: error: configs/office.yaml: no such mission file"), err
+    assert main(["sim", "render", str(CONFIGS / "lab.yaml"), "--map", "m.yaml", "--out", str(tmp_path)]) == 2
+    assert "not both" in capsys.readouterr().err

@@ -10,10 +10,12 @@ import pytest
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.grid import Grid
+from swarm.navigation import planner
 from swarm.navigation.exploration import choose_target, last_look_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.traversability import build_traversability
+from swarm.navigation.view_kernels import stand_for
 from swarm.navigation.view_targets import RESTAND_RADIUS, CameraReach, uncertain_voxels, view_target
 
 GRID = Grid((0.0, 0.0, 0.0), 0.1, (40, 20, 16))  # 4 m x 2 m x 1.6 m
@@ -191,3 +193,15 @@ def test_last_looks_go_to_uncertain_known_voxels_and_only_to_those_with_bits_lef
     assert voxels[:, :, 10].all() and not voxels[:, :, :10].any()
     with pytest.raises(ValueError, match="shape"):
         view_target(ctx, camera, voxels=voxels[:, :, :5])
+
+
+def test_the_planners_warm_up_compiles_the_stand_search_a_real_view_choice_runs():
+    # the agent's warm-up (planner.warm_up) must compile stand_for for the argument types of a
+    # real choice, or the first 3-D view of a mission compiles it then (tens of seconds on a
+    # busy machine: the world declared the agent dead)
+    planner.warm_up()
+    warmed = list(stand_for.signatures)
+    assert warmed
+    camera = CameraReach(-HALF_V, HALF_V + math.radians(35.0), 5.0)
+    assert _choose("entropy", _known_below(1.0), camera).kind == "view"
+    assert list(stand_for.signatures) == warmed

@@ -234,3 +234,28 @@ def test_grid_matches_across_rounding_but_not_across_voxels():
     assert not grid.matches(Grid((18.05, 0.0, 0.0), 0.1, (122, 80, 22)))  # half a voxel off
     assert not grid.matches(Grid((18.0, 0.0, 0.0), 0.1, (122, 80, 23)))
     assert not grid.matches(Grid((18.0, 0.0, 0.0), 0.1001, (122, 80, 22)))
+
+
+def test_a_frame_built_as_docs_protocol_md_shows_it_decodes_and_its_answer_reads_back():
+    # a driver in another language builds the map by hand (docs/protocol.md, "A robot's frames")
+    from swarm.protocol.wire import Cmd, Frame
+
+    left = np.arange(120 * 160, dtype=np.uint32).astype(np.uint8).reshape(120, 160)
+    doc_frame = {
+        "v": 1,
+        "robot": "r1",
+        "seq": 42,
+        "t": 21.0,
+        "pose": {"xyz": [1.0, 5.0, 0.4], "ypr": [0.0, 0.0, 0.0]},
+        "camera": {"width": 160, "height": 120, "fx": 138.564, "fy": 138.564, "cx": 79.5, "cy": 59.5,
+                   "baseline": 0.09},
+        "encoding": "raw8",
+        "left": left.tobytes(),
+        "right": left[:, ::-1].tobytes(),
+    }  # fmt: skip
+    frame = Frame.decode(msgpack.packb(doc_frame, use_bin_type=True))
+    assert (frame.robot, frame.seq, frame.t, frame.camera.fx) == ("r1", 42, 21.0, 138.564)
+    np.testing.assert_array_equal(frame.left, left)
+    np.testing.assert_array_equal(frame.right[0], left[0, ::-1])  # rows top to bottom
+    answer = msgpack.unpackb(Cmd("r1", 42, 21.0, 0.35, -0.2).encode(), raw=False)
+    assert answer == {"v": 1, "robot": "r1", "seq": 42, "t": 21.0, "speed": 0.35, "omega": -0.2}

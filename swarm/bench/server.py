@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -29,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.bench import stop_server
+from swarm.child_command import child_environment, swarm_argv
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -257,10 +257,10 @@ def zenoh_figures(
     config.write_text(_mission_yaml(agents))
     log_path = workdir / "server.log"
     store = workdir / "store"
-    cmd = [sys.executable, "-m", "swarm.cli", "server", "--listen", endpoint]
+    cmd = swarm_argv("server", "--listen", endpoint)
     cmd += ["--store", str(store), "--config", str(config)]
     with open(log_path, "w") as log_file:
-        server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
+        server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT, env=child_environment())
     sessions = []
     try:
         probe = bus.open_session(connect=[endpoint], wait_s=120)  # a loaded machine starts slowly

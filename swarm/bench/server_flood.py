@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -25,6 +24,7 @@ from swarm.bench.server import (
     make_deltas,
     open_agents,
 )
+from swarm.child_command import child_environment, swarm_argv
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
@@ -58,10 +58,10 @@ def flood_figures(
     config = workdir / "mission.yaml"
     config.write_text(_mission_yaml(agents))
     log_path = workdir / "flood-server.log"
-    cmd = [sys.executable, "-m", "swarm.cli", "server", "--listen", endpoint, "--log-every", "5"]
+    cmd = swarm_argv("server", "--listen", endpoint, "--log-every", "5")
     cmd += ["--store", str(workdir / "flood-store"), "--config", str(config)]
     with open(log_path, "w") as log_file:
-        server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
+        server = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT, env=child_environment())
     sessions, rss_mb = [], []
     try:
         probe = bus.open_session(connect=[endpoint], wait_s=120)  # a loaded machine starts slowly

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -23,6 +22,7 @@ import numpy as np
 
 from swarm.bench import stop_server
 from swarm.bench.server import MISSION, VOXEL, WORKSPACE, _messages, _mission_yaml, make_deltas
+from swarm.child_command import child_environment, swarm_argv
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
@@ -110,7 +110,7 @@ def run(
         team = init_team(MISSION, robots, tmp / "security")
         (tmp / "mission.yaml").write_text(_mission_yaml(agents))
         endpoint = f"tls/127.0.0.1:{bus.free_port()}"
-        cmd = [sys.executable, "-m", "swarm.cli", "server", "--config", str(tmp / "mission.yaml")]
+        cmd = swarm_argv("server", "--config", str(tmp / "mission.yaml"))
         cmd += [
             "--store",
             str(tmp / "store"),
@@ -120,7 +120,7 @@ def run(
             str(team.configs["server"]),
         ]
         with open(tmp / "server.log", "w") as log:
-            server = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+            server = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=child_environment())
         sessions = []
         stop = threading.Event()
         rows: list[dict] = []

@@ -103,9 +103,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         "160x120, 640x480 and 752x480 by default; fusion with one measurement per ray and with "
         "weighted (one per end voxel carrying its rays' information) and discretize (one per end voxel).",
     )
-    agent.add_argument("--config", type=Path, default=Path("configs/office.yaml"), help="mission to render")
     agent.add_argument(
-        "--sizes", nargs="+", default=["160x120", "640x480", "752x480"], help="image sizes WxH"
+        "--config",
+        type=Path,
+        default=Path("configs/office.yaml"),
+        help="mission to render (default configs/office.yaml)",
+    )
+    agent.add_argument(
+        "--sizes",
+        nargs="+",
+        default=["160x120", "640x480", "752x480"],
+        help="image sizes WxH (default 160x120 640x480 752x480)",
     )
     agent.add_argument(
         "--repeat", type=at_least(1), default=5, help="time N runs of each stage: best and median (default 5)"
@@ -124,7 +132,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     server.add_argument("--min-voxels", type=int, default=2000, help="smallest delta (default 2000)")
     server.add_argument("--max-voxels", type=int, default=20000, help="largest delta (default 20000)")
     server.add_argument(
-        "--period", type=float, default=0.25, help="paced latency: seconds between an agent's deltas"
+        "--period",
+        type=float,
+        default=0.25,
+        help="paced latency: seconds between an agent's deltas (default 0.25)",
     )
     server.add_argument(
         "--flood",
@@ -175,8 +186,14 @@ def _run_bench_octomap(args: argparse.Namespace) -> int:
 def _run_bench_fusion(args: argparse.Namespace) -> int:
     from swarm.bench import fusion
 
+    missing = [path for path in (args.scan, args.euroc / "mav0") if not path.exists()]
+    if len(missing) == 2:  # the defaults are relative to the project folder
+        return fail(
+            f"nothing to measure: no {missing[0]} and no {missing[1]} (run from the project folder, "
+            "or give --scan FILE and/or --euroc DIR)"
+        )
     for path, what in ((args.scan, "scan"), (args.euroc / "mav0", "EuRoC stereo cloud")):
-        if not path.exists():
+        if path in missing:
             print(f"note: {path} not found; skipping the {what}", file=sys.stderr)
     if not args.voxel > 0:  # --repeat is checked by its argparse type (at_least)
         return fail(f"--voxel {args.voxel:g}: must be > 0")

@@ -58,7 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         nargs=6,
         metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-        help="workspace box (default: fits the origin and the rays up to max range)",
+        help="workspace box in metres (default: fits the origin and the rays up to max range, corners on "
+        "multiples of --voxel, as OctoMap's voxels)",
     )
     p.add_argument(
         "--repeat",

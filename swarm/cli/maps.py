@@ -221,7 +221,13 @@ def _explained(exc: Exception, args: argparse.Namespace) -> str:
     """The error's text; over TLS, a server that does not answer may be one that refuses our
     certificate (it looks the same from here), so the text says to check them (docs/security.md)."""
     text = str(exc)
-    if isinstance(exc, ConnectionError) and getattr(args, "zenoh_config", None) and "certificate" not in text:
-        text += f" (over TLS a refused certificate looks like this: check that {args.zenoh_config} names "
+    if not isinstance(exc, ConnectionError) or "certificate" in text:
+        return text
+    config = bus.config_path(getattr(args, "zenoh_config", None))
+    if config is not None:
+        text += f" (over TLS a refused certificate looks like this: check that {config} names "
         text += "this mission's CA and an identity allowed to query)"
+    elif any(str(e).startswith("tls/") for e in getattr(args, "connect", None) or ()):
+        text += " (a tls/ endpoint needs --zenoh-config with the mission's CA and a certificate, e.g. "
+        text += "<run>/security/tool/zenoh.json5 of swarm sim --secure; docs/security.md)"
     return text

@@ -134,9 +134,18 @@ def register_server(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="also connect here")
     bus.add_zenoh_config_argument(p)
     p.add_argument("--mission", help="mission name, the key prefix (default: the config's mission)")
-    p.add_argument("--compact-mb", type=float, default=256, help="compact when the log reaches this (MB)")
-    p.add_argument("--compact-records", type=int, default=20000, help="... or this many deltas")
-    p.add_argument("--log-every", type=float, default=10.0, help="seconds between progress lines")
+    p.add_argument(
+        "--compact-mb",
+        type=float,
+        default=256,
+        help="compact the store when its log reaches this many MB (default 256)",
+    )
+    p.add_argument(
+        "--compact-records", type=int, default=20000, help="... or this many deltas (default 20000)"
+    )
+    p.add_argument(
+        "--log-every", type=float, default=10.0, help="seconds between progress lines (default 10)"
+    )
     p.add_argument(
         "--max-payload-mb",
         type=float,

@@ -54,7 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--kill-coordinator-at",
         type=float,
         metavar="SIM_S",
-        help="fault injection: SIGKILL the coordinator at this sim time (agents must carry on alone)",
+        help="fault injection: SIGKILL the coordinator at this simulated time, in seconds "
+        "(agents must carry on alone)",
     )
     run.add_argument(
         "--view",
@@ -97,9 +98,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     from sim2d.commands import add_render_arguments, add_run_arguments, run_render, run_sim
 
     add_render_arguments(render)
-    render.set_defaults(run=run_render)
+    render.set_defaults(run=run_render, default_config=DEFAULT_MISSION)
     add_run_arguments(world)
-    world.set_defaults(run=run_sim)
+    world.set_defaults(run=run_sim, default_config=DEFAULT_MISSION)
 
 
 def _run_sim_mission(args: argparse.Namespace) -> int:

@@ -38,7 +38,7 @@ def mission_from_dict(
     try:
         mission = Mission.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(describe_validation_error(e, source)) from e
+        raise ConfigError(describe_validation_error(e, source, Mission)) from e
     mission._source = Path(source) if source is not None else None
     if base_dir is not None:
         mission._base_dir = Path(base_dir)
@@ -172,7 +172,7 @@ def _resolve_rig(mission: Mission, rig: str | dict | None, field: str) -> RigCon
     try:
         return RigConfig.model_validate(merged)
     except ValidationError as e:
-        lines = describe_validation_error(e, where).splitlines()
+        lines = describe_validation_error(e, where, RigConfig).splitlines()
         prefix = f"{where}: "
         raise ConfigError("\n".join(f"{prefix}{field}.{line[len(prefix) :]}" for line in lines)) from e
 

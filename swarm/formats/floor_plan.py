@@ -356,4 +356,4 @@ def _validate(model: type[BaseModel], data: object, path: Path):
     try:
         return model.model_validate(data)
     except ValidationError as e:
-        raise FloorPlanError(describe_validation_error(e, path)) from e
+        raise FloorPlanError(describe_validation_error(e, path, model)) from e

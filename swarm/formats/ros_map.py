@@ -161,7 +161,7 @@ def load_ros_map(path: str | Path) -> RosMap:
     try:
         spec = RosMapSpec.model_validate(data)
     except ValidationError as e:
-        raise FloorPlanError(describe_validation_error(e, path)) from e
+        raise FloorPlanError(describe_validation_error(e, path, RosMapSpec)) from e
     image_path = user_path(spec.image, path.parent)
     if not image_path.exists():
         where = "" if Path(spec.image).expanduser().is_absolute() else " (taken from the map.yaml's folder)"

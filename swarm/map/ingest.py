@@ -43,13 +43,17 @@ class IngestReport:
 def default_bounds(
     points: np.ndarray, origin: np.ndarray, max_range: float, voxel: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A box that fits the origin and every finite ray (cut at max range), one voxel of margin."""
+    """A box that fits the origin and every finite ray (cut at max range), one voxel of margin,
+    its corners on the lattice of multiples of ``voxel`` (m) from the world origin, as OctoMap's
+    voxels are: the map then exports to ``.bt`` voxel for voxel (``swarm map export``)."""
     points = points[np.all(np.isfinite(points), axis=1)]
     vec = points - origin
     dist = np.linalg.norm(vec, axis=1)
     scale = np.where(dist > max_range, max_range / np.maximum(dist, 1e-12), 1.0)
     ends = np.vstack([origin[None, :], origin + vec * scale[:, None]])
-    return ends.min(axis=0) - voxel, ends.max(axis=0) + 2 * voxel
+    lo = np.floor((ends.min(axis=0) - voxel) / voxel) * voxel
+    hi = np.ceil((ends.max(axis=0) + 2 * voxel) / voxel) * voxel
+    return lo, hi
 
 
 def ingest_cloud(

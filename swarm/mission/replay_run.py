@@ -279,11 +279,12 @@ def _write_outputs(out, cmap, rows, unanswered, recording, monitor, camera, agen
         "agent_exit_code": agent_code,
     }
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    _plots(out, cmap, points, cover, rows, recording)
+    start, final = metrics["entropy_start_bits"], metrics["entropy_end_bits"]
+    _plots(out, cmap, points, cover, rows, recording, start, final)
     return metrics
 
 
-def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None:
+def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording, start_bits, final_bits) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -318,10 +319,18 @@ def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording) -> None
     plt.close(fig)
     if rows:
         fig, ax = plt.subplots(figsize=(7, 4), dpi=110, layout="constrained")
-        h = [r["entropy_bits"] for r in rows]
-        ax.plot([r["seq"] + 1 for r in rows], h, "b.-")
+        frames = [r["seq"] + 1 for r in rows]
+        shared = [r["entropy_bits"] for r in rows]
+        ax.plot(frames, shared, "b.-", label="after each frame (the deltas shared so far)")
+        ax.axhline(final_bits, color="k", ls="--", lw=1, label="final map (after the agent's shutdown flush)")
         ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
-        title = f"Entropy after each frame: {h[0]:,.0f} -> {h[-1]:,.0f} bits"
-        ax.set(xlabel="frame", ylabel="map entropy (bits)", title=title)
+        ax.set(xlabel="frame", ylabel="map entropy (bits)", title=entropy_title(start_bits, final_bits))
+        ax.legend(loc="upper right")
         fig.savefig(out / "entropy.png")
         plt.close(fig)
+
+
+def entropy_title(start_bits: float, final_bits: float) -> str:
+    """The title of ``entropy.png``: the map's entropy before the first frame (the prior, or
+    the map the server held) and the final map's, both as ``metrics.json`` gives them (bits)."""
+    return f"Map entropy: {start_bits:,.0f} -> {final_bits:,.0f} bits (start -> final map)"

@@ -22,7 +22,6 @@ with its own certificate; the runner watches (and loads a previous map) as ``ope
 from __future__ import annotations
 
 import math
-import os
 import shutil
 import signal
 import subprocess
@@ -34,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from robot_agent.explorer import load_kernels
+from swarm.child_command import child_environment, swarm_argv
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
@@ -95,9 +95,8 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
 
 def _child(args: list[str], log_path: Path) -> subprocess.Popen:
     log = open(log_path, "w")  # noqa: SIM115 (kept open for the child's lifetime)
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     child = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", *args], stdout=log, stderr=subprocess.STDOUT, env=env
+        swarm_argv(*args), stdout=log, stderr=subprocess.STDOUT, env=child_environment(PYTHONUNBUFFERED="1")
     )
     child.log_path = log_path  # for why_it_exited
     return child

@@ -200,11 +200,15 @@ def shorten_path(grid: TraversabilityGrid, points: np.ndarray) -> np.ndarray:
 
 def warm_up() -> None:
     """Load (on a fresh install: compile into Numba's cache) the compiled navigation kernels
-    (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks)
-    now, not on the first decision, by planning once on a tiny map."""
+    (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks;
+    ``swarm.navigation.view_kernels``: where to stand for a 3-D view) now, not on the first
+    decision, by planning once on a tiny map and searching one standing point. The view search
+    runs only once the slab is explored, minutes into a mission: compiling it then stalled an
+    agent past the world's 10 s answer timeout on a busy 2-core machine."""
     from swarm.map.coverage_map import CoverageMap
     from swarm.map.delta import Delta
     from swarm.map.grid import Grid
+    from swarm.navigation.view_kernels import stand_for
 
     cmap = CoverageMap(Grid((0.0, 0.0, 0.0), 0.1, (8, 8, 6)))
     cmap.apply(Delta.empty())
@@ -212,3 +216,7 @@ def warm_up() -> None:
     cmap.eta[:] = 0.0
     trav = build_traversability(cmap, robot_radius=0.1, swept=np.full((1, 2), 0.4))
     GridPlanner(trav).plan(np.array([0.35, 0.35]), np.array([0.45, 0.45]))
+    # the argument types of view_targets._stand_for (C-contiguous arrays, Python scalars)
+    cells = np.ones((4, 4), dtype=bool)
+    centres = (np.arange(4) + 0.5) * 0.1
+    stand_for(cells, ~cells, np.zeros((4, 4)), 0, 0, centres, centres, ~cells, 3, 3, 0.0, 1.0, 2)

@@ -6,13 +6,13 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from swarm.child_command import child_environment, swarm_argv
 from swarm.mission.study.grid import Cell, StudySpec
 
 STOP_GRACE_S = 60.0
@@ -25,14 +25,15 @@ Launcher = Callable[[list[str], Path], subprocess.Popen]
 
 
 def launch_sim(args: list[str], log_path: Path) -> subprocess.Popen:
-    """``python -m swarm.cli ARGS`` in its own session (Ctrl-C reaches it through the study only)."""
+    """``swarm ARGS`` as this process runs it (``swarm.child_command``), in its own session
+    (Ctrl-C reaches it through the study only)."""
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w") as log:
         return subprocess.Popen(
-            [sys.executable, "-m", "swarm.cli", *args],
+            swarm_argv(*args),
             stdout=log,
             stderr=subprocess.STDOUT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            env=child_environment(PYTHONUNBUFFERED="1"),
             start_new_session=True,
             preexec_fn=_default_sigint,  # a study started in the background ignores SIGINT; its runs must not
         )
