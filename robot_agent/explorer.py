@@ -51,6 +51,7 @@ STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)
 REPLAN_EVERY = 4  # frames between traversability refreshes while driving
 FAILED_MEMORY = 12  # how many given-up targets to avoid
+FAILED_RADIUS = 1.0  # m: a target standing this near a given-up one is avoided too
 MAX_FAILURES = 6  # unreachable targets in a row before the robot looks around again
 MAX_LOOKS_IN_PLACE = 2  # targets in a row at the robot's own cell before it is avoided
 BOXED_IN_CELLS = 30  # fewer reachable cells than this: step blind to free floor beyond
@@ -133,6 +134,7 @@ class Explorer(LocalMapping):
         self.last_look_bits = LAST_LOOK_SHARE * prior_entropy_bits(self.grid, self.sensor) / self.grid.size
         self.target_kinds: Counter[str] = Counter()  # targets chosen, by kind (printed at exit)
         self.give_ups: Counter[str] = Counter()  # drives given up, by reason (printed at exit)
+        self.declined_assignments = 0  # coordinator targets near a given-up one (printed at exit)
         self.has_head = self.rig.tilt_range_deg > 0
         self.look_up_tilt = -math.radians(self.rig.tilt_range_deg)
         self.head = 0.0  # the tilt this robot asks for now
@@ -228,6 +230,12 @@ class Explorer(LocalMapping):
                 cost = planner.cost_map(cell)
         exclude = self.failed[-FAILED_MEMORY:]
         target = self.assigner() if self.assigner is not None else None
+        if target is not None and _near_any(target.xy, exclude, FAILED_RADIUS):
+            # The coordinator does not know what this robot gave up: it offers the same spot
+            # again while it holds the best candidate on the team map, and the robot would
+            # look from there (or drive there and stick) for ever. Choose alone instead.
+            self.declined_assignments += 1
+            target = None
         if target is None and self.team_goals:
             # choosing alone in a team: first away from where the teammates are heading
             target = self._own_target(here, yaw, trav, cost, exclude, optimistic=self.optimistic, team=True)
@@ -321,6 +329,7 @@ class Explorer(LocalMapping):
             tried=self.tried_views + self.team_views if self.strategy == "entropy" else self.tried_views,
             stands=self.view_stands,
             max_looks=max_looks,
+            exclude_radius=FAILED_RADIUS,
             optimistic=optimistic,
             keep_away=self.team_goals if team else (),
             keep_away_radius=TEAM_SPREAD_RADIUS,
@@ -341,6 +350,7 @@ class Explorer(LocalMapping):
             self.last_look_bits,
             tried=self.tried_views + self.team_views,
             exclude=exclude,
+            exclude_radius=FAILED_RADIUS,
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
@@ -390,3 +400,8 @@ class Explorer(LocalMapping):
 
     def _target_xy(self) -> tuple[float, float] | None:
         return None if self.target is None else (float(self.target.xy[0]), float(self.target.xy[1]))
+
+
+def _near_any(xy: np.ndarray, points: list[np.ndarray], radius: float) -> bool:
+    """Whether the x-y point ``xy`` lies within ``radius`` (m) of any of ``points``."""
+    return any(np.hypot(*(np.asarray(xy)[:2] - np.asarray(p)[:2])) < radius for p in points)

@@ -91,6 +91,23 @@ def test_a_target_at_the_robots_own_cell_is_avoided_after_two_looks():
     assert len(explorer.failed) == 1 and np.allclose(explorer.failed[0], here + 0.05)
 
 
+def test_a_coordinator_target_the_robot_gave_up_is_declined_and_the_robot_chooses_alone():
+    # The coordinator does not know which spots a robot gave up: holding one best candidate,
+    # it offers the same spot again and again (seen on the AWS hospital map: one spot 177 times
+    # in 110 s of wall clock, the robot gazing from where it stood). After giving the spot up, the robot
+    # declines it and takes its own target (here a 3-D view of the unknown air above 1 m).
+    explorer = known_below_1m(gazing_explorer(0.0))
+    here = np.array([1.0, 1.0])
+    explorer.assigner = lambda: ExplorationTarget(here + 0.05, 0.3, 1.0, None, "assigned")
+    explorer.state = "choose"
+    states = [explorer.decide(here[0], here[1], 0.3).state for _ in range(3)]
+    assert states == ["gaze", "gaze", "choose"]  # looked twice, then gave the spot up
+    decision = explorer.decide(here[0], here[1], 0.3)
+    assert explorer.target is not None and explorer.target.kind != "assigned"
+    assert decision.state == "drive" and np.hypot(*(explorer.target.xy - here)) >= 0.15
+    assert explorer.declined_assignments == 1
+
+
 def test_a_wall_beyond_the_rigs_hit_range_is_free_space_up_to_it_and_no_hit():
     """A depth frame of a wall 4 m ahead: a hit with no hit range; with a 3 m one, free space
     up to 3 m only. The default stereo rig's hit range is auto: 3.53 m at 0.1 m voxels."""

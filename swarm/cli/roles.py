@@ -90,6 +90,7 @@ def _run_agent(args: argparse.Namespace) -> int:
                 f"{agent.acked} acked, {stats.resent} resent; merged {dict(agent.merged_counts)}; "
                 f"coordinator {dict(agent.coordinator_counts)}; targets {dict(agent.explorer.target_kinds)}; "
                 f"drives given up {dict(agent.explorer.give_ups)}; "
+                f"coordinator targets declined (near one it gave up) {agent.explorer.declined_assignments}; "
                 f"map entropy {agent.explorer.map_entropy:,.0f} bits",
                 flush=True,
             )
