@@ -238,10 +238,22 @@ def test_mission_from_ros_map_places_robots_in_free_space():
     plan = mission.load_floor_plan()
     ros = plan.ros_map
     lo, hi = np.array(mission.workspace.lo), np.array(mission.workspace.hi)
-    # Workspace: the known part of the map (the arena), from the floor to 2 m + margin.
+    # Workspace: the known part of the map (the arena) grown to whole voxels from the world
+    # origin, from the floor to 2 m + margin.
     known_rows, known_cols = np.nonzero(ros.occupied | ros.free)
-    assert lo[:2] == pytest.approx(ros.to_world(known_cols.min(), known_rows.min()))
-    assert hi[:2] == pytest.approx(ros.to_world(known_cols.max() + 1, known_rows.max() + 1))
+    corners = np.array(
+        [
+            ros.to_world(known_cols.min(), known_rows.min()),
+            ros.to_world(known_cols.max() + 1, known_rows.max() + 1),
+        ]
+    )
+    voxel = mission.workspace.voxel
+    known_lo, known_hi = corners.min(axis=0), corners.max(axis=0)
+    assert np.all(lo[:2] <= known_lo + 1e-9) and np.all(lo[:2] > known_lo - voxel)
+    assert np.all(hi[:2] >= known_hi - 1e-9) and np.all(hi[:2] < known_hi + voxel)
+    assert np.allclose(lo[:2] / voxel, np.round(lo[:2] / voxel)) and np.allclose(
+        hi[:2] / voxel, np.round(hi[:2] / voxel)
+    )
     assert (lo[2], hi[2]) == (0.0, pytest.approx(2.2))
     starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
     assert np.all(plan.clearance(starts) > mission.robot.radius)
