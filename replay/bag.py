@@ -20,7 +20,6 @@ tolerance, a pose between two slower ones is interpolated, and what was dropped 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from replay import pose_messages as pm
 from replay.asl import RecordingError
+from replay.bag_files import bag_path, deserialize, messages, open_reader, type_name
 from replay.frames import RecordedPair
 from replay.image_messages import decode_image
 from replay.matching import Matched, match_stamps
@@ -58,10 +58,6 @@ ROLE_TYPES = {  # the message types each role reads (rosbags' names, ROS 1 and R
 }
 
 
-def _type_name(msgtype: str) -> str:
-    return msgtype.replace("/msg/", "/")
-
-
 def _camera_info(msg: Any, where: str) -> CameraInfo:
     """The CameraInfo of the images as published (binning and region of interest as
     ``CameraInfo.from_dict`` reads them, the same as in a camera_info file)."""
@@ -74,118 +70,6 @@ def _camera_info(msg: Any, where: str) -> CameraInfo:
     data["roi"] = {"x_offset": int(roi.x_offset), "y_offset": int(roi.y_offset)}
     data["roi"].update(width=int(roi.width), height=int(roi.height))
     return CameraInfo.from_dict(data, where)
-
-
-def _one_line(exc: object) -> str:
-    """rosbags' and its parsers' messages (a YAML error spans lines) on one line."""
-    return " ".join(str(exc).split())
-
-
-def _bag_path(path: Path) -> Path:
-    if not path.exists():
-        raise RecordingError(f"{path}: no such bag")
-    if path.is_file() and path.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd")):
-        if path.suffix in (".db3", ".mcap") and not (path.parent / "metadata.yaml").is_file():
-            return path  # copied without its metadata.yaml: rosbags reads the file alone
-        return path.parent  # a ROS 2 bag is its folder (metadata.yaml); .zstd: file compression
-    return path
-
-
-@contextmanager
-def _open_reader(path: Path) -> Iterator[Any]:
-    """rosbags' AnyReader on ``path``; a file it cannot read is a RecordingError naming it.
-
-    A ROS 2 bag recorded before Iron (Foxy, Humble) holds no message definitions; its standard
-    messages (the only ones read here) are read with Humble's, which these distributions share.
-    """
-    from rosbags.highlevel import AnyReader, AnyReaderError
-    from rosbags.typesys import Stores, get_typestore
-
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise RecordingError(
-            f"{path}: a ROS 2 bag is a folder with its metadata.yaml beside the .db3 / .mcap files, and "
-            "there is none ('ros2 bag reindex FOLDER' writes it)"
-        )
-    if path.suffix == ".active":
-        raise RecordingError(
-            f"{path}: an unfinished ROS 1 recording (rosbag record was stopped before it closed the bag): "
-            "'rosbag reindex' it and rename it to .bag"
-        )
-    try:
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        reader.readers = [_DefinedConnections(r) for r in reader.readers]
-        reader.open()
-    except Exception as exc:  # rosbags' own code only; a cut-short .mcap raises its TypeError
-        if not isinstance(exc, AnyReaderError | OSError):
-            exc = f"{type(exc).__name__}: {exc}"
-        raise RecordingError(f"{path}: not a readable ROS 1 or ROS 2 bag ({_one_line(exc)})") from None
-    try:
-        yield reader
-    finally:
-        reader.close()
-
-
-class _DefinedConnections:
-    """One of rosbags' bag readers, its connections without those whose message definition the
-    recorder left empty (rosbag2 does so for a type it cannot find, ros2/rosbag2#1350): AnyReader
-    would register such a type with no fields and refuse the whole bag on its hash, though the
-    topics read here are others. (A bag with no definitions at all, Foxy's and Humble's, is read
-    with the default typestore.) A topic left out is reported as not in the bag."""
-
-    def __init__(self, reader: Any) -> None:
-        self._reader = reader
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._reader, name)
-
-    def __enter__(self) -> _DefinedConnections:
-        self._reader.__enter__()
-        return self
-
-    def __exit__(self, *exc: object) -> Any:
-        return self._reader.__exit__(*exc)
-
-    @property
-    def connections(self) -> list:
-        from rosbags.interfaces import MessageDefinitionFormat
-
-        every = self._reader.connections
-        empty = [
-            c for c in every if c.msgdef.format != MessageDefinitionFormat.NONE and not c.msgdef.data.strip()
-        ]
-        if not empty or len(empty) == len(every):
-            return every
-        return [c for c in every if c not in empty]
-
-
-def _messages(reader: Any, path: Path, connections: list) -> Iterator[tuple[Any, int, bytes]]:
-    """``reader.messages(connections)``; a chunk that does not read (damaged, cut short) is a
-    RecordingError naming the bag. rosbags passes its decompressors' errors on as they are (bz2's
-    OSError, lz4's RuntimeError, ...), so any error of the reader here is the file's."""
-    messages = reader.messages(connections=connections)
-    while True:
-        try:
-            item = next(messages)
-        except StopIteration:
-            return
-        except Exception as exc:
-            raise RecordingError(
-                f"{path}: the bag is damaged after its start ({type(exc).__name__}: {_one_line(exc)})"
-            ) from None
-        yield item
-
-
-def _deserialize(reader: Any, raw: bytes, conn: Any, t_ns: int) -> Any:
-    """One message; one that does not deserialize as its type is a RecordingError naming its topic."""
-    from rosbags.highlevel import AnyReaderError
-
-    try:
-        return reader.deserialize(raw, conn.msgtype)
-    except AnyReaderError as exc:
-        raise RecordingError(
-            f"{conn.topic}: the message logged at {t_ns / 1e9:.9f} s is not a valid "
-            f"{_type_name(conn.msgtype)} ({len(raw)} bytes; {_one_line(exc)})"
-        ) from None
 
 
 class BagRecording:
@@ -210,7 +94,7 @@ class BagRecording:
         world_frame: str | None = None,
         tf_static: str | None = None,
     ) -> None:
-        self.path = _bag_path(Path(path))
+        self.path = bag_path(Path(path))
         self.topics = {"left": left, "right": right, "pose": pose}
         if calibration is None:
             if not (left_info and right_info):
@@ -225,20 +109,20 @@ class BagRecording:
         first: dict[str, np.ndarray] = {}  # each camera's first image
         peak = 0  # the brightest 16-bit pixel of the first images
         unusable = 0  # pose messages of the camera that are not a pose, skipped
-        with _open_reader(self.path) as reader:
+        with open_reader(self.path) as reader:
             conns = self._connections(reader, tf_static)
             tree = TfTree() if any(c.msgtype in pm.TF_TYPES for c in conns["pose"]) else None
             if tree is None and (world_frame or tf_static):
                 raise RecordingError(f"{path}: --world-frame and --tf-static are for a /tf pose topic")
-            for conn, t_ns, raw in _messages(reader, path, [c for cs in conns.values() for c in cs]):
+            for conn, t_ns, raw in messages(reader, path, [c for cs in conns.values() for c in cs]):
                 role = next(r for r, cs in conns.items() if conn in cs)
                 if role in ("left_info", "right_info"):
                     if role not in infos:
                         infos[role] = _camera_info(
-                            _deserialize(reader, raw, conn, t_ns), f"{path}: {conn.topic}"
+                            deserialize(reader, raw, conn, t_ns), f"{path}: {conn.topic}"
                         )
                     continue
-                msg = _deserialize(reader, raw, conn, t_ns)
+                msg = deserialize(reader, raw, conn, t_ns)
                 if tree is not None and role in ("pose", "tf_static"):  # edges of the transform tree
                     children.update(pm.child_frames(msg) if role == "pose" else ())
                     pm.add_transforms(tree, msg, static=role == "tf_static")
@@ -406,9 +290,9 @@ class BagRecording:
                                      f"(topics: {', '.join(present)})")  # fmt: skip
             for conn in found:
                 if conn.msgtype not in ROLE_TYPES[role]:
-                    wanted = ", ".join(_type_name(t) for t in ROLE_TYPES[role])
+                    wanted = ", ".join(type_name(t) for t in ROLE_TYPES[role])
                     raise RecordingError(
-                        f"{self.path}: topic {topic} ({role}) is a {_type_name(conn.msgtype)}; "
+                        f"{self.path}: topic {topic} ({role}) is a {type_name(conn.msgtype)}; "
                         f"the {role} topic must be one of {wanted}"
                     )
             conns[role] = found
@@ -422,7 +306,7 @@ class BagRecording:
             for conn in found:
                 if conn.msgtype not in pm.TF_TYPES:
                     raise RecordingError(f"{self.path}: topic {conn.topic} (tf_static) is a "
-                                         f"{_type_name(conn.msgtype)}, not a tf2_msgs/TFMessage")  # fmt: skip
+                                         f"{type_name(conn.msgtype)}, not a tf2_msgs/TFMessage")  # fmt: skip
             if found:
                 self._static, conns["tf_static"] = found[0].topic, found
         return conns
@@ -445,18 +329,18 @@ class BagRecording:
         found: dict[int, dict[str, np.ndarray]] = {}
         counts = {"left": 0, "right": 0}
         nxt = start
-        with _open_reader(self.path) as reader:
+        with open_reader(self.path) as reader:
             conns = {
                 r: [c for c in reader.connections if c.topic == self.topics[r]] for r in ("left", "right")
             }
-            for conn, t_ns, raw in _messages(reader, self.path, conns["left"] + conns["right"]):
+            for conn, t_ns, raw in messages(reader, self.path, conns["left"] + conns["right"]):
                 role = "left" if conn in conns["left"] else "right"
                 n = counts[role]
                 counts[role] += 1
                 ks = want[role].get(n)
                 if ks is None:
                     continue
-                image = decode_image(_deserialize(reader, raw, conn, t_ns), conn.topic)
+                image = decode_image(deserialize(reader, raw, conn, t_ns), conn.topic)
                 if image.dtype == np.uint16:
                     shift = (self.pixel_bits or 16) - 8
                     image = np.minimum(image >> shift, 255).astype(np.uint8)
