@@ -70,9 +70,15 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
             raise RecordingError(f"{where}: compressed image ({msg.format!r}) does not decode")
         # image_transport's format is "ENCODING; png compressed [TARGET]": a Bayer image is
         # compressed as its raw mosaic (no target), to be demosaiced here
-        original = str(msg.format).split(";")[0].strip().lower()
+        original, _, compressed = str(msg.format).lower().partition(";")
+        original = original.strip()
         if original.startswith("bayer_") and original in _ENCODINGS and image.ndim == 2:
             image = cv2.cvtColor(image, _ENCODINGS[original][2])
+        # a TARGET of rgb8/rgba8 was handed to the encoder in that order, which OpenCV takes for
+        # BGR: decoded, its channels come back red first (image_transport turns them round too)
+        target = compressed.split("compressed", 1)[1].strip() if "compressed" in compressed else ""
+        if target.startswith("rgb") and image.ndim == 3:
+            image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
         return image
     encoding = str(msg.encoding).lower()
     if encoding not in _ENCODINGS:

@@ -41,6 +41,11 @@ def test_lzf_overlapping_back_references():
     assert lzf_decompress(bytes([1]) + b"ab" + bytes([6 << 5, 1]), 10) == b"ab" * 5
 
 
+def _as_two_ascii_points(head: bytes, body: bytes) -> tuple[bytes, bytes]:
+    head = head.replace(b"DATA binary", b"DATA ascii").replace(b"WIDTH 50", b"WIDTH 2")
+    return head.replace(b"POINTS 50", b"POINTS 2"), b"1 2 3 0.5 1\n4 5\n"
+
+
 @pytest.mark.parametrize(
     ("edit", "words"),
     [
@@ -49,6 +54,7 @@ def test_lzf_overlapping_back_references():
         (lambda h, b: (h.replace(b"TYPE F F F F U", b"TYPE F F F F Q"), b), ["field 'ring'", "TYPE Q"]),
         (lambda h, b: (h.replace(b"FIELDS x y z", b"FIELDS a b c"), b), ["FIELDS: no x, y, z"]),
         (lambda h, b: (h.replace(b"DATA binary", b"DATA binary_lz4"), b), ["DATA: 'binary_lz4'"]),
+        (_as_two_ascii_points, ["point 1 has 2 values"]),
     ],
 )
 def test_broken_pcds_are_refused_on_one_line(tmp_path, edit, words):

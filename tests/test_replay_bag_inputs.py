@@ -691,3 +691,32 @@ def test_a_ros2_bag_file_copied_without_its_metadata_is_read(tmp_path, storage):
     assert len(got) == len(want) == 2
     for a, b in zip(got, want, strict=True):
         assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
+
+
+@pytest.mark.parametrize(
+    ("fmt", "order"),
+    [("rgb8; jpeg compressed bgr8", "bgr"), ("rgb8; png compressed rgb8", "rgb"),
+     ("rgba8; png compressed rgba8", "rgba"), ("png", "bgr")],
+)  # fmt: skip
+def test_compressed_colour_gives_the_gray_of_its_colours(tmp_path, fmt, order):
+    """image_transport hands the encoder the TARGET's channel order (jsk-ros-pkg/coral_usb_ros#104,
+    microsoft/Azure_Kinect_ROS_Driver#146): a '... compressed rgb8' image decodes red first; its
+    gray was taken with the blue and red weights swapped."""
+    bgr = _colour()
+    want = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
+    stored = {
+        "bgr": bgr,
+        "rgb": bgr[..., ::-1],
+        "rgba": np.dstack([bgr[..., ::-1], np.full(bgr.shape[:2], 255)]),
+    }
+    ext = ".jpg" if "jpeg" in fmt else ".png"
+    data = np.frombuffer(cv2.imencode(ext, stored[order].astype(np.uint8))[1].tobytes(), np.uint8)
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        msg = bag.t["sensor_msgs/msg/CompressedImage"](header=bag.header(1.0), format=fmt, data=data)
+        for topic in ("/left", "/right"):
+            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
+        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    (pair,) = BagRecording(path, "/left", "/right", "/pose", CALIB).pairs()
+    error = np.abs(to_gray8(pair.left).astype(int) - want)
+    assert error.max() <= (6 if ext == ".jpg" else 0), error.max()

@@ -228,3 +228,22 @@ def field_value(data: dict, source: str, *names: str) -> Any:
     near = difflib.get_close_matches(names[0], [str(k) for k in data], n=1, cutoff=0.75)
     hint = f" (is {near[0]} a misspelling of it?)" if near else ""
     raise CalibrationError(f"{source}: {names[0]}: required field is missing{hint}")
+
+
+#: The equidistant (Kannala-Brandt) fisheye model's names: ROS's and Kalibr's, OpenCV's, camodocal's
+#: (ros2/common_interfaces#160 lists them); four coefficients, rectified with ``cv2.fisheye``.
+#: Model names are read in any case.
+FISHEYE_MODELS = ("equidistant", "fisheye", "kannala_brandt", "kannala-brandt")
+
+
+def fisheye_coefficients(value: Any, source: str, field: str) -> np.ndarray:
+    """The equidistant model's four coefficients k1..k4. A driver that fills the plumb_bob-sized
+    five (the RealSense T265's ROS driver, realsenseai/realsense-ros#1989) has a fifth that means
+    nothing: zeros past the fourth are dropped, anything else there is refused."""
+    d = numbers(value, tuple(range(4, 15)), source, field)
+    if np.any(d[4:]):
+        raise CalibrationError(
+            f"{source}: {field}: the equidistant (fisheye) model has 4 coefficients k1..k4, got {d.size} "
+            f"with non-zero ones past the fourth ({d[4:].tolist()})"
+        )
+    return d[:4]

@@ -122,17 +122,21 @@ def _count(path: Path, fields: dict, error: type[InputError]) -> int:
     return points
 
 
-def _ascii(path: Path, body: bytes, dtype: np.dtype, count: int, error: type[InputError]) -> np.ndarray:
+def _ascii(path: Path, body: bytes, dtype: np.dtype, count: int, error: type[InputError]) -> dict:
+    """Each field's first element per point, by field name (the x, y, z read here)."""
     lines = [line.split() for line in body.decode("ascii", "replace").splitlines() if line.strip()]
     if len(lines) < count:
         raise error(f"{path}: DATA ascii: POINTS says {count:,}, the file holds {len(lines):,} point lines")
     width = sum(int(np.prod(dtype[n].shape or (1,))) for n in dtype.names)
+    short = next((i for i, line in enumerate(lines[:count]) if len(line) < width), None)
+    if short is not None:
+        raise error(
+            f"{path}: DATA ascii: point {short} has {len(lines[short])} values, the fields need {width}"
+        )
     try:
         values = np.array([[float(w) for w in line[:width]] for line in lines[:count]], dtype=np.float64)
     except ValueError:
         raise error(f"{path}: DATA ascii: a point line holds something that is not a number") from None
-    if values.shape != (count, width):
-        raise error(f"{path}: DATA ascii: every point line needs {width} values")
     columns, at = {}, 0
     for name in dtype.names:
         n = int(np.prod(dtype[name].shape or (1,)))
