@@ -63,6 +63,11 @@ def run(args: argparse.Namespace) -> int:
             bus.key(args.mission)  # a valid key part
         log.info(bus.describe_connection(args.listen, args.connect))
         session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
+        log.info(
+            "connected; mission %r (from %s): loading the planner's kernels and the team map",
+            args.mission or mission.mission,
+            args.config,
+        )
     except (ConfigError, ValueError, ConnectionError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return 2

@@ -29,7 +29,7 @@ from swarm.navigation.exploration import (
     wander_target,
 )
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
-from swarm.navigation.traversability import build_traversability
+from swarm.navigation.traversability import build_traversability, robot_band_top
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
 from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError, status_on_key
 
@@ -163,7 +163,7 @@ class CoordinatorState:
             swept = np.array(self._swept, dtype=np.float64).reshape(-1, 2)
         trav = build_traversability(
             cmap,
-            robot_height=max(rig.camera_height + 0.1, 0.3),
+            robot_height=robot_band_top(rig.camera_height),
             robot_radius=self.mission.robot.radius,
             swept=swept,
         )

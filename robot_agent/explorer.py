@@ -44,7 +44,7 @@ from swarm.navigation.exploration import ExplorationTarget, choose_target, last_
 from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free_cell
 from swarm.navigation.probing import open_swept, optimistic_traversability
-from swarm.navigation.traversability import TraversabilityGrid, build_traversability
+from swarm.navigation.traversability import TraversabilityGrid, build_traversability, robot_band_top
 from swarm.navigation.view_targets import CameraReach
 
 STRATEGIES = ("entropy", "frontier", "random")
@@ -107,7 +107,7 @@ class Explorer(LocalMapping):
         self.follower = PathFollower(
             FollowerLimits(max_speed=body.max_speed, max_turn_rate=body.max_turn_rate)
         )
-        self.robot_height = max(self.rig.camera_height + 0.1, 0.3)
+        self.robot_height = robot_band_top(self.rig.camera_height)
         self.state = "look_around"
         self.turned = 0.0
         self.last_yaw: float | None = None

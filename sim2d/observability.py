@@ -10,7 +10,10 @@ The model, from the mission alone:
 
 - *Reachable floor*: the floor points whose clearance from every obstacle exceeds the
   robot's radius, in the connected free region of some robot's start (a raster of the
-  floor plan at ``raster`` m, a ROS map's cell when finer, its Euclidean distance transform).
+  floor plan at ``raster`` m, a ROS map's cell when finer, its Euclidean distance transform),
+  and near floor the robots' planner reaches on a perfect map (``planner_floor``): a passage
+  the body fits through but the planner's inflated map closes leaves the rooms behind it
+  out (on a SLAM map of a lab, 4.2 m^2 behind a 0.41 m door).
 - *Sensor poses*: the camera at ``camera_height`` above reachable floor points sampled
   every ``spacing`` m (one per ``spacing`` square, so narrow doors keep theirs), any yaw
   (robots turn on the spot), any elevation the camera can look along: its vertical field
@@ -44,8 +47,9 @@ from scipy import ndimage
 
 from swarm.formats.floor_plan import FloorPlan
 from swarm.map.grid import Grid
+from swarm.navigation.traversability import FLOOR_CLEARANCE, FREE_THRESHOLD, inflate, robot_band_top
 
-__all__ = ["ObservabilityModel", "observable_voxels", "reachable_floor", "sensor_positions"]
+__all__ = ["ObservabilityModel", "observable_voxels", "planner_floor", "reachable_floor", "sensor_positions"]
 
 
 #: The finest floor raster (m) ``ObservabilityModel.for_mission`` takes for a fine ROS map.
@@ -141,6 +145,39 @@ def reachable_floor(
     return np.isin(labels, list(keep))
 
 
+def planner_floor(
+    plan: FloorPlan, grid: Grid, starts: np.ndarray, robot_radius: float, camera_height: float
+) -> np.ndarray:
+    """Voxel columns (nx, ny) of ``grid`` that the robots' planner can reach from ``starts``
+    ((N, 2) x, y) on a perfect map of ``plan``, bool.
+
+    As ``swarm.navigation.traversability.build_traversability`` sees the true map: a column
+    is occupied when a voxel of the robot's band holds ``FREE_THRESHOLD`` of obstacle or
+    more (its coverage sampled 4 x 4 per column), occupied columns are inflated by the
+    robot's radius, and the planner moves between 4-connected free columns (its diagonal
+    steps need both orthogonal neighbours free). A start on an inflated column joins the
+    region of its nearest free column.
+    """
+    from sim2d.ground_truth import coverage
+
+    z = grid.lo[2] + (np.arange(grid.shape[2]) + 0.5) * grid.voxel
+    band = np.flatnonzero((z >= FLOOR_CLEARANCE - 1e-9) & (z <= robot_band_top(camera_height) + 1e-9))
+    nx, ny, _ = grid.shape
+    if band.size == 0:
+        return np.zeros((nx, ny), dtype=bool)
+    sub = Grid((grid.lo[0], grid.lo[1], grid.lo[2] + band[0] * grid.voxel), grid.voxel, (nx, ny, band.size))
+    occupied = (coverage(plan, sub) >= FREE_THRESHOLD).any(axis=2)
+    free = inflate(occupied, grid.voxel, robot_radius)
+    labels, _ = ndimage.label(free)
+    if not free.any():
+        return free
+    _, (ni, nj) = ndimage.distance_transform_edt(~free, return_indices=True)
+    cells = np.floor((np.asarray(starts, float).reshape(-1, 2) - grid.lo[:2]) / grid.voxel).astype(int)
+    cells = np.clip(cells, 0, np.array([nx, ny]) - 1)
+    keep = {int(labels[ni[i, j], nj[i, j]]) for i, j in cells} - {0}
+    return np.isin(labels, list(keep))
+
+
 def sensor_positions(reach: np.ndarray, origin: np.ndarray, step: float, spacing: float) -> np.ndarray:
     """One reachable cell centre (x, y) per ``spacing`` square: the one nearest its middle."""
     block = max(int(round(spacing / step)), 1)
@@ -185,6 +222,14 @@ def observable_voxels(
     empty = FloorPlan(quads=np.zeros((0, 4, 2)), heights=np.zeros(0), lo=lo, hi=hi)
     plan = plan if plan is not None else empty
     reach = reachable_floor(plan, lo, hi, starts, model.robot_radius, model.raster)
+    reach &= _near_columns(
+        planner_floor(plan, grid, starts, model.robot_radius, model.camera_height),
+        grid,
+        lo,
+        model.raster,
+        reach.shape,
+        1.5 * grid.voxel,
+    )
     positions = sensor_positions(reach, lo, model.raster, model.spacing)
     top, origin = _raster(plan, lo, hi, model.raster)
     dirs = _directions(model.elevation_lo, model.elevation_hi, model.angle_step)
@@ -200,6 +245,27 @@ def observable_voxels(
             grid.lo.astype(np.float64), float(grid.voxel), np.asarray(grid.shape, np.int64), seen,
         )  # fmt: skip
     return seen.reshape(grid.shape).astype(bool)
+
+
+def _near_columns(
+    columns: np.ndarray, grid: Grid, lo: np.ndarray, step: float, shape: tuple[int, int], within: float
+) -> np.ndarray:
+    """Floor raster cells (``shape``, ``step`` m from ``lo``) whose centre lies within ``within``
+    (m) of a centre of ``columns`` ((nx, ny) of ``grid``): the planner's region widened back
+    over the strip along the walls where the body fits but no column centre is left (at most
+    1.5 voxel edges: a wall covering a fifth of a voxel blocks it, and the inflation keeps
+    centres radius + half a voxel from a blocked centre), so that the floor raster loses only
+    what lies behind a passage the planner does not take."""
+    reach = ndimage.distance_transform_edt(~columns) * grid.voxel <= within
+    xs = lo[0] + (np.arange(shape[0]) + 0.5) * step
+    ys = lo[1] + (np.arange(shape[1]) + 0.5) * step
+    i = np.floor((xs - grid.lo[0]) / grid.voxel).astype(int)
+    j = np.floor((ys - grid.lo[1]) / grid.voxel).astype(int)
+    inside_i = (i >= 0) & (i < grid.shape[0])
+    inside_j = (j >= 0) & (j < grid.shape[1])
+    out = np.zeros(shape, dtype=bool)
+    out[np.ix_(inside_i, inside_j)] = reach[np.ix_(i[inside_i], j[inside_j])]
+    return out
 
 
 @njit(cache=True)

@@ -157,6 +157,7 @@ def test_coordinator_waits_reports_and_refuses_another_mission(lab_server, tmp_p
     coordinator = Role("coordinator", "--config", str(LAB), "--connect", lab_server, "--progress-every", "1")
     try:
         assert lab_server in coordinator.wait_for("connecting to")
+        coordinator.wait_for("connected; mission 'lab'")  # as an agent says it, before the slow start
         assert "swarm/lab/coord/assign" in coordinator.wait_for("waiting for requests on")
         coordinator.wait_for("assign requests answered")
     finally:

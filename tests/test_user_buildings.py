@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sim2d.observability import ObservabilityModel, reachable_floor
+from sim2d.observability import ObservabilityModel, observable_voxels, planner_floor, reachable_floor
 from swarm.config import ConfigError, mission_from_dict, mission_from_map
 from swarm.formats.floor_plan import FloorPlanError, load_floor_plan
 from swarm.mission.simulated_mission import confined_robots, resolve_mission
@@ -263,6 +263,39 @@ def test_walls_one_cell_thick_of_a_fine_map_keep_the_observable_floor_in(tmp_pat
     )
     xs = grid.lo[0] - pad + (np.nonzero(reach)[0] + 0.5) * model.raster
     assert xs.max() < 2.0  # the west room only
+
+
+def test_a_room_behind_a_door_the_planner_never_takes_is_not_observable(tmp_path):
+    """A door the robot's body fits through (0.40 m, the robot 0.36 m across) but that the
+    planner's inflated map closes (0.1 m voxels: radius + half a voxel from the jambs'
+    voxels): H_th's observability model counted the room behind it, so a team was asked to
+    see what it could not reach (a SLAM map of a lab: 4.2 m^2 of rooms behind a 0.41 m door
+    that no robot entered, counted observable)."""
+    image = np.pad(np.full((58, 78), FREE), 1, constant_values=WALL)  # 4 m x 3 m at 0.05 m
+    image[:, 40] = WALL  # a wall at x = 2.0-2.05 m ...
+    image[5:13, 40] = FREE  # ... with a door at y = 2.4-2.8 m (row 0 is the top)
+    path = write_map(tmp_path, image, resolution=0.05)
+    mission = mission_from_dict(
+        {
+            "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [4.0, 3.0, 2.2]},
+            "floor_plan": {"path": str(path)},
+            "robots": [{"id": "r1", "start": {"x": 1.0, "y": 1.5}}],
+        },
+        source=tmp_path / "site.yaml",
+    )
+    plan, grid = mission.load_floor_plan(), mission.workspace.grid()
+    starts = np.array([[1.0, 1.5]])
+    model = ObservabilityModel.for_mission(mission)
+    pad = model.max_range + model.raster
+    body_fits = reachable_floor(plan, grid.lo[:2] - pad, grid.hi[:2] + pad, starts, 0.18, model.raster)
+    xs = grid.lo[0] - pad + (np.nonzero(body_fits)[0] + 0.5) * model.raster
+    assert xs.max() > 3.0  # the body fits through the door ...
+    planned = planner_floor(plan, grid, starts, 0.18, model.camera_height)
+    assert planned[5, 15] and not planned[:, :].any(axis=1)[21:].any()  # ... the planner stays west
+    seen = observable_voxels(plan, grid, starts, model)
+    east_corner = grid.index_of(np.array([2.45, 0.35, 0.45]))  # behind the wall, out of view through the door
+    west = grid.index_of(np.array([1.0, 0.35, 0.45]))
+    assert seen[tuple(west)] and not seen[tuple(east_corner)]
 
 
 def test_a_robot_shut_in_by_a_door_narrower_than_itself_is_warned_of(tmp_path):

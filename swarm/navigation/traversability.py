@@ -25,6 +25,17 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.navigation import grid_kernels as kernels
 
+#: Default height (m) of the bottom of the robot's band: lower obstacles do not block it.
+FLOOR_CLEARANCE = 0.1
+#: Default E[C] at or above which a band voxel blocks its column.
+FREE_THRESHOLD = 0.2
+
+
+def robot_band_top(camera_height: float) -> float:
+    """The top (m) of the height band the agents and the coordinator plan a robot in: 0.1 m
+    above its camera, at least 0.3 m."""
+    return max(camera_height + 0.1, 0.3)
+
 
 @dataclass(frozen=True, eq=False)
 class TraversabilityGrid:
@@ -190,10 +201,10 @@ def band_columns(
 
 def build_traversability(
     cmap: CoverageMap,
-    floor_clearance: float = 0.1,
+    floor_clearance: float = FLOOR_CLEARANCE,
     robot_height: float = 0.5,
     robot_radius: float = 0.18,
-    free_threshold: float = 0.2,
+    free_threshold: float = FREE_THRESHOLD,
     margin: float = 0.0,
     swept: np.ndarray | None = None,
 ) -> TraversabilityGrid:
