@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Run the coordinator: keep a replica of the team map from swarm/<mission>/merged (starting "
         "from map/snapshot when a map server answers), follow robot/*/status, and answer "
-        "coord/assign with entropy-gradient targets spread out over the team (Burgard et al. 2005). "
+        "coord/assign/<rid> with entropy-gradient targets spread out over the team (Burgard et al. 2005). "
         "Stops on SIGINT/SIGTERM."
     )
     parser.add_argument("--config", required=True, type=Path, help="mission YAML file")
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         log.info(
             "waiting for requests on %s, robot statuses on %s and the team map on %s",
-            bus.key(name, "coord", "assign"),
+            bus.key_pattern(name, "coord", "assign", "*"),
             bus.key_pattern(name, "robot", "*", "status"),
             bus.key(name, "merged"),
         )

@@ -2,7 +2,7 @@
 
 It keeps a replica of the team map from the map server's ``merged`` stream (starting from
 ``map/snapshot`` when a server answers), follows every robot's ``robot/<rid>/status``, and
-answers ``coord/assign``: the requesting robot gets the eq. 35 target of the team map that
+answers ``coord/assign/<rid>``: the requesting robot gets the eq. 35 target of the team map that
 maximises utility minus path cost, with the targets other robots hold discounted and kept
 one sensor footprint away, and its teammates' ground lowered (Burgard et al.
 2005 and our addition; the rule is in ``coordinator.assignment`` and docs/coordinator.md).
@@ -122,7 +122,9 @@ class Coordinator:
         ]
         for t in self._threads:
             t.start()
-        self._declared.append(s.declare_queryable(bus.key(name, "coord", "assign"), self._on_assign))
+        # one key per robot: on a secured bus agent-rN may query only coord/assign/rN
+        assign = bus.key_pattern(name, "coord", "assign", "*")
+        self._declared.append(s.declare_queryable(assign, self._on_assign))
         self._declared.append(s.declare_queryable(bus.key(name, "coord", "stats"), self._on_stats))
         p = self.state.params
         log.info(
@@ -197,8 +199,9 @@ class Coordinator:
             log.info("released the target of %s: %s", robot, reason)
 
     def _on_assign(self, query: zenoh.Query) -> None:
-        """Zenoh's callback: decode the request, refuse a malformed one at once, else queue it as
-        its robot's latest (an older one of that robot is refused as superseded). Never raises."""
+        """Zenoh's callback: decode the request, refuse at once a malformed one or one whose robot
+        is not its key's ``<rid>``, else queue it as its robot's latest (an older one of that
+        robot is refused as superseded). Never raises."""
         started = time.perf_counter()
         try:
             size = 0 if query.payload is None else len(query.payload)
@@ -211,7 +214,7 @@ class Coordinator:
                 return
             payload = b"" if query.payload is None else query.payload.to_bytes()
             try:
-                request = self.state.decode_request(payload)
+                request = self.state.decode_request(str(query.key_expr), payload)
             except WireError as exc:
                 log.warning("rejected assign request: %s", exc)
                 self._refuse(query, started, str(exc))

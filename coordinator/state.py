@@ -31,7 +31,15 @@ from swarm.navigation.exploration import (
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability, robot_band_top
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
-from swarm.protocol.wire import AssignReply, AssignRequest, Pose, Status, WireError, status_on_key
+from swarm.protocol.wire import (
+    AssignReply,
+    AssignRequest,
+    Pose,
+    Status,
+    WireError,
+    assign_request_on_key,
+    status_on_key,
+)
 
 log = logging.getLogger("coordinator")
 
@@ -302,17 +310,22 @@ class CoordinatorState:
             self.params.footprint_radius,
         )
 
-    def handle_request(self, payload: bytes, now: float) -> Answer:
-        """Decode and answer a ``coord/assign`` payload; WireError (counted) if it is malformed."""
-        return self.answer_request(self.decode_request(payload), now)
+    def handle_request(self, key: str, payload: bytes, now: float) -> Answer:
+        """Decode and answer a ``coord/assign/<rid>`` query on ``key``; WireError (counted) if it
+        is malformed or asks for another robot than the key's."""
+        return self.answer_request(self.decode_request(key, payload), now)
 
-    def decode_request(self, payload: bytes) -> AssignRequest:
-        """A ``coord/assign`` payload's request, counted; WireError (counted) if it is malformed."""
+    def decode_request(self, key: str, payload: bytes) -> AssignRequest:
+        """The request of a ``coord/assign/<rid>`` query on ``key``, counted; WireError (counted
+        in ``requests_rejected``) if it is malformed, or if its ``robot`` is not the key's
+        ``<rid>`` (also counted in ``requests_robot_mismatch``): the key says who asks."""
         self.counts["requests"] += 1
         try:
-            return AssignRequest.decode(payload)
-        except WireError:
+            return assign_request_on_key(key, payload)
+        except WireError as exc:
             self.counts["requests_rejected"] += 1
+            if exc.kind == "robot_mismatch":
+                self.counts["requests_robot_mismatch"] += 1
             raise
 
     def answer_request(self, request: AssignRequest, now: float) -> Answer:

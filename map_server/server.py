@@ -102,6 +102,10 @@ class MapServer:
         self._default_bound = max(self.bounds.values(), key=lambda b: b.per_frame, default=None)
         self.max_payload = self.options.max_payload_bytes or max_payload_for(grid)
         self._lock = threading.Lock()
+        #: held by a compaction while it writes the map to disk, and by a quarantine while it
+        #: rebuilds the map: the one change to the map that does not come from the worker (the
+        #: compacting thread), so a compaction needs no more, and queries go on meanwhile
+        self._rebuild_lock = threading.Lock()
         self._snapshot_due = threading.Event()  # set by a quarantine: the worker compacts soon
         for robot in self.options.quarantine:
             self.quarantine(robot)
@@ -303,10 +307,12 @@ class MapServer:
         return len(applied)
 
     def _compact(self) -> None:
+        """Write the snapshot and start the next log: called by the worker, or by :meth:`stop`
+        once the worker has ended, so only a quarantine can change the map meanwhile."""
         self._snapshot_due.clear()
         t0 = time.perf_counter()
         team = self.team
-        with self._lock:  # a quarantine (another thread) may rebuild the map meanwhile
+        with self._rebuild_lock:  # not the query lock: acks and stats answer during the write
             self.store.compact(
                 team.grid,
                 team.cmap.lam,
@@ -329,7 +335,7 @@ class MapServer:
     def quarantine(self, robot: str) -> None:
         """Refuse ``robot``'s further deltas and take its past ones out of the map (thread-safe;
         docs/protocol.md, "Quarantine"). The next compaction makes it durable."""
-        with self._lock:
+        with self._rebuild_lock, self._lock:
             if robot in self.team.quarantined and robot not in self.team.contributions.by_robot:
                 return
             h_before = self.team.entropy.total

@@ -30,7 +30,7 @@ from swarm.navigation.exploration import wander_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
 from swarm.protocol import bus
-from swarm.protocol.coord_client import ask_for_target, coordinator_stats
+from swarm.protocol.coord_client import ask_for_target, assign_key, coordinator_stats
 from swarm.protocol.wire import AssignReply, AssignRequest, DeltaMessage, Pose, Snapshot, Status
 
 MISSION = {
@@ -282,8 +282,9 @@ def wait_until(condition, timeout: float = 10.0) -> bool:
     return condition()
 
 
-def query(session, name: str, payload: bytes, timeout: float = 5.0):
-    replies = list(session.get(bus.key(name, "coord", "assign"), payload=payload, timeout=timeout))
+def query(session, name: str, payload: bytes, timeout: float = 5.0, robot: str = "r1"):
+    """The one reply to ``payload`` asked on ``robot``'s key ``coord/assign/<robot>``."""
+    replies = list(session.get(assign_key(name, robot), payload=payload, timeout=timeout))
     assert len(replies) == 1
     return replies[0]
 
@@ -379,7 +380,7 @@ def test_coordinator_role_over_zenoh():
             time.sleep(0.2)
         assert wait_until(lambda: "r1" not in coordinator.state.book.live())
         r4 = AssignReply.decode(
-            query(client, name, AssignRequest("r4", pose("r1")).encode()).ok.payload.to_bytes()
+            query(client, name, AssignRequest("r4", pose("r1")).encode(), robot="r4").ok.payload.to_bytes()
         )
         assert r4.target == pytest.approx(replies["r1"].target)
         assert coordinator.counts["assigned"] == 4

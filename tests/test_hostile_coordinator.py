@@ -15,7 +15,7 @@ from coordinator.assignment import CoordinationParams
 from coordinator.requests import RequestQueue
 from coordinator.role import Coordinator
 from swarm.protocol import bus
-from swarm.protocol.coord_client import ask_for_target, coordinator_stats
+from swarm.protocol.coord_client import ask_for_target, assign_key, coordinator_stats
 from swarm.protocol.wire import (
     AssignReply,
     AssignRequest,
@@ -24,6 +24,7 @@ from swarm.protocol.wire import (
     Snapshot,
     Status,
     WireError,
+    assign_request_on_key,
     status_on_key,
 )
 from tests.test_coordinator import MapServerStandIn, corridor_map, mission, pose, query, wait_until
@@ -127,7 +128,7 @@ def test_a_robot_asking_in_a_loop_does_not_hold_back_the_others(coordinated):
     flooder = bus.open_session(connect=[_server.endpoint])
     try:
         payload = AssignRequest("r1", pose("r1")).encode()
-        key = bus.key(m.mission, "coord", "assign")
+        key = assign_key(m.mission, "r1")
         handles = [flooder.get(key, payload=payload, timeout=30.0) for _ in range(200)]
         time.sleep(0.2)
         started = time.perf_counter()
@@ -169,6 +170,29 @@ def test_a_status_on_another_robots_key_is_refused(coordinated):
     with pytest.raises(WireError, match="robot 'r2' published on the key of 'r1'"):
         status_on_key("swarm/m/robot/r1/status", Status("r2", 0.0, pose("r2"), None, "done", 0).encode())
     assert status_on_key("swarm/m/robot/r2/status", Status("r2", 0.0, pose("r2"), None, "done", 0).encode())
+
+
+def test_a_request_on_another_robots_key_is_refused(coordinated):
+    """Robot rid asks on coord/assign/<rid>; a request there naming another robot, or one asked
+    on a wildcard (which reaches the coordinator on an open bus), gets a named refusal, counted,
+    and does not take the named robot's place in the line."""
+    m, coordinator, _server, client = coordinated
+    before = coordinator.counts
+    as_r2 = AssignRequest("r2", pose("r2")).encode()
+    for key in (assign_key(m.mission, "r1"), bus.key_pattern(m.mission, "coord", "assign", "*")):
+        replies = list(client.get(key, payload=as_r2, timeout=5.0))
+        assert len(replies) == 1 and replies[0].ok is None, key
+        assert b"assign request: robot 'r2' asked on the key of " in replies[0].err.payload.to_bytes()
+    counts = coordinator.counts
+    assert counts["requests_robot_mismatch"] - before["requests_robot_mismatch"] == 2
+    assert counts["requests_rejected"] - before["requests_rejected"] == 2
+    assert counts["requests_superseded"] == before["requests_superseded"]
+    with pytest.raises(WireError, match="robot 'r2' asked on the key of 'r1'") as refused:
+        assign_request_on_key("swarm/m/coord/assign/r1", as_r2)
+    assert refused.value.kind == "robot_mismatch"
+    assert assign_request_on_key("swarm/m/coord/assign/r2", as_r2).robot == "r2"
+    with pytest.raises(WireError, match="on the key of None"):  # not an assign key at all
+        assign_request_on_key("swarm/m/coord/r2", as_r2)
 
 
 def test_the_mission_runner_takes_a_robots_state_from_its_own_key_only():

@@ -102,22 +102,33 @@ def test_every_identity_has_a_certificate_of_the_mission_ca_and_a_config(team):
             assert connect == ["tls/127.0.0.1:7447"] and not listen and not acl["enabled"]
 
 
-def test_only_its_agent_may_put_a_robots_delta_in_the_rules():
-    acl = access_control("m", ROBOTS)
+def allowed_in(acl: dict, message: str, key: str) -> set[str]:
+    """The CNs the rules let send ``message`` on exactly ``key`` (ingress)."""
     rules = {r["id"]: r for r in acl["rules"]}
     by_subject = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    return {
+        cn
+        for policy in acl["policies"]
+        for rule in policy["rules"]
+        if message in rules[rule]["messages"]
+        and rules[rule]["flows"] == ["ingress"]
+        and key in rules[rule]["key_exprs"]
+        for subject in policy["subjects"]
+        for cn in by_subject[subject]
+    }
+
+
+def test_only_its_agent_may_put_a_robots_delta_in_the_rules():
+    acl = access_control("m", ROBOTS)
     for rid in ROBOTS:
-        allowed = {
-            cn
-            for policy in acl["policies"]
-            for rule in policy["rules"]
-            if "put" in rules[rule]["messages"]
-            and rules[rule]["flows"] == ["ingress"]
-            and f"swarm/m/delta/{rid}" in rules[rule]["key_exprs"]
-            for subject in policy["subjects"]
-            for cn in by_subject[subject]
-        }
-        assert allowed == {agent_name(rid)}
+        assert allowed_in(acl, "put", f"swarm/m/delta/{rid}") == {agent_name(rid)}
+
+
+def test_only_its_agent_may_ask_the_coordinator_for_a_robot_in_the_rules():
+    acl = access_control("m", ROBOTS)
+    for rid in ROBOTS:
+        assert allowed_in(acl, "query", f"swarm/m/coord/assign/{rid}") == {agent_name(rid)}
+    assert allowed_in(acl, "query", "swarm/m/coord/assign") == set()  # the old shared key
 
 
 def test_command_line_endpoints_win_over_the_files(team, monkeypatch):
@@ -188,7 +199,7 @@ def test_a_session_that_is_not_the_coordinator_cannot_answer_coord_assign(team, 
             session_as(team, "tool", endpoint) as forger,
             session_as(team, "coordinator", endpoint) as coordinator,
         ):
-            key = bus.key("srvtest", "coord", "assign")
+            key = bus.key_pattern("srvtest", "coord", "assign", "*")  # as the coordinator declares it
             true = AssignReply((1.0, 2.0, 0.0), (0.0, 1.0, 0.0), 3.0)
             forged = AssignReply((9.0, 9.0, 0.0), (1.0, 0.0, 0.0), 1e9).encode()
             declared = [
@@ -232,7 +243,7 @@ def test_clients_refuse_disagreeing_replies_on_an_open_bus(tmp_path):
         )
         fake_coord = [
             forger.declare_queryable(
-                bus.key("srvtest", "coord", "assign"),
+                bus.key_pattern("srvtest", "coord", "assign", "*"),
                 lambda q, t=t: q.reply(q.key_expr, AssignReply((t, 0.0, 0.0), (1.0, 0.0, 0.0), t).encode()),
             )
             for t in (1.0, 2.0)

@@ -1,4 +1,4 @@
-"""The agents' side of ``coord/assign``: ask the coordinator for a target (docs/protocol.md)."""
+"""The agents' side of ``coord/assign/<rid>``: ask the coordinator for a target (docs/protocol.md)."""
 
 from __future__ import annotations
 
@@ -20,10 +20,17 @@ def reply_text(payload) -> str:
     return data.decode("utf-8", errors="replace")
 
 
+def assign_key(mission: str, robot: str) -> str:
+    """The key robot ``robot`` asks its targets on: ``swarm/<mission>/coord/assign/<robot>``
+    (its own, so that on a secured bus the access rules tell who asks)."""
+    return bus.key(mission, "coord", "assign", robot)
+
+
 def ask_for_target(
     session: zenoh.Session, mission: str, robot: str, pose: Pose, timeout: float = 2.0
 ) -> AssignReply | None:
-    """Ask the coordinator of ``mission`` for a target for ``robot`` at ``pose``.
+    """Ask the coordinator of ``mission`` for a target for ``robot`` at ``pose``, on
+    ``robot``'s own key (:func:`assign_key`).
 
     Returns the reply (its ``target`` is None when the coordinator has nothing left), or None
     when no coordinator answered within ``timeout`` seconds, it answered with an error, or
@@ -33,7 +40,7 @@ def ask_for_target(
     """
     payload = AssignRequest(robot, pose).encode()
     try:
-        answer = ask(session, bus.key(mission, "coord", "assign"), timeout=timeout, payload=payload)
+        answer = ask(session, assign_key(mission, robot), timeout=timeout, payload=payload)
     except ConflictingReplies as exc:
         log.warning("%s: refused the coordinator's answer: %s", robot, exc)
         return None

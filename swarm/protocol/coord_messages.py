@@ -1,4 +1,4 @@
-"""Messages of the coordinator: the ``coord/assign`` request and reply."""
+"""Messages of the coordinator: the ``coord/assign/<rid>`` request and reply."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from swarm.protocol.codec import (
 )
 from swarm.protocol.robot_messages import Pose
 
-# -- coord/assign -----------------------------------------------------------------------
+# -- coord/assign/<rid> ---------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,22 @@ class AssignRequest:
             robot=text(require(msg, "robot", cls.KIND), "robot", cls.KIND),
             pose=Pose.from_wire(require(msg, "pose", cls.KIND), cls.KIND),
         )
+
+
+def assign_request_on_key(key: str, payload: Any) -> AssignRequest:
+    """The request a ``swarm/<mission>/coord/assign/<rid>`` query carries, checked against the
+    ``<rid>`` of its key: a WireError when it is malformed or asks for another robot (kind
+    ``robot_mismatch``; on a secured bus each agent may query only its own key, so the key
+    says who asks; the field does not)."""
+    request = AssignRequest.decode(payload)
+    parts = str(key).split("/")
+    rid = parts[-1] if len(parts) >= 2 and parts[-2] == "assign" else None
+    if request.robot != rid:
+        raise WireError(
+            f"{AssignRequest.KIND}: robot {short(request.robot, 40)} asked on the key of {short(rid, 40)}",
+            "robot_mismatch",
+        )
+    return request
 
 
 @dataclass(frozen=True)

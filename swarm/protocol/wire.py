@@ -14,7 +14,7 @@ so a positive pitch looks down. A camera's optical frame is x right, y down, z f
 from __future__ import annotations
 
 from swarm.protocol.codec import DEPTH_ENCODING, STEREO_ENCODINGS, VERSION, WireError
-from swarm.protocol.coord_messages import AssignReply, AssignRequest
+from swarm.protocol.coord_messages import AssignReply, AssignRequest, assign_request_on_key
 from swarm.protocol.map_messages import DeltaMessage, Region, Snapshot
 from swarm.protocol.robot_messages import (
     BODY_FROM_OPTICAL,
@@ -43,6 +43,7 @@ __all__ = [
     "Status",
     "TruthPoses",
     "VERSION",
+    "assign_request_on_key",
     "status_on_key",
     "WireError",
 ]

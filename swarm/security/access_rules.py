@@ -16,10 +16,10 @@ is denied (``default_permission: deny``). Keys are under ``swarm/<mission>/``:
 | ``tool`` (viewer, ``swarm map``, monitors) | - | - |
 | ``operator`` (``swarm sim``'s runner) | ``delta/prior`` (a previous map) | - |
 
-Every identity may subscribe to the mission's keys and query ``map/**`` (and ``swarm/*/map/stats``,
-which tools ask to find the mission whose server answers); only agents may
-query ``coord/assign``. Every identity receives what it subscribed to (egress is open within
-the mission's keys).
+Every identity may subscribe to the mission's keys and query ``map/**`` and ``coord/stats``
+(and ``swarm/*/map/stats``, which tools ask to find the mission whose server answers). Robot
+rid's agent alone may query ``coord/assign/<rid>``: the key tells the coordinator who asks.
+Every identity receives what it subscribed to (egress is open within the mission's keys).
 """
 
 from __future__ import annotations
@@ -95,7 +95,6 @@ def access_control(mission: str, robots: list[str]) -> dict:
         _rule("server-puts", ["put"], "ingress", [f"{p}/merged"]),
         _rule("coordinator-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/coord/**"]),
         _rule("world-puts", ["put"], "ingress", [f"{p}/robot/*/frame", f"{p}/sim/truth"]),
-        _rule("agents-ask", ["query"], "ingress", [f"{p}/coord/assign"]),
         _rule("operator-puts", ["put"], "ingress", [f"{p}/{PRIOR_DELTA}"]),
     ]
     subjects = [
@@ -112,18 +111,16 @@ def access_control(mission: str, robots: list[str]) -> dict:
         {"id": WORLD, "rules": ["world-puts"], "subjects": [WORLD]},
         {"id": OPERATOR, "rules": ["operator-puts"], "subjects": [OPERATOR]},
     ]
-    if robots:
-        subjects.append({"id": "agents", "cert_common_names": [agent_name(r) for r in robots]})
-        policies.append({"id": "agents", "rules": ["agents-ask"], "subjects": ["agents"]})
     for rid in robots:
         agent, source = agent_name(rid), source_name(rid)
         rules.append(
             _rule(f"{agent}-puts", ["put"], "ingress", [f"{p}/{k}" for k in _agent_keys(rid)]),
         )
+        rules.append(_rule(f"{agent}-asks", ["query"], "ingress", [f"{p}/coord/assign/{rid}"]))
         rules.append(_rule(f"{source}-puts", ["put"], "ingress", [f"{p}/robot/{rid}/frame"]))
         subjects.append({"id": agent, "cert_common_names": [agent]})
         subjects.append({"id": source, "cert_common_names": [source]})
-        policies.append({"id": agent, "rules": [f"{agent}-puts"], "subjects": [agent]})
+        policies.append({"id": agent, "rules": [f"{agent}-puts", f"{agent}-asks"], "subjects": [agent]})
         policies.append({"id": source, "rules": [f"{source}-puts"], "subjects": [source]})
     return {
         "enabled": True,
