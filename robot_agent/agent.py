@@ -27,6 +27,7 @@ import numpy as np
 import zenoh
 
 from robot_agent.explorer import Explorer
+from robot_agent.frame_inbox import FrameInbox
 from robot_agent.sharing import DeltaOutbox
 from swarm.config import Mission
 from swarm.map.delta import Delta
@@ -85,7 +86,7 @@ class Agent:
         self._delta_pub = bus.reliable_publisher(session, bus.key(name, "delta", robot_id))
         self._status_pub = session.declare_publisher(bus.key(name, "robot", robot_id, "status"))
         self._acks_key = bus.key(name, "map", "acks")
-        self._frames: queue.Queue = queue.Queue()
+        self._frames = FrameInbox()  # the newest frame: older waiting ones are dropped, counted
         self._frame_sub = bus.subscribe(
             session, bus.key(name, "robot", robot_id, "frame"), lambda _k, p: self._frames.put(p)
         )
@@ -125,9 +126,8 @@ class Agent:
                 if now - report[0] >= self.progress_every_s:
                     self._log_progress(handled - report[1], now - report[0])
                     report = (now, handled)
-                try:
-                    payload = self._frames.get(timeout=0.2)
-                except queue.Empty:
+                payload = self._frames.take(timeout=0.2)
+                if payload is None:
                     if idle_timeout is not None and time.monotonic() - last_frame > idle_timeout:
                         break
                     continue
@@ -150,11 +150,12 @@ class Agent:
             return
         stats = self.outbox.stats
         log.info(
-            "%s: %d frames fused (%.1f/s), %d deltas sent, %d acked by the map server, %d resent, "
+            "%s: %d frames fused (%.1f/s)%s, %d deltas sent, %d acked by the map server, %d resent, "
             "%s bits held back; map entropy %s bits; merged from the team %d; coordinator %s",
             self.robot_id,
             self.frames_fused,
             frames / max(seconds, 1e-9),
+            self._superseded_note(),
             stats.deltas_sent,
             self.acked,
             stats.resent,
@@ -163,6 +164,15 @@ class Agent:
             self.merged_counts["applied"],
             dict(self.coordinator_counts) or "not asked yet",
         )
+
+    @property
+    def superseded_frames(self) -> int:
+        """Frames dropped unanswered because a newer one came before the agent took them."""
+        return self._frames.superseded
+
+    def _superseded_note(self) -> str:
+        n = self._frames.superseded
+        return f" ({n:,} older frames dropped: the driver sends faster than the agent fuses)" if n else ""
 
     def handle(self, payload: bytes) -> Cmd | None:
         """Fuse one frame, answer with a command, then share what is worth it.
@@ -370,10 +380,11 @@ class Agent:
             self._acker.join(timeout=ACK_POLL_S + 1.5)
         self._await_acks(ack_wait_s)
         log.info(
-            "%s: shutdown flush: %s; %d deltas not yet acked by the map server",
+            "%s: shutdown flush: %s; %d deltas not yet acked by the map server%s",
             self.robot_id,
             f"sent {sent} last delta(s), {voxels} voxels" if sent else "nothing pending",
             len(self.outbox.unacked),
+            self._superseded_note(),
         )
         self._frame_sub.undeclare()
         self._merged_sub.undeclare()
