@@ -310,11 +310,6 @@ class CoordinatorState:
             self.params.footprint_radius,
         )
 
-    def handle_request(self, key: str, payload: bytes, now: float) -> Answer:
-        """Decode and answer a ``coord/assign/<rid>`` query on ``key``; WireError (counted) if it
-        is malformed or asks for another robot than the key's."""
-        return self.answer_request(self.decode_request(key, payload), now)
-
     def decode_request(self, key: str, payload: bytes) -> AssignRequest:
         """The request of a ``coord/assign/<rid>`` query on ``key``, counted; WireError (counted
         in ``requests_rejected``) if it is malformed, or if its ``robot`` is not the key's
