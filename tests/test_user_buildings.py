@@ -266,14 +266,14 @@ def test_walls_one_cell_thick_of_a_fine_map_keep_the_observable_floor_in(tmp_pat
 
 
 def test_a_room_behind_a_door_the_planner_never_takes_is_not_observable(tmp_path):
-    """A door the robot's body fits through (0.40 m, the robot 0.36 m across) but that the
+    """A door the robot's body fits through (0.45 m, the robot 0.36 m across) but that the
     planner's inflated map closes (0.1 m voxels: radius + half a voxel from the jambs'
     voxels): H_th's observability model counted the room behind it, so a team was asked to
     see what it could not reach (a SLAM map of a lab: 4.2 m^2 of rooms behind a 0.41 m door
     that no robot entered, counted observable)."""
     image = np.pad(np.full((58, 78), FREE), 1, constant_values=WALL)  # 4 m x 3 m at 0.05 m
     image[:, 40] = WALL  # a wall at x = 2.0-2.05 m ...
-    image[5:13, 40] = FREE  # ... with a door at y = 2.4-2.8 m (row 0 is the top)
+    image[5:14, 40] = FREE  # ... with a door at y = 2.3-2.75 m (row 0 is the top)
     path = write_map(tmp_path, image, resolution=0.05)
     mission = mission_from_dict(
         {
@@ -296,6 +296,8 @@ def test_a_room_behind_a_door_the_planner_never_takes_is_not_observable(tmp_path
     east_corner = grid.index_of(np.array([2.45, 0.35, 0.45]))  # behind the wall, out of view through the door
     west = grid.index_of(np.array([1.0, 0.35, 0.45]))
     assert seen[tuple(west)] and not seen[tuple(east_corner)]
+    (warning,) = confined_robots(mission)  # and swarm sim run says so
+    assert re.match(r"warning: 3\.8 m\^2 of floor where the robots fit lies behind passages", warning)
 
 
 def test_a_robot_shut_in_by_a_door_narrower_than_itself_is_warned_of(tmp_path):

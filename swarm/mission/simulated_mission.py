@@ -48,7 +48,8 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
     """Warnings for robots that start in a pocket of a ROS map's floor: a free region (where the
     robot's body fits, ``robot.radius`` from every wall and unknown cell) of less than ``share``
     of the largest one, cut off by passages narrower than the robot (SLAM maps draw doors
-    narrower than they are). Empty for other floor plans."""
+    narrower than they are). Then one for floor where the body fits, in the robots' regions,
+    that their planner never reaches (1 m^2 or more). Empty for other floor plans."""
     from scipy import ndimage
 
     plan = mission.load_floor_plan()
@@ -74,7 +75,50 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
                 f"from the largest ({largest:.1f} m^2) by passages narrower than the robot "
                 f"({2 * mission.robot.radius:g} m across): it will map only its own region"
             )
+    behind = _floor_the_planner_never_reaches(mission, labels, ros_map)
+    if behind >= 1.0:
+        out.append(
+            f"warning: {behind:.1f} m^2 of floor where the robots fit lies behind passages "
+            f"their planner does not take (it keeps {mission.robot.radius:g} m + half a voxel "
+            "from every voxel a wall touches, so doors narrower than about "
+            f"{2 * mission.robot.radius + mission.workspace.voxel:.2f}-"
+            f"{2 * mission.robot.radius + 2 * mission.workspace.voxel:.2f} m, by where the walls fall "
+            "on the voxels, stay shut): "
+            "no robot will go there, and H_th does not count what only that floor sees"
+        )
     return out
+
+
+def _floor_the_planner_never_reaches(mission: Mission, labels: np.ndarray, ros_map) -> float:
+    """Area (m^2) of the ROS map's cells in the robots' body-fit regions (``labels``) that lie
+    farther than 1.5 voxel edges from every column the planner reaches from a start on a
+    perfect map (``sim2d.observability.planner_floor``, the rule of H_th's reachable floor)."""
+    from scipy import ndimage
+
+    from sim2d.observability import planner_floor
+
+    starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
+    cells = ros_map.to_cell(starts)
+    inside = (
+        (cells[:, 0] >= 0)
+        & (cells[:, 0] < labels.shape[0])
+        & (cells[:, 1] >= 0)
+        & (cells[:, 1] < labels.shape[1])
+    )
+    keep = {int(labels[r, c]) for r, c in cells[inside]} - {0}
+    if not keep:
+        return 0.0
+    grid = mission.workspace.grid()
+    rig = mission.rig_for(mission.robot_ids[0])
+    planned = planner_floor(mission.load_floor_plan(), grid, starts, mission.robot.radius, rig.camera_height)
+    near = ndimage.distance_transform_edt(~planned) * grid.voxel <= 1.5 * grid.voxel
+    rows, cols = np.nonzero(np.isin(labels, list(keep)))
+    xy = ros_map.to_world(cols + 0.5, rows + 0.5)
+    ij = np.floor((xy - grid.lo[:2]) / grid.voxel).astype(int)
+    ok = np.all((ij >= 0) & (ij < np.array(grid.shape[:2])), axis=1)
+    reached = np.zeros(len(ij), dtype=bool)
+    reached[ok] = near[ij[ok, 0], ij[ok, 1]]
+    return float(np.count_nonzero(~reached)) * ros_map.resolution**2
 
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
