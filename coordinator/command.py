@@ -106,9 +106,13 @@ def run(args: argparse.Namespace) -> int:
             now, counts = time.monotonic(), coordinator.counts
             answered = counts["requests"]
             log.info(
-                "%d assign requests answered (%.1f/s), %d merged deltas applied, team map %s bits",
+                "%d assign requests answered (%.1f/s; with an error: %d malformed or on another robot's key, "
+                "%d superseded, %d busy), %d merged deltas applied, team map %s bits",
                 answered,
                 (answered - last[1]) / max(now - last[0], 1e-9),
+                counts["requests_rejected"],
+                counts["requests_superseded"],
+                counts["requests_busy"],
                 counts["merged_applied"],
                 f"{coordinator.state.team.entropy_bits:,.0f}",
             )

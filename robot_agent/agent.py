@@ -171,8 +171,14 @@ class Agent:
         return self._frames.superseded
 
     def _superseded_note(self) -> str:
-        n = self._frames.superseded
-        return f" ({n:,} older frames dropped: the driver sends faster than the agent fuses)" if n else ""
+        """The frames dropped unanswered so far, if any: superseded, and refused (logged each)."""
+        notes = []
+        if self._frames.superseded:
+            faster = "the driver sends faster than the agent fuses"
+            notes.append(f"{self._frames.superseded:,} older frames dropped: {faster}")
+        if self.rejected_frames:
+            notes.append(f"{self.rejected_frames:,} frames refused (see the warnings above)")
+        return f" ({'; '.join(notes)})" if notes else ""
 
     def handle(self, payload: bytes) -> Cmd | None:
         """Fuse one frame, answer with a command, then share what is worth it.

@@ -45,7 +45,7 @@ def test_an_agent_behind_its_driver_answers_the_newest_frame_not_a_backlog():
     try:
         agent = Agent(mission, "r1", agent_session, coordination=False)
         cmd_sub, answers = bus.subscribe_queue(driver, bus.key(mission.mission, "robot", "r1", "cmd"))
-        frames = driver.declare_publisher(bus.key(mission.mission, "robot", "r1", "frame"))
+        frames = bus.reliable_publisher(driver, bus.key(mission.mission, "robot", "r1", "frame"))
         time.sleep(0.5)  # both subscriptions known to the other session
         rig = mission.rig_for("r1")
         camera = Camera(rig.width, rig.height, 80.0, 80.0, rig.width / 2, rig.height / 2, 0.1)
@@ -60,6 +60,9 @@ def test_an_agent_behind_its_driver_answers_the_newest_frame_not_a_backlog():
         _key, payload = answers.get(timeout=10.0)
         assert Cmd.decode(payload).seq == 10
         assert agent.superseded_frames == 9 and agent.frames_fused == 1
+        assert agent.handle(b"not a frame") is None  # refused, logged and counted
+        note = agent._superseded_note()
+        assert "9 older frames dropped" in note and "1 frames refused" in note
         time.sleep(0.3)
         assert answers.empty()
         cmd_sub.undeclare()
