@@ -35,7 +35,7 @@ from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.mission.role_failure import RoleError
-from swarm.mission.runner import _child, _final_server_map, _stop, _wait_for_server
+from swarm.mission.runner import _child, _final_server_map, _stop, _wait_for_server, shielded_from_interrupts
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, codec
 from swarm.protocol.map_client import MapClient
@@ -237,11 +237,12 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
         if options.connect is None:
             server_map = _final_server_map(client, monitor)
     finally:
-        if publisher is not None:
-            publisher.close()
-        _stop([p for p in procs if p.poll() is None])
-        sub.undeclare()
-        session.close()
+        with shielded_from_interrupts():
+            if publisher is not None:
+                publisher.close()
+            _stop([p for p in procs if p.poll() is None])
+            sub.undeclare()
+            session.close()
     cmap = server_map if server_map is not None else monitor.cmap
     return _write_outputs(out, cmap, rows, log.unanswered, recording, monitor, camera, procs_agent)
 

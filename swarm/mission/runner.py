@@ -26,7 +26,10 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,6 +129,29 @@ def _stop(procs: list[subprocess.Popen], timeout: float = 10.0) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+
+
+@contextmanager
+def shielded_from_interrupts() -> Iterator[None]:
+    """Run a cleanup to its end though Ctrl-C or SIGTERM arrive meanwhile: they are held, and
+    raised as one KeyboardInterrupt after it. (Raised in the middle of stopping the roles, the
+    interrupt left the world and the map server running after the runner had exited.) Outside
+    the main thread, where signal handlers cannot be set, the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {
+        sig: signal.signal(sig, lambda signum, _frame: held.append(signum))
+        for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if held:
+        raise KeyboardInterrupt
 
 
 def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor, dict]:
@@ -255,16 +281,17 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 at_stop = (h, monitor.applied)  # what the last progress line showed
                 break
     finally:
-        _stop(agents)  # agents flush their pending deltas on SIGTERM
-        _stop([world] if world is not None else [])
-        if reason != "starting":
-            server_map = _final_server_map(client, monitor)
-            if options.coordination != "none":
-                coordinator_stats = coord_client.coordinator_stats(session, name)
-        _stop(services)
-        for sub in subs:
-            sub.undeclare()
-        session.close()
+        with shielded_from_interrupts():
+            _stop(agents)  # agents flush their pending deltas on SIGTERM
+            _stop([world] if world is not None else [])
+            if reason != "starting":
+                server_map = _final_server_map(client, monitor)
+                if options.coordination != "none":
+                    coordinator_stats = coord_client.coordinator_stats(session, name)
+            _stop(services)
+            for sub in subs:
+                sub.undeclare()
+            session.close()
     facts = {
         "reason": reason,
         "wall_time_s": time.monotonic() - started,
