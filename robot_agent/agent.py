@@ -155,7 +155,7 @@ class Agent:
             self.robot_id,
             self.frames_fused,
             frames / max(seconds, 1e-9),
-            self._superseded_note(),
+            self._dropped_frames_note(),
             stats.deltas_sent,
             self.acked,
             stats.resent,
@@ -170,7 +170,7 @@ class Agent:
         """Frames dropped unanswered because a newer one came before the agent took them."""
         return self._frames.superseded
 
-    def _superseded_note(self) -> str:
+    def _dropped_frames_note(self) -> str:
         """The frames dropped unanswered so far, if any: superseded, and refused (logged each)."""
         notes = []
         if self._frames.superseded:
@@ -390,7 +390,7 @@ class Agent:
             self.robot_id,
             f"sent {sent} last delta(s), {voxels} voxels" if sent else "nothing pending",
             len(self.outbox.unacked),
-            self._superseded_note(),
+            self._dropped_frames_note(),
         )
         self._frame_sub.undeclare()
         self._merged_sub.undeclare()

@@ -61,7 +61,7 @@ def test_an_agent_behind_its_driver_answers_the_newest_frame_not_a_backlog():
         assert Cmd.decode(payload).seq == 10
         assert agent.superseded_frames == 9 and agent.frames_fused == 1
         assert agent.handle(b"not a frame") is None  # refused, logged and counted
-        note = agent._superseded_note()
+        note = agent._dropped_frames_note()
         assert "9 older frames dropped" in note and "1 frames refused" in note
         time.sleep(0.3)
         assert answers.empty()
