@@ -156,7 +156,7 @@ def test_the_entropy_after_a_frame_is_the_one_after_its_deltas():
     deltas change the team map but mark no frame."""
     from swarm.config import mission_from_dict
     from swarm.mission.replay_run import FrameEntropy
-    from swarm.mission.runner import TeamMonitor
+    from swarm.mission.team_monitor import TeamMonitor
     from swarm.protocol.map_messages import DeltaMessage
 
     mission = mission_from_dict(
@@ -265,8 +265,13 @@ def test_a_replay_that_fails_stops_its_agent(tmp_path, monkeypatch):
     shutil.copytree(EUROC, copy)
     (copy / "mav0/cam1/data/1403715275312143104.png").write_bytes(b"not a png")
     started = []
-    child = replay_run._child
-    monkeypatch.setattr(replay_run, "_child", lambda *a, **k: started.append(child(*a, **k)) or started[-1])
+    start = replay_run.start_role
+
+    def recorded_start(*args, **kwargs):
+        started.append(start(*args, **kwargs))
+        return started[-1]
+
+    monkeypatch.setattr(replay_run, "start_role", recorded_start)
     rec = AslRecording(copy)
     with pytest.raises(RecordingError, match="1403715275312143104.png: missing or not a readable image"):
         run_replay(rec, default_mission(rec), ReplayOptions(out=tmp_path / "run", quiet=True))

@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from swarm.cli import main
-from swarm.mission.runner import _child, why_it_exited
+from swarm.mission.role_processes import start_role, why_it_exited
 
 
 def test_a_child_that_exits_is_explained_by_its_last_error_line(tmp_path) -> None:
-    child = _child(["server", "--config", str(tmp_path / "nowhere.yaml"), "--store", str(tmp_path / "s")],
+    child = start_role(["server", "--config", str(tmp_path / "nowhere.yaml"), "--store", str(tmp_path / "s")],
                    tmp_path / "server.log")  # fmt: skip
     child.wait(timeout=120)
     why = why_it_exited(child)

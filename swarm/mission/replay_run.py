@@ -35,7 +35,13 @@ from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.mission.role_failure import RoleError
-from swarm.mission.runner import _child, _final_server_map, _stop, _wait_for_server, shielded_from_interrupts
+from swarm.mission.role_processes import (
+    final_server_map,
+    shielded_from_interrupts,
+    start_role,
+    stop_roles,
+    wait_for_server,
+)
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, codec
 from swarm.protocol.map_client import MapClient
@@ -176,10 +182,10 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             listen = bus.tcp_endpoint(bus.free_port())  # not the default 7447: it may be taken
             server_args = ["server", "--config", str(config_path), "--store", str(store)]
             server_args += ["--connect", endpoint, "--listen", listen]
-            server = _child(server_args, out / "server.log")
+            server = start_role(server_args, out / "server.log")
             procs.append(server)
-            _wait_for_server(client, server)
-        agent = _child(
+            wait_for_server(client, server)
+        agent = start_role(
             ["agent", "--id", options.robot, "--connect", endpoint, "--config", str(config_path),
              "--coordination", "none",
              *(["--zenoh-config", str(options.agent_zenoh_config)] if options.agent_zenoh_config else [])],
@@ -230,17 +236,17 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
         if options.realtime:
             for row, frame in zip(rows, _frames(recording, options), strict=False):
                 row["stereo_valid"] = stereo_valid(frame)
-        _stop([agent], AGENT_STOP_S)  # the agent flushes its outbox on SIGTERM, waits for the acks
+        stop_roles([agent], AGENT_STOP_S)  # the agent flushes its outbox on SIGTERM, waits for the acks
         procs_agent = agent.returncode
         for row in rows:  # every delta is in: the entropy after each frame, by the deltas' times
             row["entropy_bits"] = entropy.after(row["t"])
         if options.connect is None:
-            server_map = _final_server_map(client, monitor)
+            server_map = final_server_map(client, monitor)
     finally:
         with shielded_from_interrupts():
             if publisher is not None:
                 publisher.close()
-            _stop([p for p in procs if p.poll() is None])
+            stop_roles([p for p in procs if p.poll() is None])
             sub.undeclare()
             session.close()
     cmap = server_map if server_map is not None else monitor.cmap

@@ -23,27 +23,29 @@ from __future__ import annotations
 
 import math
 import shutil
-import signal
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from robot_agent.explorer import load_kernels
-from swarm.child_command import child_environment, swarm_argv
 from swarm.config import Mission
-from swarm.map.coverage_map import CoverageMap
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.mission.role_failure import RoleError
+from swarm.mission.role_processes import (
+    final_server_map,
+    shielded_from_interrupts,
+    start_role,
+    stop_roles,
+    wait_for_server,
+    why_it_exited,
+)
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
-from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
+from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
 
@@ -96,64 +98,6 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     return BusPlan([], [endpoint], team.configs[OPERATOR], server_args, team.configs)
 
 
-def _child(args: list[str], log_path: Path) -> subprocess.Popen:
-    log = open(log_path, "w")  # noqa: SIM115 (kept open for the child's lifetime)
-    child = subprocess.Popen(
-        swarm_argv(*args), stdout=log, stderr=subprocess.STDOUT, env=child_environment(PYTHONUNBUFFERED="1")
-    )
-    child.log_path = log_path  # for why_it_exited
-    return child
-
-
-def why_it_exited(child: subprocess.Popen) -> str:
-    """``exited with code N``, with the last ``error:`` line of the child's log when it has one
-    (``swarm: error: FILE: FIELD: ...``), so that the user need not open the log."""
-    reason = f"exited with code {child.returncode}"
-    log_path = getattr(child, "log_path", None)
-    try:
-        lines = Path(log_path).read_text(errors="replace").splitlines() if log_path else []
-    except OSError:
-        lines = []
-    errors = [line.strip() for line in lines if "error:" in line]
-    return f"{reason}: {errors[-1]}" if errors else f"{reason} (see {Path(log_path).name})"
-
-
-def _stop(procs: list[subprocess.Popen], timeout: float = 10.0) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    deadline = time.monotonic() + timeout
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-
-
-@contextmanager
-def shielded_from_interrupts() -> Iterator[None]:
-    """Run a cleanup to its end though Ctrl-C or SIGTERM arrive meanwhile: they are held, and
-    raised as one KeyboardInterrupt after it. (Raised in the middle of stopping the roles, the
-    interrupt left the world and the map server running after the runner had exited.) Outside
-    the main thread, where signal handlers cannot be set, the block runs as it is."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-    previous = {
-        sig: signal.signal(sig, lambda signum, _frame: held.append(signum))
-        for sig in (signal.SIGINT, signal.SIGTERM)
-    }
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    if held:
-        raise KeyboardInterrupt
-
-
 def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor, dict]:
     """Run ``mission`` with every role in its own process; returns the monitor and run facts."""
     out = options.out
@@ -177,11 +121,11 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
     server_cmd = ["server", "--config", str(config_path), "--store", str(store), *plan.server_args]
     # open loopback: the runner is the mission's router; secure: the server is, so it starts first
-    server = None if plan.runner_listen else _child(server_cmd, out / "server.log")
+    server = None if plan.runner_listen else start_role(server_cmd, out / "server.log")
     try:
         session = bus.open_session(plan.runner_listen, plan.runner_connect, config_file=plan.runner_config)
     except BaseException:
-        _stop([server] if server is not None else [])
+        stop_roles([server] if server is not None else [])
         raise
     subs = [
         bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta),
@@ -199,14 +143,14 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     reason = "starting"
     try:
         if server is None:
-            server = _child(server_cmd, out / "server.log")
+            server = start_role(server_cmd, out / "server.log")
         services.append(server)
         coordinator = None
         if options.coordination != "none":
             coordinator_args = ["coordinator", "--config", str(config_path), *plan.child_args("coordinator")]
-            coordinator = _child(coordinator_args, out / "coordinator.log")
+            coordinator = start_role(coordinator_args, out / "coordinator.log")
             services.append(coordinator)
-        _wait_for_server(client, server)
+        wait_for_server(client, server)
         if not options.quiet:  # docs/interop.md: the map tools work on a running mission too
             query = ["swarm map stats", *plan.child_args(TOOL), "--mission", name]
             print(
@@ -218,10 +162,10 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         view = _start_view(options.view, plan, name, out)
         if view is not None:
             services.append(view)
-        world = _child(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
+        world = start_role(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
         agents = [
-            _child(
+            start_role(
                 ["agent", "--id", rid, *plan.child_args(agent_name(rid)), "--config", str(config_path),
                  "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination],
                 out / f"agent-{rid}.log",
@@ -282,13 +226,13 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 break
     finally:
         with shielded_from_interrupts():
-            _stop(agents)  # agents flush their pending deltas on SIGTERM
-            _stop([world] if world is not None else [])
+            stop_roles(agents)  # agents flush their pending deltas on SIGTERM
+            stop_roles([world] if world is not None else [])
             if reason != "starting":
-                server_map = _final_server_map(client, monitor)
+                server_map = final_server_map(client, monitor)
                 if options.coordination != "none":
                     coordinator_stats = coord_client.coordinator_stats(session, name)
-            _stop(services)
+            stop_roles(services)
             for sub in subs:
                 sub.undeclare()
             session.close()
@@ -330,7 +274,7 @@ def _start_view(view: str | None, plan: BusPlan, mission: str, out: Path) -> sub
             flush=True,
         )
         return None
-    return _child(args, out / "view.log")
+    return start_role(args, out / "view.log")
 
 
 def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMonitor) -> None:
@@ -354,34 +298,3 @@ def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMo
         raise RoleError("the map server did not take the previous map within 60 s (see server.log)")
     publisher.undeclare()
     print(f"runner: started from the previous map {path}: {len(delta):,} voxels known", flush=True)
-
-
-def _wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float = 60.0) -> None:
-    """Wait until the map server answers map/stats (it may be recovering its store)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if server.poll() is not None:
-            raise RoleError(f"the map server {why_it_exited(server)}")
-        try:
-            client.stats()
-            return
-        except (MapServerUnavailable, MapQueryError):
-            time.sleep(0.2)
-    raise RoleError(f"the map server did not answer within {timeout:g} s (see server.log)")
-
-
-def _final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 20.0) -> CoverageMap | None:
-    """The server's map once it has applied every delta the monitor saw (None if it never did)."""
-    deadline = time.monotonic() + timeout
-    expected = monitor.applied
-    while time.monotonic() < deadline:
-        try:
-            stats = client.stats()
-            if int(stats.get("deltas_applied", 0)) >= expected:
-                snap = client.snapshot()
-                return CoverageMap(snap.grid, monitor.cmap.sensor, snap.lam, snap.eta)
-        except (MapServerUnavailable, MapQueryError) as exc:
-            print(f"runner: map server: {exc}", file=sys.stderr)
-        time.sleep(0.3)
-    print("runner: the map server did not catch up with the monitor's deltas", file=sys.stderr)
-    return None
