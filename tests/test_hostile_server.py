@@ -195,7 +195,8 @@ def _query_flood(session, mission: str, stop: threading.Event) -> None:
 
 def test_a_flood_of_deltas_and_queries_does_not_hold_back_another_robot(tmp_path: Path):
     """r2 sends the same deltas again and again, a tool asks for the whole map in a loop:
-    each delta of r1 is still acked within a second."""
+    each delta of r1 is still acked within two seconds (generous for a loaded CI machine; behind
+    a shared queue the wait grows with the flood)."""
     mission = small_mission()
     grid = mission.workspace.grid()
     flood = [good(grid, "r2", seq=s, idx=(s,)) for s in range(1, 201)]
@@ -228,7 +229,7 @@ def test_a_flood_of_deltas_and_queries_does_not_hold_back_another_robot(tmp_path
             stop.set()
             for t in threads:
                 t.join()
-    assert max(waits) < 1.0, waits
+    assert max(waits) < 2.0, waits
     assert stats["robots"]["r2"]["deltas"] == len(flood) and stats["rejected"]["internal_error"] == 0
     assert stats["inbox"]["high_water"] <= len(ROBOTS) * OPTIONS.inbox_messages
 
@@ -375,7 +376,7 @@ def test_a_robot_pattern_admits_a_bounded_number_of_invented_ids(tmp_path: Path)
 def test_queries_are_answered_while_the_store_is_compacted(tmp_path: Path):
     """A compaction wrote the snapshot (8 bytes per voxel per robot, then fsync) under the query
     lock: on a 2,000,000-voxel map with 8 robots map/acks waited 0.53 s, past a slow disk the
-    agents' 1 s acks poll. Here the disk takes 2 s."""
+    agents' 1 s acks poll. Here the disk takes 4 s."""
     mission = small_mission()
     grid = mission.workspace.grid()
     writing = threading.Event()
@@ -388,7 +389,7 @@ def test_queries_are_answered_while_the_store_is_compacted(tmp_path: Path):
 
         def slow_disk(*args, **kwargs):
             writing.set()
-            time.sleep(2.0)
+            time.sleep(4.0)
             real(*args, **kwargs)
 
         server.store.compact = slow_disk
@@ -398,5 +399,5 @@ def test_queries_are_answered_while_the_store_is_compacted(tmp_path: Path):
         acks = client.acks()
         waited = time.perf_counter() - started
         stats = client.stats()
-    assert waited < 1.0, waited
+    assert waited < 2.0, waited  # not held for the 4 s write
     assert acks == {"r1": {EPOCH: 1}} and stats["snapshots_written"] == 0  # still writing
