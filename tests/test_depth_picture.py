@@ -107,3 +107,20 @@ def test_the_colour_bar_spans_the_scene_not_a_few_stray_near_matches():
     near, far = picture_range(depth, float("inf"))
     assert 1.0 <= near < 1.1 and 2.9 < far <= 3.0
     assert picture_range(depth, 2.5)[1] == 2.5  # --max-depth is the far end
+
+
+def test_a_bar_end_that_also_stands_for_depths_beyond_it_says_so():
+    """`swarm sim render --map` on the AWS small house: the console said "depth 0.93-9.27 m",
+    and the bar ended at "5 m" (the sensor's range) while 40% of the picture, up to 9.27 m,
+    took its colour. Such an end now reads ">=5 m" (and "<=near" at the near end)."""
+    from swarm.formats.depth_picture import tick_labels
+
+    assert tick_labels(0.0, 5.0) == ["0 m", "1.25 m", "2.5 m", "3.75 m", "5 m"]
+    assert tick_labels(0.5, 5.0, nearer=True, farther=True)[::4] == ["<=0.5 m", ">=5 m"]
+    within = np.tile(np.linspace(1.0, 4.0, 200), (150, 1))
+    beyond = within.copy()
+    beyond[:, -20:] = 9.27
+    bars = [depth_picture(d, 0.0, 5.0)[:, -BAR_WIDTH:] for d in (within, beyond, within)]
+    assert np.array_equal(bars[0], bars[2])
+    assert not np.array_equal(bars[0], bars[1])  # the far label differs
+    assert np.array_equal(bars[0][:-40], bars[1][:-40])  # and nothing above it

@@ -62,3 +62,66 @@ def test_a_terminated_mission_stops_every_role_and_writes_no_metrics(tmp_path) -
             if str(out) in cmdline:
                 mine.append(cmdline.replace("\0", " "))
     assert mine == [], mine
+
+
+def test_the_stop_reason_says_which_end_the_world_reached() -> None:
+    """A mission that ended by itself said "world stopped (max time or all agents dead)"; a
+    user had to read world.log to learn which. The runner now tells them apart from the
+    world's last truth message."""
+    from types import SimpleNamespace
+
+    from swarm.config import load_mission
+    from swarm.mission.runner import why_the_world_stopped
+
+    lab = load_mission(Path(__file__).resolve().parents[1] / "configs" / "lab.yaml")
+    lab = lab.model_copy(update={"stop": lab.stop.model_copy(update={"max_time_s": 40.0})})
+    ids = lab.robot_ids
+
+    def reason(sim_time: float, dead: list[str]) -> str:
+        return why_the_world_stopped(SimpleNamespace(sim_time=sim_time, dead=dead), lab)
+
+    assert reason(40.0, []) == "max time (40 s simulated)"
+    assert reason(40.0 - lab.sim.frame_period_s, []) == "max time (40 s simulated)"  # last message unread
+    dead = reason(12.5, list(ids))
+    assert dead.startswith(f"every agent dead ({', '.join(ids)}") and "agent_timeout_s" in dead
+    assert reason(12.5, list(ids[:-1])) == "world stopped"  # one agent still live: not known why
+
+
+TINY = """
+mission: tiny
+workspace: {lo: [0.0, 0.0, 0.0], hi: [2.4, 2.4, 0.8], voxel: 0.1}
+floor_plan: plan.yaml
+robots:
+  - id: r1
+    start: {x: 0.6, y: 0.6, yaw: 0.0}
+rig: {mode: range, camera_height: 0.4, width: 40, height: 30}
+stop: {max_time_s: 2}
+sim: {agent_timeout_s: 30}
+"""
+
+BOX = """
+name: box
+wall_height: 1.0
+walls:
+  - points: [[-0.05, -0.05], [2.45, -0.05], [2.45, 2.45], [-0.05, 2.45]]
+    closed: true
+"""
+
+
+def test_a_mission_that_runs_out_of_time_says_so(tmp_path: Path) -> None:
+    import json
+    import subprocess
+    import sys
+
+    (tmp_path / "plan.yaml").write_text(BOX)
+    (tmp_path / "m.yaml").write_text(TINY)
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "m.yaml"), "--out", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["reached_threshold"] is False
+    assert metrics["stop_reason"] == "max time (2 s simulated)"
+    assert "stopped: max time (2 s simulated);" in proc.stdout

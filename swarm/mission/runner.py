@@ -194,7 +194,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
                 reason = "agents done"
             elif world.poll() is not None:
-                reason = "world stopped (max time or all agents dead)"
+                reason = why_the_world_stopped(monitor, mission)
                 if world.returncode != 0:  # it failed: say so, and the run folder's stop_reason does
                     why = why_it_exited(world)
                     reason = f"world failed: it {why}"
@@ -250,6 +250,20 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         },
     }
     return monitor, facts
+
+
+def why_the_world_stopped(monitor: TeamMonitor, mission: Mission) -> str:
+    """The run's stop reason once the world has ended by itself (exit 0), from its last
+    ``sim/truth`` message: "max time (T s simulated)" when the simulated clock reached
+    ``stop.max_time_s`` (within 1.5 frame periods: the world may end before its last message is
+    read), "every agent dead (...)" when no agent answered within ``sim.agent_timeout_s``,
+    else "world stopped" (no truth message told which)."""
+    if mission.robot_ids and set(mission.robot_ids) <= set(monitor.dead):
+        return f"every agent dead ({', '.join(mission.robot_ids)}: none answered within sim.agent_timeout_s)"
+    max_time = mission.stop.max_time_s
+    if monitor.sim_time >= max_time - 1.5 * mission.sim.frame_period_s:
+        return f"max time ({max_time:g} s simulated)"
+    return "world stopped"
 
 
 def _start_view(view: str | None, plan: BusPlan, mission: str, out: Path) -> subprocess.Popen | None:

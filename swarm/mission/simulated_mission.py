@@ -75,8 +75,9 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
                 f"from the largest ({largest:.1f} m^2) by passages narrower than the robot "
                 f"({2 * mission.robot.radius:g} m across): it will map only its own region"
             )
-    behind = _floor_the_planner_never_reaches(mission, labels, ros_map)
+    behind, pieces = _floor_the_planner_never_reaches(mission, labels, ros_map)
     if behind >= 1.0:
+        where = ", ".join(f"{area:.1f} m^2 around ({x:.1f}, {y:.1f})" for area, (x, y) in pieces[:3])
         out.append(
             f"warning: {behind:.1f} m^2 of floor where the robots fit lies behind passages "
             f"their planner does not take (it keeps {mission.robot.radius:g} m + half a voxel "
@@ -84,15 +85,20 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
             f"{2 * mission.robot.radius + mission.workspace.voxel:.2f}-"
             f"{2 * mission.robot.radius + 2 * mission.workspace.voxel:.2f} m, by where the walls fall "
             "on the voxels, stay shut): "
-            "no robot will go there, and H_th does not count what only that floor sees"
+            "no robot will go there, and H_th does not count what only that floor sees; "
+            f"the largest parts, in map coordinates (m): {where}"
         )
     return out
 
 
-def _floor_the_planner_never_reaches(mission: Mission, labels: np.ndarray, ros_map) -> float:
+def _floor_the_planner_never_reaches(
+    mission: Mission, labels: np.ndarray, ros_map
+) -> tuple[float, list[tuple[float, tuple[float, float]]]]:
     """Area (m^2) of the ROS map's cells in the robots' body-fit regions (``labels``) that lie
     farther than 1.5 voxel edges from every column the planner reaches from a start on a
-    perfect map (``sim2d.observability.planner_floor``, the rule of H_th's reachable floor)."""
+    perfect map (``sim2d.observability.planner_floor``, the rule of H_th's reachable floor),
+    and its 8-connected parts as (area m^2, (x, y) of their centroid in map coordinates),
+    largest first."""
     from scipy import ndimage
 
     from sim2d.observability import planner_floor
@@ -107,7 +113,7 @@ def _floor_the_planner_never_reaches(mission: Mission, labels: np.ndarray, ros_m
     )
     keep = {int(labels[r, c]) for r, c in cells[inside]} - {0}
     if not keep:
-        return 0.0
+        return 0.0, []
     grid = mission.workspace.grid()
     rig = mission.rig_for(mission.robot_ids[0])
     planned = planner_floor(mission.load_floor_plan(), grid, starts, mission.robot.radius, rig.camera_height)
@@ -118,7 +124,17 @@ def _floor_the_planner_never_reaches(mission: Mission, labels: np.ndarray, ros_m
     ok = np.all((ij >= 0) & (ij < np.array(grid.shape[:2])), axis=1)
     reached = np.zeros(len(ij), dtype=bool)
     reached[ok] = near[ij[ok, 0], ij[ok, 1]]
-    return float(np.count_nonzero(~reached)) * ros_map.resolution**2
+    never = np.zeros(labels.shape, dtype=bool)
+    never[rows[~reached], cols[~reached]] = True
+    parts, count = ndimage.label(never, structure=np.ones((3, 3), dtype=bool))
+    cell_area = ros_map.resolution**2
+    pieces = []
+    for k, sl in enumerate(ndimage.find_objects(parts), start=1):
+        r, c = np.nonzero(parts[sl] == k)
+        centre = ros_map.to_world(c.mean() + sl[1].start + 0.5, r.mean() + sl[0].start + 0.5)
+        pieces.append((len(r) * cell_area, (float(centre[0]), float(centre[1]))))
+    pieces.sort(key=lambda piece: -piece[0])
+    return float(np.count_nonzero(never)) * cell_area, pieces
 
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
