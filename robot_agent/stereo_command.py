@@ -42,6 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "or extrinsics.yml beside --calib intrinsics.yml (OpenCV's stereo_calib sample)",
     )
     parser.add_argument(
+        "--calib-units",
+        choices=("m", "cm", "mm"),
+        help="the unit of the calibration's translation or baseline (T, T_BS, T_cn_cnm1, P[0][3], "
+        "baseline), when it is not the form's own (metres; Middlebury's millimetres): a rig of a few "
+        "centimetres written in centimetres cannot be told from one a few metres wide (docs/stereo.md)",
+    )
+    parser.add_argument(
         "--out",
         type=Path,
         required=True,
@@ -134,11 +141,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         left = _read_image(args.left, "left")
         right = _read_image(args.right, "right")
-        calib = load_stereo_calibration(args.calib, args.calib_right, image_size=left.shape[1::-1])
+        calib = load_stereo_calibration(
+            args.calib, args.calib_right, image_size=left.shape[1::-1], units=args.calib_units
+        )
     except (CalibrationError, FileNotFoundError, ValueError) as exc:
         return _fail(str(exc))
-    for note in calib.notes:
-        print(f"note: {note}")
+    for note in calib.notes:  # a "warning: ..." note (an uncertain unit) goes to stderr as it is
+        warning = note.startswith("warning:")
+        print(note if warning else f"note: {note}", file=sys.stderr if warning else sys.stdout, flush=True)
     (hl, wl), (hr, wr) = left.shape[:2], right.shape[:2]
     if (hl, wl) != (hr, wr):
         return _fail(

@@ -17,7 +17,7 @@ names the file and the field.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +25,10 @@ import numpy as np
 
 from swarm.formats.calibration_schema import (
     FISHEYE_MODELS,
+    MAX_BASELINE_M,
     field_value,
     fisheye_coefficients,
+    metres_per_unit,
     numbers,
     whole_number,
 )
@@ -166,8 +168,11 @@ def _refuse_region_of_interest(roi: Any, width: int, height: int, source: str) -
         )
 
 
-def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalibration:
-    """A StereoCalibration from the two cameras' camera_info (REP-104: images rectified by R, P)."""
+def stereo_from_camera_infos(
+    left: CameraInfo, right: CameraInfo, units: str | None = None
+) -> StereoCalibration:
+    """A StereoCalibration from the two cameras' camera_info (REP-104: images rectified by R, P;
+    ``P[0][3]`` in pixels x metres, or x ``units``, ``m``, ``cm``, ``mm``)."""
     source = f"{left.source} + {right.source}"
     if (left.width, left.height) != (right.width, right.height):
         raise CalibrationError(
@@ -179,13 +184,13 @@ def stereo_from_camera_infos(left: CameraInfo, right: CameraInfo) -> StereoCalib
             f"{left.source}: projection_matrix: P[0][3] must be 0 for the left camera, got {left.p[0, 3]:g} "
             "(are --calib-left and --calib-right swapped?)"
         )
-    baseline = -right.p[0, 3] / right.p[0, 0]
+    baseline = -right.p[0, 3] / right.p[0, 0] * metres_per_unit(units)
     if not baseline > 0:
         raise CalibrationError(
             f"{right.source}: projection_matrix: P[0][3] = -fx * baseline must be < 0 for the right camera, "
             f"got {right.p[0, 3]:g} (a camera_info of a single camera has 0 there)"
         )
-    if baseline > 5.0:
+    if baseline > MAX_BASELINE_M:
         raise CalibrationError(
             f"{right.source}: projection_matrix: baseline {baseline:g} m is implausible (millimetres?)"
         )
@@ -238,13 +243,52 @@ def _is_camera_info(data: Any) -> bool:
 
 
 def load_stereo_calibration(
-    path: str | Path, right: str | Path | None = None, image_size: tuple[int, int] | None = None
+    path: str | Path,
+    right: str | Path | None = None,
+    image_size: tuple[int, int] | None = None,
+    units: str | None = None,
 ) -> StereoCalibration:
     """Read any supported form: ``right`` is the second file of two-file forms (camera_info and
     EuRoC sensor.yaml: the right camera's; OpenCV's ``stereo_calib`` sample: ``extrinsics.yml``
     beside ``intrinsics.yml``). ``image_size`` (width, height) is the images' size, used by an
-    OpenCV calibration that states none. Raises CalibrationError naming the file and field."""
+    OpenCV calibration that states none. ``units`` (``m``, ``cm``, ``mm``) declares the unit of
+    the file's translation or baseline; None takes each form's own (metres; Middlebury's
+    millimetres) and adds a warning to ``notes`` when the cameras come out between
+    ``UNCERTAIN_BASELINE_M`` and 5 m apart, where a rig in centimetres would read too. Raises
+    CalibrationError naming the file and field."""
+    metres_per_unit(units)  # an unknown unit is refused before any file is read
     path = Path(path)
+    calib = _load_any(path, right, image_size, units)
+    if units is None and not _is_middlebury(path) and UNCERTAIN_BASELINE_M <= calib.baseline:
+        calib = replace(calib, notes=(*calib.notes, _uncertain_unit_warning(calib)))
+    return calib
+
+
+#: A baseline read as metres from this long up to 5 m is also what a rig of 1-5 cm written in
+#: centimetres gives; such a reading is warned of (stereo rigs this wide are rare, ones that
+#: narrow are common: RealSense D4xx 5 cm, phone modules 1-2 cm).
+UNCERTAIN_BASELINE_M = 1.0
+
+
+def _uncertain_unit_warning(calib: StereoCalibration) -> str:
+    metres = calib.baseline
+    return (
+        f"warning: {calib.source}: the cameras come out {metres:.4g} m apart, reading its numbers as "
+        f"metres; a rig {metres:.4g} cm apart written in centimetres reads the same. If the file is "
+        "in centimetres or millimetres, say so: --calib-units cm (or mm)"
+    )
+
+
+def _is_middlebury(path: Path) -> bool:
+    """A Middlebury calib.txt: any ``.txt`` or ``cam0=`` text but ROS camera_calibration's ost.txt."""
+    if _ini_cameras(path) is not None:
+        return False
+    return path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0=")
+
+
+def _load_any(
+    path: Path, right: str | Path | None, image_size: tuple[int, int] | None, units: str | None
+) -> StereoCalibration:
     cameras = _ini_cameras(path)
     if cameras is not None:  # camera_info INI: one camera, or ROS camera_calibration's stereo ost.txt
         if len(cameras) == 2 and right is None:
@@ -252,6 +296,7 @@ def load_stereo_calibration(
             return stereo_from_camera_infos(
                 CameraInfo.from_dict(left, f"{path}: [{left_name}]"),
                 CameraInfo.from_dict(right_info, f"{path}: [{right_name}]"),
+                units,
             )
         if len(cameras) == 2:
             raise CalibrationError(f"{right}: {path} holds both cameras (ost.txt); give it alone")
@@ -260,11 +305,11 @@ def load_stereo_calibration(
                 f"{path}: a camera_info INI file describes one camera; give the right camera's too "
                 "(--calib-left LEFT.ini --calib-right RIGHT.ini)"
             )
-        return stereo_from_camera_infos(CameraInfo.load(path), CameraInfo.load(right))
-    if path.suffix == ".txt" or read_calibration_text(path).lstrip().startswith("cam0="):
+        return stereo_from_camera_infos(CameraInfo.load(path), CameraInfo.load(right), units)
+    if _is_middlebury(path):
         if right is not None:
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")
-        return load_middlebury(path)
+        return load_middlebury(path, units or "mm")
     data = _read_yaml(path)
     if _is_camera_info(data):
         if right is None:
@@ -272,21 +317,22 @@ def load_stereo_calibration(
                 f"{path}: a ROS camera_info describes one camera; give the right camera's too "
                 "(--calib-left LEFT.yaml --calib-right RIGHT.yaml)"
             )
-        return stereo_from_camera_infos(CameraInfo.from_dict(data, str(path)), CameraInfo.load(right))
+        return stereo_from_camera_infos(CameraInfo.from_dict(data, str(path)), CameraInfo.load(right), units)
     if isinstance(data, dict) and "T_BS" in data:
         if right is None:
             raise CalibrationError(
                 f"{path}: an EuRoC/Kalibr sensor.yaml describes one camera; give cam1's sensor.yaml too"
             )
-        return stereo_from_kalibr(KalibrCamera.from_dict(data, str(path)), KalibrCamera.load(right))
+        left_camera, right_camera = KalibrCamera.from_dict(data, str(path)), KalibrCamera.load(right)
+        return stereo_from_kalibr(left_camera, right_camera, units=units)
     if isinstance(data, dict) and "cam0" in data and "cam1" in data:
-        return stereo_from_camchain(data, str(path))
+        return stereo_from_camchain(data, str(path), units)
     if right is not None:
         other = _read_yaml(Path(right))
         if _opencv_halves(data, other):  # stereo_calib's intrinsics.yml + extrinsics.yml
-            return calibration_from_dict({**data, **other}, f"{path} + {right}", image_size)
+            return calibration_from_dict({**data, **other}, f"{path} + {right}", image_size, units)
         raise CalibrationError(f"{right}: {path} describes both cameras; give it alone")
-    return calibration_from_dict(data, source=str(path), image_size=image_size)
+    return calibration_from_dict(data, str(path), image_size, units)
 
 
 def _opencv_halves(a: Any, b: Any) -> bool:
