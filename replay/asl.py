@@ -16,6 +16,7 @@ and the pose at each left image's stamp follows ``replay.trajectory``'s rule (as
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -41,14 +42,32 @@ class RecordingError(InputError):
     """An unusable recording: the message names the file (and topic or column)."""
 
 
-def _rows(path: Path, columns: int) -> list[list[str]]:
+@dataclass
+class CsvTable:
+    """A data.csv's rows (cells stripped) and the first cell of its header line ('' if none)."""
+
+    rows: list[list[str]]
+    header: str
+
+
+def _rows(path: Path, columns: int) -> CsvTable:
+    """The rows of an ASL ``data.csv``: ``#`` lines are comments, the first of them the header;
+    a first row whose first cell is not a number is a header written without ``#`` (pandas' and
+    spreadsheets' ``timestamp,filename``)."""
     if not path.is_file():
         raise RecordingError(f"{path}: file not found")
-    rows = []
+    rows: list[list[str]] = []
+    header = None
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:  # a byte-order mark: saved by Excel
             for n, row in enumerate(csv.reader(fh), 1):
-                if not row or row[0].lstrip().startswith("#"):
+                if not row or not "".join(row).strip():
+                    continue
+                if row[0].lstrip().startswith("#"):
+                    header = row[0].strip().lstrip("#").strip() if header is None else header
+                    continue
+                if not rows and header is None and not _is_number(row[0]):
+                    header = row[0].strip()
                     continue
                 if len(row) < columns:
                     raise RecordingError(f"{path}: line {n}: expected {columns} columns, got {len(row)}")
@@ -57,28 +76,60 @@ def _rows(path: Path, columns: int) -> list[list[str]]:
         raise RecordingError(f"{path}: not UTF-8 text (byte offset {exc.start})") from None
     if not rows:
         raise RecordingError(f"{path}: no data rows")
-    return rows
+    return CsvTable(rows, header or "")
 
 
-def _nanoseconds(text: str) -> int:
-    """A timestamp in ns as written (``1403715274312143104`` or ``1403715274312143104.0000``),
+def _is_number(text: str) -> bool:
+    try:
+        return Decimal(text.strip()).is_finite()
+    except InvalidOperation:
+        return False
+
+
+#: the timestamp units a header may name (``#timestamp [ns]``, ``timestamp [s]``, ``time(us)``):
+#: nanoseconds per unit, as a power of ten
+_NS_EXPONENT = {"ns": 0, "us": 3, "µs": 3, "ms": 6, "s": 9, "sec": 9}
+
+
+def _stamp_unit(table: CsvTable) -> str:
+    """The unit of the timestamp column: the one its header names, else seconds when a stamp
+    has a fraction of a unit (nanoseconds have none; EuRoC writes ``...104.0000000000``), else
+    nanoseconds, the ASL format's unit."""
+    named = re.search(r"[\[(]\s*(ns|us|µs|ms|s|sec)\s*[\])]", table.header.lower())
+    if named:
+        return named.group(1)
+    fractional = any("." in r[0] and Decimal(r[0]) != Decimal(r[0]).to_integral_value() for r in table.rows
+                     if _is_number(r[0]))  # fmt: skip
+    return "s" if fractional else "ns"
+
+
+def _stamps_ns(table: CsvTable, path: Path) -> np.ndarray:
+    """The timestamp column in ns (int64), read in its unit (``_stamp_unit``). Raises
+    RecordingError naming the file."""
+    unit = _stamp_unit(table)
+    try:
+        return np.array([_nanoseconds(r[0], _NS_EXPONENT[unit]) for r in table.rows], dtype=np.int64)
+    except ValueError as exc:
+        raise RecordingError(f"{path}: timestamp column: {exc}") from None
+
+
+def _nanoseconds(text: str, exponent: int = 0) -> int:
+    """A timestamp in ns from its text in units of ``10**exponent`` ns (0: ns, 9: s),
+    as written (``1403715274312143104``, ``1403715274312143104.0000``, ``1403715274.312143``),
     read exactly: a float64 keeps only 256 ns at today's epoch in ns. Raises ValueError."""
     try:
         value = Decimal(text)
     except InvalidOperation:
-        raise ValueError(f"could not convert {text!r} to a timestamp in ns") from None
+        raise ValueError(f"could not convert {text!r} to a timestamp") from None
     if not value.is_finite():
         raise ValueError(f"timestamp {text!r} is not a number")
-    return int(value.to_integral_value())
+    return int(value.scaleb(exponent).to_integral_value())
 
 
 def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
     """(stamps in ns, sorted; their image files; how many rows named a file that is not there)."""
-    rows = _rows(cam / "data.csv", 2)
-    try:
-        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
-    except ValueError as exc:
-        raise RecordingError(f"{cam / 'data.csv'}: timestamp column: {exc}") from None
+    table = _rows(cam / "data.csv", 2)
+    stamps, rows = _stamps_ns(table, cam / "data.csv"), table.rows
     files = [cam / "data" / r[1] for r in rows]
     present = np.array([f.is_file() for f in files], dtype=bool)
     if not present.any():
@@ -109,9 +160,9 @@ def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """(stamps ns, positions (N, 3), quaternions (N, 4) w x y z, rows left out): a row whose
     numbers are not a pose (NaN or inf, a zero quaternion: a tracker that lost itself) is left
     out and counted, as the bag reader does."""
-    rows = _rows(path, 8)
+    table = _rows(path, 8)
+    stamps, rows = _stamps_ns(table, path), table.rows
     try:
-        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
         values = np.array([[float(c) for c in r[1:8]] for r in rows])
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
