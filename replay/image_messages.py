@@ -2,8 +2,8 @@
 ``sensor_msgs/CameraInfo`` to a camera's calibration.
 
 Raw images are read by their ``encoding`` (``sensor_msgs/image_encodings``: mono, BGR/RGB with
-or without alpha, 16-bit, YUV 4:2:2 and Bayer mosaics), with row padding (``step``) and
-big-endian 16-bit data; YUV gives its luma, Bayer mosaics are demosaiced to gray. Compressed
+or without alpha, 16-bit, YUV 4:2:2, YUV 4:2:0 NV12/NV21 and Bayer mosaics), with row padding
+(``step``) and big-endian 16-bit data; YUV gives its luma, Bayer mosaics are demosaiced to gray. Compressed
 images are decoded by OpenCV; image_transport's format string (``"ENCODING; png compressed"``)
 tells a compressed Bayer mosaic, demosaiced here too.
 
@@ -41,7 +41,15 @@ _ENCODINGS: dict[str, tuple[type, int, Any]] = {
     "uyvy": (np.uint8, 2, ("luma", 1)),
     "yuv422_yuy2": (np.uint8, 2, ("luma", 0)),  # YUYV
     "yuyv": (np.uint8, 2, ("luma", 0)),
+    # YUV 4:2:0 semi-planar (ROS 2's nv12/nv21: Raspberry Pi camera_ros, OAK cameras): the rows of
+    # the luma plane (one byte a pixel, ``step`` apart) then half as many of chroma; gray is the luma
+    "nv12": (np.uint8, 1, None),
+    "nv21": (np.uint8, 1, None),
+    "rgba16": (np.uint16, 4, cv2.COLOR_RGBA2BGRA),
+    "bgra16": (np.uint16, 4, None),
 }
+#: rows of data per image row (image_encodings' getHeightScaling): the chroma plane's follow
+_HEIGHT_SCALING = {"nv12": 1.5, "nv21": 1.5}
 # Bayer mosaics, demosaiced to gray; OpenCV names a pattern by its second row's middle pixels
 _BAYER = {"rggb": cv2.COLOR_BayerBG2GRAY, "bggr": cv2.COLOR_BayerRG2GRAY,
           "gbrg": cv2.COLOR_BayerGR2GRAY, "grbg": cv2.COLOR_BayerGB2GRAY}  # fmt: skip
@@ -88,10 +96,12 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     dtype, channels, convert = _ENCODINGS[encoding]
     row_bytes = msg.width * channels * np.dtype(dtype).itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
-    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height:
+    scaling = _HEIGHT_SCALING.get(encoding, 1.0)
+    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height * scaling:
+        rows = "height" if scaling == 1.0 else f"{scaling:g} x height (the luma, then the chroma)"
         raise RecordingError(
             f"{where}: a {msg.width}x{msg.height} {msg.encoding} image needs step >= {row_bytes} and "
-            f"height * step bytes of data; it has step {msg.step} and {data.size} bytes"
+            f"{rows} * step bytes of data; it has step {msg.step} and {data.size} bytes"
         )
     row = data[: msg.step * msg.height].reshape(msg.height, msg.step)
     pixels = row[:, :row_bytes].copy().view(dtype)
