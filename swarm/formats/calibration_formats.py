@@ -94,8 +94,6 @@ class CameraInfo:
         k = numbers(field_value(data, source, "camera_matrix", "k", "K"), 9, source, "camera_matrix").reshape(
             3, 3
         )
-        if k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
         d = field_value(data, source, "distortion_coefficients", "d", "D")
         if model in FISHEYE_MODELS:
             d = fisheye_coefficients(d, source, "distortion_coefficients")
@@ -115,6 +113,9 @@ class CameraInfo:
             )
         p = numbers(field_value(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
         p = p.reshape(3, 4)
+        k, r = _rectified_defaults(k, d, r.reshape(3, 3), p, source)
+        if k[0, 0] <= 0 or k[1, 1] <= 0:
+            raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
         if p[0, 0] <= 0 or p[1, 1] <= 0:
             raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
         _refuse_region_of_interest(data.get("roi"), width, height, source)
@@ -123,7 +124,7 @@ class CameraInfo:
             scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
             k, p = scale @ k, scale @ p
             width, height = width // bx, height // by
-        return cls(int(width), int(height), k, d, r.reshape(3, 3), p, model, source)
+        return cls(int(width), int(height), k, d, r, p, model, source)
 
     @classmethod
     def load(cls, path: str | Path) -> CameraInfo:
@@ -141,6 +142,24 @@ def _ini_cameras(path: Path) -> list[tuple[str, dict]] | None:
     """The cameras of a camera_info INI file or ``ost.txt``, None for a file of another form."""
     text = read_calibration_text(path)
     return camera_info_ini(text, str(path)) if is_camera_info_ini(text) else None
+
+
+def _rectified_defaults(
+    k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray, source: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """K and R of a CameraInfo as its drivers mean them when they leave them unset: R all zero
+    (zed-ros-wrapper#126, depthai-ros#58) is no rotation, the identity; K all zero with no
+    distortion (depthai-ros#598: a rectified stereo pair's info) is P's left 3x3, the images being
+    rectified already. Any other R that is not a rotation is refused naming it."""
+    if not np.any(r):
+        r = np.eye(3)
+    elif not (np.allclose(r @ r.T, np.eye(3), atol=1e-3) and np.linalg.det(r) > 0):
+        raise CalibrationError(
+            f"{source}: rectification_matrix: not a rotation matrix (orthonormal, determinant +1)"
+        )
+    if not np.any(k) and not np.any(d) and np.all(np.diag(p)[:2] > 0):
+        k = p[:, :3].copy()
+    return k, r
 
 
 def _binning(data: dict, name: str, source: str) -> int:
