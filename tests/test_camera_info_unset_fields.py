@@ -67,3 +67,21 @@ def test_a_camera_info_topic_reads_the_same():
     assert np.array_equal(info.r, np.eye(3)) and np.array_equal(
         info.k, np.asarray(P_RIGHT).reshape(3, 4)[:, :3]
     )
+
+
+def test_a_pair_whose_reference_is_the_right_camera_gives_the_same_rig(tmp_path):
+    """depthai-ros#369: an OAK camera's left P[0][3] is +fx * baseline and the right one's 0 (the
+    right camera is the pair's reference); before, refused as a swapped pair."""
+    reference = _pair(tmp_path, K, EYE)
+    for name, p in (("left", [F, 0, 32.0, F * B, 0, F, 24.0, 0, 0, 0, 1, 0]), ("right", P_LEFT)):
+        info = yaml.safe_load((tmp_path / f"{name}.yaml").read_text())
+        info["projection_matrix"] = p
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(info))
+    calib = load_stereo_calibration(tmp_path / "left.yaml", tmp_path / "right.yaml")
+    assert (calib.baseline, calib.fx, calib.cx, calib.cx_right) == pytest.approx(
+        (reference.baseline, reference.fx, reference.cx, reference.cx_right)
+    )
+    with pytest.raises(
+        CalibrationError, match=r"left.yaml: projection_matrix: P\[0\]\[3\] = 8.4 puts .* swapped"
+    ):
+        load_stereo_calibration(tmp_path / "right.yaml", tmp_path / "left.yaml")

@@ -198,16 +198,21 @@ def stereo_from_camera_infos(
             f"{right.source}: image_width, image_height: {right.width}x{right.height}, "
             f"the left camera is {left.width}x{left.height}"
         )
-    if abs(left.p[0, 3]) > 1e-9:
-        raise CalibrationError(
-            f"{left.source}: projection_matrix: P[0][3] must be 0 for the left camera, got {left.p[0, 3]:g} "
-            "(are --calib-left and --calib-right swapped?)"
-        )
-    baseline = -right.p[0, 3] / right.p[0, 0] * metres_per_unit(units)
+    # Tx = P[0][3] = -fx * (the camera's x in the pair's reference camera): 0 for the reference,
+    # which is the left camera for ROS camera_calibration and the right one for OAK cameras
+    # (depthai-ros#369); either way the right camera's Tx is the left's minus fx * baseline
+    tx_left, tx_right = left.p[0, 3], right.p[0, 3]
+    baseline = (tx_left - tx_right) / right.p[0, 0] * metres_per_unit(units)
     if not baseline > 0:
+        if tx_left < 0 or tx_right > 0:
+            which, tx = (left, tx_left) if tx_left < 0 else (right, tx_right)
+            raise CalibrationError(
+                f"{which.source}: projection_matrix: P[0][3] = {tx:g} puts the right camera to the left of "
+                "the left one: are --calib-left and --calib-right swapped?"
+            )
         raise CalibrationError(
             f"{right.source}: projection_matrix: P[0][3] = -fx * baseline must be < 0 for the right camera, "
-            f"got {right.p[0, 3]:g} (a camera_info of a single camera has 0 there)"
+            f"got {tx_right:g} (a camera_info of a single camera has 0 there)"
         )
     if baseline > MAX_BASELINE_M:
         raise CalibrationError(
@@ -215,7 +220,7 @@ def stereo_from_camera_infos(
         )
     if baseline < MIN_BASELINE_M:
         raise CalibrationError(
-            f"{right.source}: projection_matrix: P[0][3] = {right.p[0, 3]:g} gives a baseline of "
+            f"{right.source}: projection_matrix: P[0][3] = {tx_right:g} gives a baseline of "
             f"{baseline * 1e3:.3g} mm; P[0][3] is -fx * baseline (pixels x metres), not the baseline alone"
         )
     size = (left.width, left.height)
