@@ -62,6 +62,7 @@ def load_middlebury(path: str | Path, units: str = "mm") -> StereoCalibration:
         return int(value)
 
     cam0, cam1 = matrix("cam0"), matrix("cam1")
+    _check_rectified(cam0, cam1, source)
     baseline_read = number("baseline")
     if not baseline_read > 0:
         raise CalibrationError(f"{source}: baseline: must be > 0 ({units}), got {baseline_read:g}")
@@ -91,3 +92,20 @@ def load_middlebury(path: str | Path, units: str = "mm") -> StereoCalibration:
         ndisp=ndisp,
         notes=(f"{source}: baseline {baseline_read:g} {units} read as {baseline:g} m",),
     )
+
+
+def _check_rectified(cam0: np.ndarray, cam1: np.ndarray, source: str) -> None:
+    """A calib.txt describes rectified views: one focal length and one ``cy`` for both (only ``cx``
+    differs, by ``doffs``). Two raw cameras' own matrices copied into it (SimpleStereo#26) would
+    be read as a rectified rig, silently wrong: refused, naming the numbers that differ."""
+    differ = [
+        f"{name} {cam0[i, j]:g} vs {cam1[i, j]:g}"
+        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
+        if abs(cam0[i, j] - cam1[i, j]) > 0.01
+    ]
+    if differ:
+        raise CalibrationError(
+            f"{source}: cam0, cam1: {', '.join(differ)}; a calib.txt describes rectified views (one f, one "
+            "cy), so these look like two raw cameras' matrices: rectify first, or give their OpenCV "
+            "stereo calibration (K1 D1 K2 D2 R T) instead"
+        )
