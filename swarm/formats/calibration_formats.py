@@ -198,6 +198,7 @@ def stereo_from_camera_infos(
             f"{right.source}: image_width, image_height: {right.width}x{right.height}, "
             f"the left camera is {left.width}x{left.height}"
         )
+    _check_one_rectified_camera(left, right)
     # Tx = P[0][3] = -fx * (the camera's x in the pair's reference camera): 0 for the reference,
     # which is the left camera for ROS camera_calibration and the right one for OAK cameras
     # (depthai-ros#369); either way the right camera's Tx is the left's minus fx * baseline
@@ -248,6 +249,23 @@ def stereo_from_camera_infos(
         left_rotation=None if rectified else left.r.copy(),
         source=source,
     )
+
+
+def _check_one_rectified_camera(left: CameraInfo, right: CameraInfo) -> None:
+    """The two P of a stereo pair describe one rectified camera (cv2.stereoRectify's P1, P2): the
+    same fx, fy and cy (cx may differ). Two monocular calibrations' own P, with a Tx written in by
+    hand, would rectify the images onto rows that do not line up: refused naming what differs."""
+    differ = [
+        f"{name} {right.p[i, j]:g} (left {left.p[i, j]:g})"
+        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
+        if abs(left.p[i, j] - right.p[i, j]) > 0.05
+    ]
+    if differ:
+        raise CalibrationError(
+            f"{right.source}: projection_matrix: {', '.join(differ)}: the two P of a stereo pair share "
+            "fx, fy and cy (one rectified camera); these look like two monocular calibrations: "
+            "calibrate the pair together (ROS camera_calibration with two cameras, cv2.stereoCalibrate)"
+        )
 
 
 # -- one entry point -------------------------------------------------------------------------
