@@ -111,11 +111,31 @@ def _read_image(path: Path, role: str) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"{role} image {path}: not a readable image")
-    if image.dtype == np.uint16:  # 16-bit PNGs: keep the top 8 bits
-        image = (image >> 8).astype(np.uint8)
-    if image.dtype != np.uint8:
+    if image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{role} image {path}: unsupported pixel type {image.dtype}")
     return image
+
+
+#: the sample sizes a 16-bit image's camera may have had (its values in the low bits)
+SIGNIFICANT_BITS = (8, 10, 12, 14, 16)
+
+
+def _pair_to_8_bits(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """A 16-bit pair as 8 bits, both by one scale: a 10- or 12-bit camera's images saved as 16-bit
+    PNG hold 0..1023 or 0..4095, whose top 8 bits would be near black, so the bits the brighter
+    image's peak needs are kept; with a note saying how many. 8-bit images pass unchanged."""
+    if left.dtype != np.uint16 and right.dtype != np.uint16:
+        return left, right, None
+    peak = max(int(image.max()) for image in (left, right) if image.dtype == np.uint16)
+    bits = next(b for b in SIGNIFICANT_BITS if peak < 2**b)
+    shift = bits - 8
+
+    def scaled(image: np.ndarray) -> np.ndarray:
+        if image.dtype != np.uint16:
+            return image
+        return np.minimum(image >> shift, 255).astype(np.uint8)
+
+    return scaled(left), scaled(right), f"16-bit images: {bits} significant bits (brightest value {peak})"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -139,13 +159,16 @@ def run(args: argparse.Namespace) -> int:
     if option_problems:
         return _fail("\n".join(option_problems))
     try:
-        left = _read_image(args.left, "left")
-        right = _read_image(args.right, "right")
+        left, right, bits_note = _pair_to_8_bits(
+            _read_image(args.left, "left"), _read_image(args.right, "right")
+        )
         calib = load_stereo_calibration(
             args.calib, args.calib_right, image_size=left.shape[1::-1], units=args.calib_units
         )
     except (CalibrationError, FileNotFoundError, ValueError) as exc:
         return _fail(str(exc))
+    if bits_note:
+        print(f"note: {bits_note}")
     for note in calib.notes:  # a "warning: ..." note (an uncertain unit) goes to stderr as it is
         warning = note.startswith("warning:")
         print(note if warning else f"note: {note}", file=sys.stderr if warning else sys.stdout, flush=True)
