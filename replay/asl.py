@@ -145,6 +145,33 @@ def _read_image(path: Path) -> np.ndarray:
     return image
 
 
+#: 16-bit images: how many of each camera's, spread over the recording, set the significant bits
+BIT_SAMPLES = 30
+
+
+def _significant_bits(left: list[Path], right: list[Path]) -> int | None:
+    """The significant bits of 16-bit PNGs (a 10- or 12-bit camera's values sit in the low bits,
+    as TUM-VI's ``_16`` and industrial cameras' folders hold them), from the brightest of up to
+    ``BIT_SAMPLES`` images of each camera; None for 8-bit images (``replay.image_messages``)."""
+    from replay.image_messages import SignificantBits
+
+    if _read_image(left[0]).dtype != np.uint16:
+        return None
+    bits = SignificantBits({"left": len(left), "right": len(right)}, BIT_SAMPLES)
+    for name, files in (("left", left), ("right", right)):
+        for index, path in enumerate(files):
+            if bits.wants(name, index):
+                bits.add(_read_image(path))
+    return bits.bits
+
+
+def _to_8_bits(image: np.ndarray, bits: int) -> np.ndarray:
+    """``replay.image_messages.to_8_bits`` (imported late: that module imports this one)."""
+    from replay.image_messages import to_8_bits as scale
+
+    return scale(image, bits)
+
+
 @dataclass
 class PoseTrack:
     """Left camera poses: times (ns, sorted), positions (N, 3), world_R_optical (N, 3, 3)."""
@@ -219,6 +246,7 @@ class AslRecording:
         for first in (self.left_files[0], self.right_files[0]):  # before anything starts
             shape = _read_image(first).shape
             self.calibration = fit_image_size(self.calibration, shape[1], shape[0], str(first))
+        self.pixel_bits = _significant_bits(self.left_files, self.right_files)
         # in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"; the
         # pose at each left stamp by replay.trajectory's rule (a body ground truth at 200 Hz is
         # interpolated between its samples around the image), in seconds from the first image so
@@ -251,6 +279,8 @@ class AslRecording:
             j = self.matched.others["cam1 image"][k]
             p = self.matched.others["pose"][k]
             left, right = _read_image(self.left_files[i]), _read_image(self.right_files[j])
+            if self.pixel_bits is not None:
+                left, right = _to_8_bits(left, self.pixel_bits), _to_8_bits(right, self.pixel_bits)
             yield RecordedPair(
                 float(self.left_stamps[i]) * NS, left, right, self.pose_positions[p], self.pose_rotations[p]
             )

@@ -79,3 +79,21 @@ def test_a_header_naming_nanoseconds_wins_and_bad_stamps_are_named(tmp_path):
     path.write_text("#timestamp [ns],filename\n1403715274312143104,a.png\nsoon,b.png\n")
     with pytest.raises(RecordingError, match=r"cam0/data.csv: timestamp column: could not convert 'soon'"):
         AslRecording(folder, 0.01)
+
+
+@pytest.mark.parametrize("bits", [10, 12])
+def test_16_bit_images_of_a_10_or_12_bit_camera_keep_their_bits(tmp_path, bits):
+    """TUM-VI's ``_16`` folders and industrial cameras save 16-bit PNGs whose values sit in the low
+    bits; before, their top 8 bits were kept (a 10-bit image became 0..3, near black), silently."""
+    import cv2
+
+    folder = _copy(tmp_path, lambda name, lines: lines)
+    for png in (folder / "mav0").glob("cam*/data/*.png"):
+        image = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png), image.astype(np.uint16) << (bits - 8))
+    got, want = AslRecording(folder, 0.01), AslRecording(MINI, 0.01)
+    assert got.pixel_bits == bits and want.pixel_bits is None
+    for a, b in zip(got.pairs(), want.pairs(), strict=True):
+        assert (
+            a.left.dtype == np.uint8 and np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
+        )
