@@ -31,6 +31,7 @@ from replay.poses import camera_from_body, quaternion_matrix
 from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
 from swarm.formats.errors import InputError
+from swarm.formats.pixel_bits import SignificantBits, to_8_bits
 from swarm.formats.stereo_calibration import StereoCalibration
 
 NS = 1e-9
@@ -152,9 +153,7 @@ BIT_SAMPLES = 30
 def _significant_bits(left: list[Path], right: list[Path]) -> int | None:
     """The significant bits of 16-bit PNGs (a 10- or 12-bit camera's values sit in the low bits,
     as TUM-VI's ``_16`` and industrial cameras' folders hold them), from the brightest of up to
-    ``BIT_SAMPLES`` images of each camera; None for 8-bit images (``replay.image_messages``)."""
-    from replay.image_messages import SignificantBits
-
+    ``BIT_SAMPLES`` images of each camera; None for 8-bit images (``swarm.formats.pixel_bits``)."""
     if _read_image(left[0]).dtype != np.uint16:
         return None
     bits = SignificantBits({"left": len(left), "right": len(right)}, BIT_SAMPLES)
@@ -163,13 +162,6 @@ def _significant_bits(left: list[Path], right: list[Path]) -> int | None:
             if bits.wants(name, index):
                 bits.add(_read_image(path))
     return bits.bits
-
-
-def _to_8_bits(image: np.ndarray, bits: int) -> np.ndarray:
-    """``replay.image_messages.to_8_bits`` (imported late: that module imports this one)."""
-    from replay.image_messages import to_8_bits as scale
-
-    return scale(image, bits)
 
 
 @dataclass
@@ -280,7 +272,7 @@ class AslRecording:
             p = self.matched.others["pose"][k]
             left, right = _read_image(self.left_files[i]), _read_image(self.right_files[j])
             if self.pixel_bits is not None:
-                left, right = _to_8_bits(left, self.pixel_bits), _to_8_bits(right, self.pixel_bits)
+                left, right = to_8_bits(left, self.pixel_bits), to_8_bits(right, self.pixel_bits)
             yield RecordedPair(
                 float(self.left_stamps[i]) * NS, left, right, self.pose_positions[p], self.pose_rotations[p]
             )

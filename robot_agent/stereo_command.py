@@ -19,6 +19,7 @@ from robot_agent.stereo import SGBM_MODES, StereoMatcher
 from swarm.config.models import DEFAULT_MIN_DEPTH
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.depth_picture import depth_picture
+from swarm.formats.pixel_bits import SignificantBits, to_8_bits
 from swarm.formats.stereo_calibration import CalibrationError
 
 
@@ -116,26 +117,18 @@ def _read_image(path: Path, role: str) -> np.ndarray:
     return image
 
 
-#: the sample sizes a 16-bit image's camera may have had (its values in the low bits)
-SIGNIFICANT_BITS = (8, 10, 12, 14, 16)
-
-
 def _pair_to_8_bits(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
     """A 16-bit pair as 8 bits, both by one scale: a 10- or 12-bit camera's images saved as 16-bit
     PNG hold 0..1023 or 0..4095, whose top 8 bits would be near black, so the bits the brighter
-    image's peak needs are kept; with a note saying how many. 8-bit images pass unchanged."""
-    if left.dtype != np.uint16 and right.dtype != np.uint16:
+    image's peak needs are kept (``swarm.formats.pixel_bits``); with a note saying how many. 8-bit
+    images pass unchanged."""
+    bits = SignificantBits({"pair": 2}, samples=2)
+    for image in (left, right):
+        bits.add(image)
+    if bits.bits is None:
         return left, right, None
-    peak = max(int(image.max()) for image in (left, right) if image.dtype == np.uint16)
-    bits = next(b for b in SIGNIFICANT_BITS if peak < 2**b)
-    shift = bits - 8
-
-    def scaled(image: np.ndarray) -> np.ndarray:
-        if image.dtype != np.uint16:
-            return image
-        return np.minimum(image >> shift, 255).astype(np.uint8)
-
-    return scaled(left), scaled(right), f"16-bit images: {bits} significant bits (brightest value {peak})"
+    scaled = (to_8_bits(image, bits.bits) for image in (left, right))
+    return *scaled, f"16-bit images: {bits.bits} significant bits (brightest value {bits.peak})"
 
 
 def run(args: argparse.Namespace) -> int:
