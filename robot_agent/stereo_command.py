@@ -33,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         dest="calib",
         type=Path,
         required=True,
-        help="stereo calibration: OpenCV/rig YAML, Middlebury calib.txt, Kalibr camchain.yaml, or the "
-        "left camera's ROS camera_info / EuRoC sensor.yaml (docs/stereo.md)",
+        help="stereo calibration: OpenCV/rig YAML, Middlebury calib.txt, Kalibr camchain.yaml, ZED SN*.conf, "
+        "or the left camera's ROS camera_info / EuRoC sensor.yaml (docs/stereo.md)",
     )
     parser.add_argument(
         "--calib-right",

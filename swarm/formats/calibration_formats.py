@@ -7,6 +7,7 @@
   ROS 1's ``K D R P``). The right camera's ``P[0][3]`` is ``-fx * baseline``.
 * EuRoC / Kalibr (``swarm.formats.kalibr_calib``): a pair of ASL ``sensor.yaml`` files or one
   Kalibr ``camchain.yaml``; radial-tangential or equidistant (fisheye) distortion.
+* Stereolabs ZED ``SN<serial>.conf`` (``swarm.formats.zed_conf``): both cameras per resolution, mm.
 * Middlebury ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``doffs``, ``baseline`` in mm,
   ``ndisp``): a rectified rig.
 * OpenCV files (``K1 D1 K2 D2 R T``, plus ``E F R1 R2 P1 P2 Q``): ``swarm.formats.stereo_calibration``.
@@ -43,6 +44,7 @@ from swarm.formats.stereo_calibration import (
     calibration_from_dict,
     undistort_rectify_map,
 )
+from swarm.formats.zed_conf import is_zed_conf, load_zed_conf
 
 #: ROS distortion models OpenCV's pinhole model reads as they are.
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "none", "")
@@ -300,6 +302,10 @@ def load_stereo_calibration(
     CalibrationError naming the file and field."""
     metres_per_unit(units)  # an unknown unit is refused before any file is read
     path = Path(path)
+    if is_zed_conf(read_calibration_text(path)):  # Stereolabs' factory file: both cameras, mm
+        if right is not None:
+            raise CalibrationError(f"{right}: a ZED .conf ({path}) describes both cameras; give it alone")
+        return load_zed_conf(path, read_calibration_text(path), image_size, units or "mm")
     calib = _load_any(path, right, image_size, units)
     if units is None and not _is_middlebury(path) and UNCERTAIN_BASELINE_M <= calib.baseline:
         calib = replace(calib, notes=(*calib.notes, _uncertain_unit_warning(calib)))
