@@ -34,6 +34,12 @@ from swarm.formats.calibration_schema import (
     whole_number,
 )
 from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
+from swarm.formats.camera_info_checks import (
+    binning,
+    check_one_rectified_camera,
+    rectified_defaults,
+    refuse_region_of_interest,
+)
 from swarm.formats.camera_info_ini import camera_info_ini, is_camera_info_ini
 from swarm.formats.kalibr_calib import KalibrCamera, stereo_from_camchain, stereo_from_kalibr
 from swarm.formats.middlebury_calib import load_middlebury
@@ -115,13 +121,13 @@ class CameraInfo:
             )
         p = numbers(field_value(data, source, "projection_matrix", "p", "P"), 12, source, "projection_matrix")
         p = p.reshape(3, 4)
-        k, r = _rectified_defaults(k, d, r.reshape(3, 3), p, source)
+        k, r = rectified_defaults(k, d, r.reshape(3, 3), p, source)
         if k[0, 0] <= 0 or k[1, 1] <= 0:
             raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
         if p[0, 0] <= 0 or p[1, 1] <= 0:
             raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
-        _refuse_region_of_interest(data.get("roi"), width, height, source)
-        bx, by = (_binning(data, name, source) for name in ("binning_x", "binning_y"))
+        refuse_region_of_interest(data.get("roi"), width, height, source)
+        bx, by = (binning(data, name, source) for name in ("binning_x", "binning_y"))
         if (bx, by) != (1, 1):  # REP-104: K, P and the size are the full sensor's
             scale = np.diag([1.0 / bx, 1.0 / by, 1.0])
             k, p = scale @ k, scale @ p
@@ -146,49 +152,6 @@ def _ini_cameras(path: Path) -> list[tuple[str, dict]] | None:
     return camera_info_ini(text, str(path)) if is_camera_info_ini(text) else None
 
 
-def _rectified_defaults(
-    k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray, source: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """K and R of a CameraInfo as its drivers mean them when they leave them unset: R all zero
-    (zed-ros-wrapper#126, depthai-ros#58) is no rotation, the identity; K all zero with no
-    distortion (depthai-ros#598: a rectified stereo pair's info) is P's left 3x3, the images being
-    rectified already. Any other R that is not a rotation is refused naming it."""
-    if not np.any(r):
-        r = np.eye(3)
-    elif not (np.allclose(r @ r.T, np.eye(3), atol=1e-3) and np.linalg.det(r) > 0):
-        raise CalibrationError(
-            f"{source}: rectification_matrix: not a rotation matrix (orthonormal, determinant +1)"
-        )
-    if not np.any(k) and not np.any(d) and np.all(np.diag(p)[:2] > 0):
-        k = p[:, :3].copy()
-    return k, r
-
-
-def _binning(data: dict, name: str, source: str) -> int:
-    """``binning_x`` / ``binning_y`` of a CameraInfo: 0 and 1 both mean none (REP-104)."""
-    value = whole_number(data.get(name, 0))
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise CalibrationError(f"{source}: {name}: must be a whole number >= 0 (got {value!r})")
-    return max(value, 1)
-
-
-def _refuse_region_of_interest(roi: Any, width: int, height: int, source: str) -> None:
-    """A CameraInfo ``roi`` other than none (all zero) or the whole image is refused: its images
-    are a crop of the calibrated ones."""
-    if roi is None:
-        return
-    if not isinstance(roi, dict):
-        raise CalibrationError(f"{source}: roi: expected x_offset, y_offset, width, height (got {roi!r})")
-    x, y, w, h = (whole_number(roi.get(key, 0)) for key in ("x_offset", "y_offset", "width", "height"))
-    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (x, y, w, h)):
-        raise CalibrationError(f"{source}: roi: x_offset, y_offset, width, height must be whole numbers")
-    if (x or y) or (w, h) not in ((0, 0), (width, height)):
-        raise CalibrationError(
-            f"{source}: roi: images of a region of interest ({w}x{h} at {x}, {y} of {width}x{height}) "
-            "are not supported"
-        )
-
-
 def stereo_from_camera_infos(
     left: CameraInfo, right: CameraInfo, units: str | None = None
 ) -> StereoCalibration:
@@ -200,7 +163,7 @@ def stereo_from_camera_infos(
             f"{right.source}: image_width, image_height: {right.width}x{right.height}, "
             f"the left camera is {left.width}x{left.height}"
         )
-    _check_one_rectified_camera(left, right)
+    check_one_rectified_camera(left.p, right.p, right.source)
     # Tx = P[0][3] = -fx * (the camera's x in the pair's reference camera): 0 for the reference,
     # which is the left camera for ROS camera_calibration and the right one for OAK cameras
     # (depthai-ros#369); either way the right camera's Tx is the left's minus fx * baseline
@@ -251,23 +214,6 @@ def stereo_from_camera_infos(
         left_rotation=None if rectified else left.r.copy(),
         source=source,
     )
-
-
-def _check_one_rectified_camera(left: CameraInfo, right: CameraInfo) -> None:
-    """The two P of a stereo pair describe one rectified camera (cv2.stereoRectify's P1, P2): the
-    same fx, fy and cy (cx may differ). Two monocular calibrations' own P, with a Tx written in by
-    hand, would rectify the images onto rows that do not line up: refused naming what differs."""
-    differ = [
-        f"{name} {right.p[i, j]:g} (left {left.p[i, j]:g})"
-        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
-        if abs(left.p[i, j] - right.p[i, j]) > 0.05
-    ]
-    if differ:
-        raise CalibrationError(
-            f"{right.source}: projection_matrix: {', '.join(differ)}: the two P of a stereo pair share "
-            "fx, fy and cy (one rectified camera); these look like two monocular calibrations: "
-            "calibrate the pair together (ROS camera_calibration with two cameras, cv2.stereoCalibrate)"
-        )
 
 
 # -- one entry point -------------------------------------------------------------------------
