@@ -8,6 +8,7 @@
 * EuRoC / Kalibr (``swarm.formats.kalibr_calib``): a pair of ASL ``sensor.yaml`` files or one
   Kalibr ``camchain.yaml``; radial-tangential or equidistant (fisheye) distortion.
 * Stereolabs ZED ``SN<serial>.conf`` (``swarm.formats.zed_conf``): both cameras per resolution, mm.
+* Luxonis OAK (DepthAI) calibration JSON (``swarm.formats.depthai_calib``): every camera, cm.
 * Middlebury ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``doffs``, ``baseline`` in mm,
   ``ndisp``): a rectified rig.
 * OpenCV files (``K1 D1 K2 D2 R T``, plus ``E F R1 R2 P1 P2 Q``): ``swarm.formats.stereo_calibration``.
@@ -41,6 +42,7 @@ from swarm.formats.camera_info_checks import (
     refuse_region_of_interest,
 )
 from swarm.formats.camera_info_ini import camera_info_ini, is_camera_info_ini
+from swarm.formats.depthai_calib import is_depthai_calibration, stereo_from_depthai
 from swarm.formats.kalibr_calib import KalibrCamera, stereo_from_camchain, stereo_from_kalibr
 from swarm.formats.middlebury_calib import load_middlebury
 from swarm.formats.stereo_calibration import (
@@ -253,7 +255,7 @@ def load_stereo_calibration(
             raise CalibrationError(f"{right}: a ZED .conf ({path}) describes both cameras; give it alone")
         return load_zed_conf(path, read_calibration_text(path), image_size, units or "mm")
     calib = _load_any(path, right, image_size, units)
-    if units is None and not _is_middlebury(path) and UNCERTAIN_BASELINE_M <= calib.baseline:
+    if units is None and UNCERTAIN_BASELINE_M <= calib.baseline and not _states_its_unit(path):
         calib = replace(calib, notes=(*calib.notes, _uncertain_unit_warning(calib)))
     return calib
 
@@ -271,6 +273,16 @@ def _uncertain_unit_warning(calib: StereoCalibration) -> str:
         f"metres; a rig {metres:.4g} cm apart written in centimetres reads the same. If the file is "
         "in centimetres or millimetres, say so: --calib-units cm (or mm)"
     )
+
+
+def _states_its_unit(path: Path) -> bool:
+    """Whether a calibration file's form fixes its unit (Middlebury's mm, DepthAI's cm)."""
+    if _is_middlebury(path):
+        return True
+    try:
+        return _ini_cameras(path) is None and is_depthai_calibration(_read_yaml(path))
+    except CalibrationError:
+        return False
 
 
 def _is_middlebury(path: Path) -> bool:
@@ -305,6 +317,12 @@ def _load_any(
             raise CalibrationError(f"{right}: a Middlebury calib.txt describes both cameras; give it alone")
         return load_middlebury(path, units or "mm")
     data = _read_yaml(path)
+    if is_depthai_calibration(data):  # an OAK camera's calibration JSON: both cameras, cm
+        if right is not None:
+            raise CalibrationError(
+                f"{right}: {path} (DepthAI calibration) describes both cameras; give it alone"
+            )
+        return stereo_from_depthai(data, str(path), image_size, units or "cm")
     if _is_camera_info(data):
         if right is None:
             raise CalibrationError(
