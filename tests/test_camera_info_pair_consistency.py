@@ -33,3 +33,20 @@ def test_a_rectified_pair_whose_principal_points_differ_in_x_reads(tmp_path):
     right = _write(tmp_path, "right", [283.88, 0, 190.0, -283.88 * 0.12, 0, 283.88, 126.74, 0, 0, 0, 1, 0])
     calib = load_stereo_calibration(left, right)
     assert (calib.baseline, calib.disparity_offset) == pytest.approx((0.12, 190.0 - 181.98))
+
+
+def test_a_fisheye_pair_whose_p_is_k_times_r_is_refused_naming_it(tmp_path):
+    """ros-perception/image_pipeline#626: camera_calibration's fisheye stereo writes P[:3, :3] = K R,
+    so each camera's P is its own K turned by its rectification; before, read as a camera matrix."""
+    import cv2
+    import numpy as np
+
+    k = np.array([[283.88, 0, 181.98], [0, 283.88, 126.74], [0, 0, 1]])
+    r = cv2.Rodrigues(np.array([0.01, -0.02, 0.004]))[0]
+    p = np.hstack([k @ r, np.zeros((3, 1))]).ravel().tolist()
+    left = _write(tmp_path, "left", p)
+    right = _write(tmp_path, "right", [283.88, 0, 181.98, -283.88 * 0.12, 0, 283.88, 126.74, 0, 0, 0, 1, 0])
+    with pytest.raises(
+        CalibrationError, match=r"left.yaml: projection_matrix: its left 3x3 is not a camera matrix"
+    ):
+        load_stereo_calibration(left, right)

@@ -37,6 +37,7 @@ from swarm.formats.calibration_schema import (
 from swarm.formats.calibration_text import read_calibration_text, read_calibration_yaml
 from swarm.formats.camera_info_checks import (
     binning,
+    check_camera_matrix_form,
     check_one_rectified_camera,
     rectified_defaults,
     refuse_region_of_interest,
@@ -128,6 +129,7 @@ class CameraInfo:
             raise CalibrationError(f"{source}: camera_matrix: focal lengths must be > 0")
         if p[0, 0] <= 0 or p[1, 1] <= 0:
             raise CalibrationError(f"{source}: projection_matrix: focal lengths must be > 0")
+        check_camera_matrix_form(p, source)
         refuse_region_of_interest(data.get("roi"), width, height, source)
         bx, by = (binning(data, name, source) for name in ("binning_x", "binning_y"))
         if (bx, by) != (1, 1):  # REP-104: K, P and the size are the full sensor's

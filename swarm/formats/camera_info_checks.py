@@ -71,3 +71,15 @@ def check_one_rectified_camera(left_p: np.ndarray, right_p: np.ndarray, right_so
             "fx, fy and cy (one rectified camera); these look like two monocular calibrations: "
             "calibrate the pair together (ROS camera_calibration with two cameras, cv2.stereoCalibrate)"
         )
+
+
+def check_camera_matrix_form(p: np.ndarray, source: str) -> None:
+    """P's left 3x3 is the rectified camera's matrix, ``[fx s cx; 0 fy cy; 0 0 1]``. Some ROS
+    camera_calibration releases write K R there for a fisheye pair (image_pipeline#626: each camera's
+    own K turned by its R, so the two P differ): the rectified camera is lost, refused naming it."""
+    if not (abs(p[1, 0]) <= 1e-6 * p[1, 1] and np.allclose(p[2, :3], [0, 0, 1], atol=1e-6)):
+        raise CalibrationError(
+            f"{source}: projection_matrix: its left 3x3 is not a camera matrix [fx 0 cx; 0 fy cy; 0 0 1] "
+            f"(third row {np.round(p[2, :3], 6).tolist()}); ROS camera_calibration writes K R there for a "
+            "fisheye pair: give the pair's Kalibr camchain or OpenCV calibration instead"
+        )
