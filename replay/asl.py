@@ -16,6 +16,7 @@ and the pose at each left image's stamp follows ``replay.trajectory``'s rule (as
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -30,6 +31,7 @@ from replay.poses import camera_from_body, quaternion_matrix
 from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
 from swarm.formats.errors import InputError
+from swarm.formats.pixel_bits import SignificantBits, to_8_bits
 from swarm.formats.stereo_calibration import StereoCalibration
 
 NS = 1e-9
@@ -41,14 +43,32 @@ class RecordingError(InputError):
     """An unusable recording: the message names the file (and topic or column)."""
 
 
-def _rows(path: Path, columns: int) -> list[list[str]]:
+@dataclass
+class CsvTable:
+    """A data.csv's rows (cells stripped) and the first cell of its header line ('' if none)."""
+
+    rows: list[list[str]]
+    header: str
+
+
+def _rows(path: Path, columns: int) -> CsvTable:
+    """The rows of an ASL ``data.csv``: ``#`` lines are comments, the first of them the header;
+    a first row whose first cell is not a number is a header written without ``#`` (pandas' and
+    spreadsheets' ``timestamp,filename``)."""
     if not path.is_file():
         raise RecordingError(f"{path}: file not found")
-    rows = []
+    rows: list[list[str]] = []
+    header = None
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:  # a byte-order mark: saved by Excel
             for n, row in enumerate(csv.reader(fh), 1):
-                if not row or row[0].lstrip().startswith("#"):
+                if not row or not "".join(row).strip():
+                    continue
+                if row[0].lstrip().startswith("#"):
+                    header = row[0].strip().lstrip("#").strip() if header is None else header
+                    continue
+                if not rows and header is None and not _is_number(row[0]):
+                    header = row[0].strip()
                     continue
                 if len(row) < columns:
                     raise RecordingError(f"{path}: line {n}: expected {columns} columns, got {len(row)}")
@@ -57,28 +77,60 @@ def _rows(path: Path, columns: int) -> list[list[str]]:
         raise RecordingError(f"{path}: not UTF-8 text (byte offset {exc.start})") from None
     if not rows:
         raise RecordingError(f"{path}: no data rows")
-    return rows
+    return CsvTable(rows, header or "")
 
 
-def _nanoseconds(text: str) -> int:
-    """A timestamp in ns as written (``1403715274312143104`` or ``1403715274312143104.0000``),
+def _is_number(text: str) -> bool:
+    try:
+        return Decimal(text.strip()).is_finite()
+    except InvalidOperation:
+        return False
+
+
+#: the timestamp units a header may name (``#timestamp [ns]``, ``timestamp [s]``, ``time(us)``):
+#: nanoseconds per unit, as a power of ten
+_NS_EXPONENT = {"ns": 0, "us": 3, "µs": 3, "ms": 6, "s": 9, "sec": 9}
+
+
+def _stamp_unit(table: CsvTable) -> str:
+    """The unit of the timestamp column: the one its header names, else seconds when a stamp
+    has a fraction of a unit (nanoseconds have none; EuRoC writes ``...104.0000000000``), else
+    nanoseconds, the ASL format's unit."""
+    named = re.search(r"[\[(]\s*(ns|us|µs|ms|s|sec)\s*[\])]", table.header.lower())
+    if named:
+        return named.group(1)
+    fractional = any("." in r[0] and Decimal(r[0]) != Decimal(r[0]).to_integral_value() for r in table.rows
+                     if _is_number(r[0]))  # fmt: skip
+    return "s" if fractional else "ns"
+
+
+def _stamps_ns(table: CsvTable, path: Path) -> np.ndarray:
+    """The timestamp column in ns (int64), read in its unit (``_stamp_unit``). Raises
+    RecordingError naming the file."""
+    unit = _stamp_unit(table)
+    try:
+        return np.array([_nanoseconds(r[0], _NS_EXPONENT[unit]) for r in table.rows], dtype=np.int64)
+    except ValueError as exc:
+        raise RecordingError(f"{path}: timestamp column: {exc}") from None
+
+
+def _nanoseconds(text: str, exponent: int = 0) -> int:
+    """A timestamp in ns from its text in units of ``10**exponent`` ns (0: ns, 9: s),
+    as written (``1403715274312143104``, ``1403715274312143104.0000``, ``1403715274.312143``),
     read exactly: a float64 keeps only 256 ns at today's epoch in ns. Raises ValueError."""
     try:
         value = Decimal(text)
     except InvalidOperation:
-        raise ValueError(f"could not convert {text!r} to a timestamp in ns") from None
+        raise ValueError(f"could not convert {text!r} to a timestamp") from None
     if not value.is_finite():
         raise ValueError(f"timestamp {text!r} is not a number")
-    return int(value.to_integral_value())
+    return int(value.scaleb(exponent).to_integral_value())
 
 
 def _images(cam: Path) -> tuple[np.ndarray, list[Path], int]:
     """(stamps in ns, sorted; their image files; how many rows named a file that is not there)."""
-    rows = _rows(cam / "data.csv", 2)
-    try:
-        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
-    except ValueError as exc:
-        raise RecordingError(f"{cam / 'data.csv'}: timestamp column: {exc}") from None
+    table = _rows(cam / "data.csv", 2)
+    stamps, rows = _stamps_ns(table, cam / "data.csv"), table.rows
     files = [cam / "data" / r[1] for r in rows]
     present = np.array([f.is_file() for f in files], dtype=bool)
     if not present.any():
@@ -92,6 +144,24 @@ def _read_image(path: Path) -> np.ndarray:
     if image is None:
         raise RecordingError(f"{path}: missing or not a readable image")
     return image
+
+
+#: 16-bit images: how many of each camera's, spread over the recording, set the significant bits
+BIT_SAMPLES = 30
+
+
+def _significant_bits(left: list[Path], right: list[Path]) -> int | None:
+    """The significant bits of 16-bit PNGs (a 10- or 12-bit camera's values sit in the low bits,
+    as TUM-VI's ``_16`` and industrial cameras' folders hold them), from the brightest of up to
+    ``BIT_SAMPLES`` images of each camera; None for 8-bit images (``swarm.formats.pixel_bits``)."""
+    if _read_image(left[0]).dtype != np.uint16:
+        return None
+    bits = SignificantBits({"left": len(left), "right": len(right)}, BIT_SAMPLES)
+    for name, files in (("left", left), ("right", right)):
+        for index, path in enumerate(files):
+            if bits.wants(name, index):
+                bits.add(_read_image(path))
+    return bits.bits
 
 
 @dataclass
@@ -109,9 +179,9 @@ def _pose_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """(stamps ns, positions (N, 3), quaternions (N, 4) w x y z, rows left out): a row whose
     numbers are not a pose (NaN or inf, a zero quaternion: a tracker that lost itself) is left
     out and counted, as the bag reader does."""
-    rows = _rows(path, 8)
+    table = _rows(path, 8)
+    stamps, rows = _stamps_ns(table, path), table.rows
     try:
-        stamps = np.array([_nanoseconds(r[0]) for r in rows], dtype=np.int64)
         values = np.array([[float(c) for c in r[1:8]] for r in rows])
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
@@ -168,6 +238,7 @@ class AslRecording:
         for first in (self.left_files[0], self.right_files[0]):  # before anything starts
             shape = _read_image(first).shape
             self.calibration = fit_image_size(self.calibration, shape[1], shape[0], str(first))
+        self.pixel_bits = _significant_bits(self.left_files, self.right_files)
         # in seconds (float64 keeps 0.3 us at today's epoch), so counts read "within 0.005"; the
         # pose at each left stamp by replay.trajectory's rule (a body ground truth at 200 Hz is
         # interpolated between its samples around the image), in seconds from the first image so
@@ -200,6 +271,8 @@ class AslRecording:
             j = self.matched.others["cam1 image"][k]
             p = self.matched.others["pose"][k]
             left, right = _read_image(self.left_files[i]), _read_image(self.right_files[j])
+            if self.pixel_bits is not None:
+                left, right = to_8_bits(left, self.pixel_bits), to_8_bits(right, self.pixel_bits)
             yield RecordedPair(
                 float(self.left_stamps[i]) * NS, left, right, self.pose_positions[p], self.pose_rotations[p]
             )

@@ -2,14 +2,13 @@
 ``sensor_msgs/CameraInfo`` to a camera's calibration.
 
 Raw images are read by their ``encoding`` (``sensor_msgs/image_encodings``: mono, BGR/RGB with
-or without alpha, 16-bit, YUV 4:2:2 and Bayer mosaics), with row padding (``step``) and
-big-endian 16-bit data; YUV gives its luma, Bayer mosaics are demosaiced to gray. Compressed
+or without alpha, 16-bit, YUV 4:2:2, YUV 4:2:0 NV12/NV21 and Bayer mosaics), with row padding
+(``step``) and big-endian 16-bit data; YUV gives its luma, Bayer mosaics are demosaiced to gray. Compressed
 images are decoded by OpenCV; image_transport's format string (``"ENCODING; png compressed"``)
 tells a compressed Bayer mosaic, demosaiced here too.
 
 16-bit images hold a 10- or 12-bit camera's values in their low bits (0..1023, 0..4095), whose top
-8 bits would be black: ``SignificantBits`` finds the bits from the brightest pixel of images
-spread over the whole recording, and ``to_8_bits`` scales by them.
+8 bits would be black: ``swarm.formats.pixel_bits`` finds the bits and scales by them.
 """
 
 from __future__ import annotations
@@ -41,7 +40,15 @@ _ENCODINGS: dict[str, tuple[type, int, Any]] = {
     "uyvy": (np.uint8, 2, ("luma", 1)),
     "yuv422_yuy2": (np.uint8, 2, ("luma", 0)),  # YUYV
     "yuyv": (np.uint8, 2, ("luma", 0)),
+    # YUV 4:2:0 semi-planar (ROS 2's nv12/nv21: Raspberry Pi camera_ros, OAK cameras): the rows of
+    # the luma plane (one byte a pixel, ``step`` apart) then half as many of chroma; gray is the luma
+    "nv12": (np.uint8, 1, None),
+    "nv21": (np.uint8, 1, None),
+    "rgba16": (np.uint16, 4, cv2.COLOR_RGBA2BGRA),
+    "bgra16": (np.uint16, 4, None),
 }
+#: rows of data per image row (image_encodings' getHeightScaling): the chroma plane's follow
+_HEIGHT_SCALING = {"nv12": 1.5, "nv21": 1.5}
 # Bayer mosaics, demosaiced to gray; OpenCV names a pattern by its second row's middle pixels
 _BAYER = {"rggb": cv2.COLOR_BayerBG2GRAY, "bggr": cv2.COLOR_BayerRG2GRAY,
           "gbrg": cv2.COLOR_BayerGR2GRAY, "grbg": cv2.COLOR_BayerGB2GRAY}  # fmt: skip
@@ -88,10 +95,12 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     dtype, channels, convert = _ENCODINGS[encoding]
     row_bytes = msg.width * channels * np.dtype(dtype).itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
-    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height:
+    scaling = _HEIGHT_SCALING.get(encoding, 1.0)
+    if msg.width < 1 or msg.height < 1 or msg.step < row_bytes or data.size < msg.step * msg.height * scaling:
+        rows = "height" if scaling == 1.0 else f"{scaling:g} x height (the luma, then the chroma)"
         raise RecordingError(
             f"{where}: a {msg.width}x{msg.height} {msg.encoding} image needs step >= {row_bytes} and "
-            f"height * step bytes of data; it has step {msg.step} and {data.size} bytes"
+            f"{rows} * step bytes of data; it has step {msg.step} and {data.size} bytes"
         )
     row = data[: msg.step * msg.height].reshape(msg.height, msg.step)
     pixels = row[:, :row_bytes].copy().view(dtype)
@@ -107,51 +116,6 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     if convert is not None:
         image = cv2.cvtColor(image, convert)
     return image
-
-
-class SignificantBits:
-    """The significant bits of a recording's 16-bit images (8, 10, 12, 14 or 16), from the
-    brightest pixel of up to ``samples`` images of each topic, spread evenly over its
-    ``message_counts`` messages (a camera that starts in the dark and sees light later is judged
-    by both)."""
-
-    BITS = (8, 10, 12, 14, 16)
-
-    def __init__(self, message_counts: dict[str, int], samples: int = 30) -> None:
-        self._picked = {  # a count the bag's index does not give (0): the first images
-            name: set(np.linspace(0, count - 1, min(samples, count)).round().astype(int).tolist())
-            if count > 0
-            else set(range(samples))
-            for name, count in message_counts.items()
-        }
-        self.peak = 0  # the brightest 16-bit value seen
-        self.images = 0  # 16-bit images looked at
-
-    def wants(self, name: str, index: int) -> bool:
-        """Whether message ``index`` (from 0, in the order read) of topic ``name`` is a sample."""
-        return index in self._picked.get(name, ())
-
-    def add(self, image: np.ndarray) -> None:
-        """Look at a sampled image (8-bit ones say nothing about 16-bit values and are skipped)."""
-        if image.dtype == np.uint16:
-            self.peak = max(self.peak, int(image.max()))
-            self.images += 1
-
-    @property
-    def bits(self) -> int | None:
-        """The bits the brightest sampled pixel needs; None when no 16-bit image was sampled."""
-        if not self.images:
-            return None
-        return next(b for b in self.BITS if self.peak < 2**b)
-
-
-def to_8_bits(image: np.ndarray, bits: int | None) -> np.ndarray:
-    """A 16-bit image scaled to 8 bits by its ``bits`` significant bits (None: 16), brighter values
-    saturating at 255; an 8-bit image as it is."""
-    if image.dtype != np.uint16:
-        return image
-    shift = (bits or 16) - 8
-    return np.minimum(image >> shift, 255).astype(np.uint8)
 
 
 def camera_info(msg: Any, where: str) -> CameraInfo:

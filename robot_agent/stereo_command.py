@@ -19,6 +19,7 @@ from robot_agent.stereo import SGBM_MODES, StereoMatcher
 from swarm.config.models import DEFAULT_MIN_DEPTH
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.depth_picture import depth_picture
+from swarm.formats.pixel_bits import SignificantBits, to_8_bits
 from swarm.formats.stereo_calibration import CalibrationError
 
 
@@ -32,14 +33,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         dest="calib",
         type=Path,
         required=True,
-        help="stereo calibration: OpenCV/rig YAML, Middlebury calib.txt, Kalibr camchain.yaml, or the "
-        "left camera's ROS camera_info / EuRoC sensor.yaml (docs/stereo.md)",
+        help="stereo calibration: OpenCV/rig YAML, Middlebury calib.txt, Kalibr camchain.yaml, ZED SN*.conf, "
+        "or the left camera's ROS camera_info / EuRoC sensor.yaml (docs/stereo.md)",
     )
     parser.add_argument(
         "--calib-right",
         type=Path,
         help="the second file of two-file forms: the right camera's (ROS camera_info, EuRoC sensor.yaml), "
         "or extrinsics.yml beside --calib intrinsics.yml (OpenCV's stereo_calib sample)",
+    )
+    parser.add_argument(
+        "--calib-units",
+        choices=("m", "cm", "mm"),
+        help="the unit of the calibration's translation or baseline (T, T_BS, T_cn_cnm1, P[0][3], "
+        "baseline), when it is not the form's own (metres; Middlebury's millimetres): a rig of a few "
+        "centimetres written in centimetres cannot be told from one a few metres wide (docs/stereo.md)",
     )
     parser.add_argument(
         "--out",
@@ -104,11 +112,23 @@ def _read_image(path: Path, role: str) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"{role} image {path}: not a readable image")
-    if image.dtype == np.uint16:  # 16-bit PNGs: keep the top 8 bits
-        image = (image >> 8).astype(np.uint8)
-    if image.dtype != np.uint8:
+    if image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{role} image {path}: unsupported pixel type {image.dtype}")
     return image
+
+
+def _pair_to_8_bits(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """A 16-bit pair as 8 bits, both by one scale: a 10- or 12-bit camera's images saved as 16-bit
+    PNG hold 0..1023 or 0..4095, whose top 8 bits would be near black, so the bits the brighter
+    image's peak needs are kept (``swarm.formats.pixel_bits``); with a note saying how many. 8-bit
+    images pass unchanged."""
+    bits = SignificantBits({"pair": 2}, samples=2)
+    for image in (left, right):
+        bits.add(image)
+    if bits.bits is None:
+        return left, right, None
+    scaled = (to_8_bits(image, bits.bits) for image in (left, right))
+    return *scaled, f"16-bit images: {bits.bits} significant bits (brightest value {bits.peak})"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,13 +152,19 @@ def run(args: argparse.Namespace) -> int:
     if option_problems:
         return _fail("\n".join(option_problems))
     try:
-        left = _read_image(args.left, "left")
-        right = _read_image(args.right, "right")
-        calib = load_stereo_calibration(args.calib, args.calib_right, image_size=left.shape[1::-1])
+        left, right, bits_note = _pair_to_8_bits(
+            _read_image(args.left, "left"), _read_image(args.right, "right")
+        )
+        calib = load_stereo_calibration(
+            args.calib, args.calib_right, image_size=left.shape[1::-1], units=args.calib_units
+        )
     except (CalibrationError, FileNotFoundError, ValueError) as exc:
         return _fail(str(exc))
-    for note in calib.notes:
-        print(f"note: {note}")
+    if bits_note:
+        print(f"note: {bits_note}")
+    for note in calib.notes:  # a "warning: ..." note (an uncertain unit) goes to stderr as it is
+        warning = note.startswith("warning:")
+        print(note if warning else f"note: {note}", file=sys.stderr if warning else sys.stdout, flush=True)
     (hl, wl), (hr, wr) = left.shape[:2], right.shape[:2]
     if (hl, wl) != (hr, wr):
         return _fail(

@@ -381,7 +381,7 @@ def test_16_bit_images_of_a_camera_that_starts_in_the_dark_keep_their_bits(tmp_p
         want = (frames[k] >> 4).astype(np.uint8)
         assert np.array_equal(pairs[k].left, want) and np.array_equal(pairs[k].right, want), k
     assert pairs[99].left.max() == 3919 >> 4  # not saturated at 255
-    from replay.image_messages import SignificantBits
+    from swarm.formats.pixel_bits import SignificantBits
 
     picked = SignificantBits({"/a": 100, "/b": 0}, samples=5)  # /b: no count in the bag's index
     assert [k for k in range(100) if picked.wants("/a", k)] == [0, 25, 50, 74, 99]

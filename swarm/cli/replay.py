@@ -109,6 +109,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "extrinsics.yml beside --calib-left intrinsics.yml (OpenCV's stereo_calib sample)",
     )
     bag.add_argument(
+        "--calib-units",
+        choices=("m", "cm", "mm"),
+        help="the unit of the calibration file's translation or baseline, when it is not the form's own "
+        "(metres; Middlebury's millimetres); see docs/stereo.md",
+    )
+    bag.add_argument(
         "--tolerance", type=float, default=0.01, help="time matching tolerance, s (default 0.01)"
     )
     _common(bag)
@@ -135,6 +141,12 @@ def _open_bag(args: argparse.Namespace):
     from swarm.formats.stereo_calibration import CalibrationError
 
     calib = None
+    units = getattr(args, "calib_units", None)  # Namespaces built by hand may leave it out
+    if units is not None and args.calib_left is None:
+        raise CalibrationError(
+            f"--calib-units {units}: declares the unit of a --calib-left file; CameraInfo "
+            "topics are in metres"
+        )
     if args.calib_left is not None:
         if args.left_info or args.right_info:  # which calibration would be meant is anyone's guess
             raise CalibrationError(
@@ -143,7 +155,7 @@ def _open_bag(args: argparse.Namespace):
             )
         # loaded once the bag's image size is known (its third argument, image_size), for a file
         # that states none (stereo_calib's)
-        calib = functools.partial(load_stereo_calibration, args.calib_left, args.calib_right)
+        calib = functools.partial(load_stereo_calibration, args.calib_left, args.calib_right, units=units)
     return BagRecording(
         args.bag, args.left, args.right, args.pose, calib, args.left_info, args.right_info, args.child_frame,
         args.tolerance, world_frame=args.world_frame, tf_static=args.tf_static,
@@ -189,6 +201,9 @@ def _replay(args: argparse.Namespace, opener) -> int:
     except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
         return _fail(str(exc))
     calib = recording.calibration
+    for note in calib.notes:  # a "warning: ..." note (an uncertain unit) goes to stderr as it is
+        warning = note.startswith("warning:")
+        print(note if warning else f"note: {note}", file=sys.stderr if warning else sys.stdout, flush=True)
     frames = getattr(recording, "pose_frames", None)
     if frames:
         print(f"poses: {frames}", flush=True)

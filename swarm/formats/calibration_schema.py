@@ -13,12 +13,46 @@ from typing import Any
 
 import cv2
 import numpy as np
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError, field_validator
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
 
 from swarm.formats.errors import CalibrationError
 
 #: A baseline or translation above this many metres is taken for a unit mistake (millimetres).
 MAX_BASELINE_M = 5.0
+#: The units a calibration's translation may be declared in (``--calib-units``): metres per unit.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+def metres_per_unit(units: str | None) -> float:
+    """Metres per unit of a declared calibration unit (``m``, ``cm``, ``mm``; None: metres)."""
+    if units is None:
+        return 1.0
+    if units not in UNITS:
+        raise CalibrationError(f"calibration units {units!r}: must be one of {', '.join(UNITS)}")
+    return UNITS[units]
+
+
+def _in_metres(value: Any, info: ValidationInfo) -> tuple[Any, Any]:
+    """``value`` (a number or array) in metres, by the ``units`` of the validation context, and a
+    function of a length (the file's number) saying why it is refused, for messages."""
+    units = (info.context or {}).get("units")
+    scale = metres_per_unit(units)
+
+    def implausible(length: float) -> str:
+        if units in (None, "m"):
+            return f"must be in metres, {length:g} m is implausible"
+        return f"{length:g} {units} = {length * scale:g} m is implausible"
+
+    return value * scale, implausible
 
 
 class _Strict(BaseModel):
@@ -37,12 +71,11 @@ class RectifiedFile(_Strict):
 
     @field_validator("baseline")
     @classmethod
-    def _metres(cls, value: float) -> float:
-        if value > MAX_BASELINE_M:
-            raise ValueError(
-                f"must be in metres, {value:g} m is implausible (Middlebury calib.txt gives millimetres)"
-            )
-        return value
+    def _metres(cls, value: float, info: ValidationInfo) -> float:
+        metres, implausible = _in_metres(value, info)
+        if metres > MAX_BASELINE_M:
+            raise ValueError(f"{implausible(value)} (Middlebury calib.txt gives millimetres)")
+        return metres
 
 
 def _matrix(value: Any, shape: tuple[int, int]) -> np.ndarray:
@@ -132,10 +165,14 @@ class OpenCVFile(_Strict):
 
     @field_validator("T")
     @classmethod
-    def _translation(cls, value: Any) -> np.ndarray:
-        t = _vector(value, (3,))
+    def _translation(cls, value: Any, info: ValidationInfo) -> np.ndarray:
+        raw = _vector(value, (3,))
+        t, implausible = _in_metres(raw, info)
         if np.linalg.norm(t) > MAX_BASELINE_M:
-            raise ValueError(f"must be in metres, |T| = {np.linalg.norm(t):g} m is implausible")
+            raise ValueError(
+                f"|T|: {implausible(float(np.linalg.norm(raw)))} (millimetres or centimetres? --calib-units "
+                "declares the unit)"
+            )
         if np.linalg.norm(t) == 0:
             raise ValueError("must not be zero (the cameras need a baseline)")
         return t

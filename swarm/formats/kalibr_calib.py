@@ -72,11 +72,16 @@ class KalibrCamera:
 
 
 def stereo_from_kalibr(
-    left: KalibrCamera, right: KalibrCamera, source: str | None = None, extrinsics: str = "T_BS"
+    left: KalibrCamera,
+    right: KalibrCamera,
+    source: str | None = None,
+    extrinsics: str = "T_BS",
+    units: str | None = None,
 ) -> StereoCalibration:
     """Rectify a pair given both cameras' poses in one body frame (EuRoC's two ``T_BS``).
 
-    ``source`` and ``extrinsics`` (the field that holds the relative pose) name the pair in errors."""
+    ``source`` and ``extrinsics`` (the field that holds the relative pose) name the pair in errors;
+    ``units`` is the translations' unit (``m``, ``cm``, ``mm``; None: metres, as Kalibr writes)."""
     source = source or f"{left.source} + {right.source}"
     if left.size != right.size:
         raise CalibrationError(f"{right.source}: resolution: {right.size}, the left camera is {left.size}")
@@ -87,11 +92,11 @@ def stereo_from_kalibr(
     right_from_left = np.linalg.inv(right.body_from_camera) @ left.body_from_camera  # X1 = R X0 + T
     return rectify_stereo(
         left.k, left.d, right.k, right.d, right_from_left[:3, :3], right_from_left[:3, 3], left.size, source,
-        extrinsics=extrinsics, fisheye=left.fisheye,
+        extrinsics=extrinsics, fisheye=left.fisheye, units=units,
     )  # fmt: skip
 
 
-def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
+def stereo_from_camchain(data: dict, source: str, units: str | None = None) -> StereoCalibration:
     """Kalibr ``camchain.yaml``: ``cam0`` and ``cam1``, the latter with ``T_cn_cnm1`` (X1 = T X0);
     without it, both cameras' ``T_cam_imu`` (Kalibr's camchain-imucam: X_cam = T X_imu) or
     ``T_imu_cam`` (OpenVINS's kalibr_imucam_chain.yaml: X_imu = T X_cam) give the pair's pose."""
@@ -118,7 +123,7 @@ def stereo_from_camchain(data: dict, source: str) -> StereoCalibration:
     right = KalibrCamera.from_dict(
         {**cam1, "T_BS": np.linalg.inv(right_from_left).tolist()}, f"{source}: cam1"
     )
-    return stereo_from_kalibr(left, right, source, extrinsics)
+    return stereo_from_kalibr(left, right, source, extrinsics, units)
 
 
 def _rigid(value: Any, source: str, field: str) -> np.ndarray:

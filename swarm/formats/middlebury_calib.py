@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.formats.calibration_schema import numbers
+from swarm.formats.calibration_schema import MAX_BASELINE_M, metres_per_unit, numbers
 from swarm.formats.calibration_text import read_calibration_text
 from swarm.formats.errors import CalibrationError
 from swarm.formats.stereo_calibration import StereoCalibration
@@ -16,8 +16,9 @@ from swarm.formats.stereo_calibration import StereoCalibration
 _MATRIX = re.compile(r"^\[(.*)\]$")
 
 
-def load_middlebury(path: str | Path) -> StereoCalibration:
-    """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres, ``ndisp`` kept."""
+def load_middlebury(path: str | Path, units: str = "mm") -> StereoCalibration:
+    """Middlebury 2014 ``calib.txt``: a rectified rig, ``baseline`` in millimetres (the format's
+    unit; ``units`` ``m`` or ``cm`` reads a hand-written file in another), ``ndisp`` kept."""
     path = Path(path)
     source = str(path)
     lines = read_calibration_text(path).splitlines()
@@ -61,9 +62,15 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
         return int(value)
 
     cam0, cam1 = matrix("cam0"), matrix("cam1")
-    baseline_mm = number("baseline")
-    if not baseline_mm > 0:
-        raise CalibrationError(f"{source}: baseline: must be > 0 (millimetres), got {baseline_mm:g}")
+    _check_rectified(cam0, cam1, source)
+    baseline_read = number("baseline")
+    if not baseline_read > 0:
+        raise CalibrationError(f"{source}: baseline: must be > 0 ({units}), got {baseline_read:g}")
+    baseline = baseline_read * metres_per_unit(units)
+    if baseline > MAX_BASELINE_M:
+        raise CalibrationError(
+            f"{source}: baseline: {baseline_read:g} {units} = {baseline:g} m is implausible for a stereo rig"
+        )
     doffs = number("doffs", cam1[0, 2] - cam0[0, 2])
     if abs(doffs - (cam1[0, 2] - cam0[0, 2])) > 0.01:
         raise CalibrationError(
@@ -78,10 +85,27 @@ def load_middlebury(path: str | Path) -> StereoCalibration:
         fy=float(cam0[1, 1]),
         cx=float(cam0[0, 2]),
         cy=float(cam0[1, 2]),
-        baseline=baseline_mm / 1000.0,
+        baseline=baseline,
         cx_right=float(cam1[0, 2]),
         image_size=size,
         source=source,
         ndisp=ndisp,
-        notes=(f"{source}: baseline {baseline_mm:g} mm read as {baseline_mm / 1000:g} m",),
+        notes=(f"{source}: baseline {baseline_read:g} {units} read as {baseline:g} m",),
     )
+
+
+def _check_rectified(cam0: np.ndarray, cam1: np.ndarray, source: str) -> None:
+    """A calib.txt describes rectified views: one focal length and one ``cy`` for both (only ``cx``
+    differs, by ``doffs``). Two raw cameras' own matrices copied into it (SimpleStereo#26) would
+    be read as a rectified rig, silently wrong: refused, naming the numbers that differ."""
+    differ = [
+        f"{name} {cam0[i, j]:g} vs {cam1[i, j]:g}"
+        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
+        if abs(cam0[i, j] - cam1[i, j]) > 0.01
+    ]
+    if differ:
+        raise CalibrationError(
+            f"{source}: cam0, cam1: {', '.join(differ)}; a calib.txt describes rectified views (one f, one "
+            "cy), so these look like two raw cameras' matrices: rectify first, or give their OpenCV "
+            "stereo calibration (K1 D1 K2 D2 R T) instead"
+        )

@@ -1,5 +1,9 @@
 """OctoMap's binary occupancy file (``.bt``): read and write, our own code.
 
+Read as OctoMap 1.x reads it (``AbstractOccupancyOcTree::readBinary``): any occupancy tree's
+``id`` (the deprecated ``id 1`` is ``OcTree``), and the legacy header-less form of OctoMap's
+first releases (int32 3, float64 res, uint32 size, then the tree) too.
+
 The format, as OctoMap writes it (``AbstractOccupancyOcTree::writeBinaryConst`` and
 ``OccupancyOcTreeBase::writeBinaryNode`` in OctoMap 1.x):
 
@@ -37,7 +41,12 @@ OT_MAGIC = b"# Octomap OcTree file"
 #: bytes of a node's data in a ``.ot`` file, by tree type: float log-odds, then a ColorOcTree's
 #: r, g, b or an OcTreeStamped's uint32 stamp. (A ``.bt`` holds the same data for all three.)
 OT_NODE_BYTES = {"OcTree": 4, "ColorOcTree": 7, "OcTreeStamped": 8}
+#: OctoMap's trees that are not occupancy trees (they cannot write a ``.bt``)
+NOT_OCCUPANCY_TREES = ("CountingOcTree",)
 FREE, OCCUPIED, INNER = 1, 2, 3  # the 2-bit child codes
+#: the header of a ``.bt`` written before OctoMap's text header (read by OctoMap 1.x still, with
+#: a warning): tree type 3 (int32), resolution (float64), node count (uint32), little-endian
+LEGACY_HEADER = struct.Struct("<idI")
 
 
 class OctomapFileError(InputError):
@@ -196,10 +205,16 @@ def _read_header(path: Path, raw: bytes, magic: bytes) -> tuple[dict[str, str], 
         fields[words[0]] = words[1] if len(words) > 1 else ""
 
 
-def _header_numbers(path: Path, fields: dict[str, str], node_bytes: dict[str, int]) -> tuple[float, int]:
-    """``res`` and ``size`` of a header whose ``id`` is one of ``node_bytes``'s tree types."""
+def _header_numbers(
+    path: Path, fields: dict[str, str], node_bytes: dict[str, int], any_id: bool = False
+) -> tuple[float, int]:
+    """``res`` and ``size`` of a header whose ``id`` is one of ``node_bytes``'s tree types (with
+    ``any_id``, as for a ``.bt``, any id but ``NOT_OCCUPANCY_TREES``). OctoMap 1.x changes the
+    deprecated ``id 1`` to ``OcTree`` (``AbstractOcTree::readHeader``); so does this, in ``fields``."""
+    if fields.get("id") == "1":
+        fields["id"] = "OcTree"
     tree = fields.get("id")
-    if tree not in node_bytes:
+    if not tree or (tree not in node_bytes and not (any_id and tree not in NOT_OCCUPANCY_TREES)):
         raise OctomapFileError(
             f"{path}: id: only occupancy trees ({', '.join(node_bytes)}) are supported, got {tree!r}"
         )
@@ -235,6 +250,19 @@ def _read_bytes(path: Path) -> bytes:
         raise OctomapFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
 
+def _is_legacy_bt(raw: bytes) -> bool:
+    """A ``.bt`` of OctoMap before its text header: int32 tree type 3, float64 res, uint32 size."""
+    return len(raw) >= LEGACY_HEADER.size and raw[:4] == struct.pack("<i", 3)
+
+
+def _legacy_header(path: Path, raw: bytes) -> tuple[float, int, int]:
+    """(res, size, offset of the tree data) of a legacy ``.bt`` (``readBinaryLegacyHeader``)."""
+    _tree_type, resolution, size = LEGACY_HEADER.unpack_from(raw)
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise OctomapFileError(f"{path}: res: must be a positive number, got {resolution!r} (legacy header)")
+    return resolution, size, LEGACY_HEADER.size
+
+
 def read_octree(path: str | Path) -> OctreeLeaves:
     """Every leaf of an OctoMap file: a binary ``.bt`` (:func:`read_bt`) or a full ``.ot``
     (:func:`read_ot`), told apart by the first line. Raises OctomapFileError naming the file."""
@@ -242,7 +270,7 @@ def read_octree(path: str | Path) -> OctreeLeaves:
     raw = _read_bytes(path)
     if raw.startswith(OT_MAGIC):
         return read_ot(path)
-    if not raw.startswith(MAGIC):
+    if not (raw.startswith(MAGIC) or _is_legacy_bt(raw)):
         first = raw.split(b"\n", 1)[0][:60].decode("ascii", "replace")
         raise OctomapFileError(
             f"{path}: not an OctoMap file: the first line is {first!r}, not {MAGIC.decode()!r} (.bt) "
@@ -261,13 +289,17 @@ def read_bt(path: str | Path) -> OctreeLeaves:
     """
     path = Path(path)
     raw = _read_bytes(path)
-    if not raw.startswith(MAGIC):
+    if raw.startswith(MAGIC):
+        fields, pos = _read_header(path, raw, MAGIC)
+        # OctoMap's readBinary takes any id: every occupancy tree writes the same binary data
+        resolution, size = _header_numbers(path, fields, OT_NODE_BYTES, any_id=True)
+    elif _is_legacy_bt(raw):
+        resolution, size, pos = _legacy_header(path, raw)
+    else:
         hint = " (a full .ot file: read_octree reads both)" if raw.startswith(OT_MAGIC) else ""
         raise OctomapFileError(
             f"{path}: not an OctoMap binary file (first line is not {MAGIC.decode()!r}){hint}"
         )
-    fields, pos = _read_header(path, raw, MAGIC)
-    resolution, size = _header_numbers(path, fields, OT_NODE_BYTES)
     codes: list[int] = []
     depths: list[int] = []
     states: list[int] = []

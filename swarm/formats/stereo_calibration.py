@@ -49,6 +49,7 @@ from swarm.formats.calibration_schema import (
     OpenCVFile,
     RectifiedFile,
     format_errors,
+    metres_per_unit,
     other_tool_fields,
 )
 from swarm.formats.calibration_text import read_calibration_yaml
@@ -130,12 +131,16 @@ def load_calibration(path: str | Path) -> StereoCalibration:
 
 
 def calibration_from_dict(
-    data: Any, source: str = "<calibration>", image_size: tuple[int, int] | None = None
+    data: Any,
+    source: str = "<calibration>",
+    image_size: tuple[int, int] | None = None,
+    units: str | None = None,
 ) -> StereoCalibration:
     """Build a StereoCalibration from the parsed YAML mapping of either form.
 
     ``image_size`` (width, height) is the images' size, taken for a full calibration that states
-    none (OpenCV's ``stereo_calib`` sample writes no ``image_size``), with a note.
+    none (OpenCV's ``stereo_calib`` sample writes no ``image_size``), with a note. ``units``
+    (``m``, ``cm``, ``mm``; None: metres) is the unit of the file's ``baseline`` or ``T``.
     """
     if not isinstance(data, dict):
         raise CalibrationError(
@@ -172,9 +177,9 @@ def calibration_from_dict(
         )
     try:
         if rectified:
-            rig = RectifiedFile.model_validate(data)
+            rig = RectifiedFile.model_validate(data, context={"units": units})
         else:
-            cal = OpenCVFile.model_validate(data)
+            cal = OpenCVFile.model_validate(data, context={"units": units})
     except ValidationError as exc:
         raise CalibrationError(format_errors(exc, source)) from None
     if rectified:
@@ -217,8 +222,10 @@ def rectify_stereo(
     notes: tuple[str, ...] = (),
     extrinsics: str = "T",
     fisheye: bool = False,
+    units: str | None = None,
 ) -> StereoCalibration:
-    """Rectify a raw stereo pair's calibration (OpenCV's X2 = R X1 + T, metres).
+    """Rectify a raw stereo pair's calibration (OpenCV's X2 = R X1 + T; ``T`` in ``units``,
+    ``m``, ``cm`` or ``mm``, None: metres).
 
     ``k1``, ``k2`` are 3x3 camera matrices, ``d1``, ``d2`` OpenCV distortion vectors
     (radial-tangential), or with ``fisheye`` the four coefficients of the equidistant model
@@ -226,11 +233,12 @@ def rectify_stereo(
     CalibrationError naming ``extrinsics``, the file's field(s) the translation comes from, for a
     baseline in millimetres, vertical or swapped rigs.
     """
-    t = np.ascontiguousarray(translation, dtype=np.float64).reshape(3)
+    t = np.ascontiguousarray(translation, dtype=np.float64).reshape(3) * metres_per_unit(units)
     if not np.linalg.norm(t) <= MAX_BASELINE_M:
+        declared = "" if units is None else f" (read in {units})"
         raise CalibrationError(
-            f"{source}: {extrinsics}: the cameras are {np.linalg.norm(t):g} m apart; must be in metres "
-            "(millimetres?)"
+            f"{source}: {extrinsics}: the cameras are {np.linalg.norm(t):g} m apart{declared}; must be in "
+            "metres (millimetres? --calib-units declares the unit)"
         )
     swapped = "T[0] < 0 with X2 = R X1 + T" if extrinsics == "T" else "are the two cameras swapped?"
     if fisheye:  # cv2.fisheye wants contiguous float64 arrays
