@@ -1,0 +1,79 @@
+"""What a stranger on the bus can make the map server spend on others: messages it would
+log durably and send on to every replica, queries whose answers cost memory per voxel.
+Real Zenoh sessions on loopback, explicit endpoints, multicast scouting off."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from map_server.options import ServerOptions
+from swarm.protocol import bus
+from swarm.protocol.map_client import MapClient
+from swarm.protocol.wire import DeltaMessage
+from tests.test_server_hostile import oracle
+from tests.test_server_merge import (
+    EPOCH,
+    client_session,
+    publishers,
+    running_server,
+    small_mission,
+    wait_until,
+)
+from tests.test_server_rejects import good
+
+ROBOTS = ("r1", "r2", "r3", "r4")  # r4: the attacker, a robot the server takes
+OPTIONS = ServerOptions(robots=ROBOTS)
+
+
+def zero_information_deltas(grid, robot: str, count: int) -> list[bytes]:
+    """Deltas that change nothing, each with a fresh seq: empty ones, and zeros on voxels."""
+    out = []
+    for seq in range(1, count + 1):
+        idx = np.arange(seq % 2 * (1 + seq % 50), dtype=np.uint32)  # empty, or 1..50 voxels
+        zeros = np.zeros(len(idx), np.float32)
+        out.append(DeltaMessage(robot, EPOCH, seq, float(seq), grid, idx, zeros, zeros).encode())
+    return out
+
+
+def test_a_flood_of_zero_information_deltas_is_neither_logged_nor_sent_on(tmp_path: Path):
+    """Empty deltas and deltas of zeros, with fresh seqs, were each appended to the write-ahead
+    log, fsynced and republished on ``merged`` to every replica: a flood cost the server's disk
+    and every subscriber. They are refused (``no_information``) and change nothing."""
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    flood = zero_information_deltas(grid, "r4", 600)
+    honest = good(grid, "r1", seq=1, idx=(5, 60, 61))
+    with (
+        running_server(mission, tmp_path / "store", OPTIONS) as (server, endpoint),
+        client_session(endpoint) as session,
+    ):
+        client = MapClient(session, mission.mission, timeout=5.0, endpoint=endpoint)
+        merged, merged_inbox = bus.subscribe_queue(session, bus.key(mission.mission, "merged"))
+        pubs = publishers(session, mission.mission, ["r1", "r4"])
+        for i, payload in enumerate(flood):
+            pubs["r4"].put(payload)
+            if i == len(flood) // 2:
+                pubs["r1"].put(honest)
+
+        def flood_handled() -> bool:
+            stats = client.stats()
+            refused = stats["inbox"]["refused"].get("r4", 0)
+            applied = stats["robots"].get("r4", {}).get("deltas", 0)  # before the fix: all of them
+            return stats["rejected"]["no_information"] + refused + applied == len(flood)
+
+        wait_until(flood_handled, 30, "every delta of the flood handled")
+        wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10, "r1's delta")
+        stats, acks, snap = client.stats(), client.acks(), client.snapshot()
+        time.sleep(0.3)  # the merged stream's tail
+        merged.undeclare()
+    sent_on = [merged_inbox.get_nowait()[1] for _ in range(merged_inbox.qsize())]
+    assert sent_on == [honest]
+    assert stats["rejected"]["no_information"] > len(flood) // 2
+    assert stats["wal_records"] == 1 and stats["deltas_applied"] == 1
+    assert "r4" not in acks and "r4" not in stats["robots"]
+    expected = oracle(mission, [honest])
+    np.testing.assert_array_equal(snap.lam, expected.cmap.lam)
+    np.testing.assert_array_equal(snap.eta, expected.cmap.eta)
