@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 from map_server.ledger import MAX_EPOCHS
 from map_server.limits import SLACK_FRAMES
+from map_server.query_gate import MAX_QUERIES, MAX_QUERIES_PER_REQUESTER, QUERY_WORKERS
 from swarm.map.grid import Grid
 
 #: Robot ids ``--robot-pattern`` admits at most (first come): each costs the server 8 bytes
@@ -19,7 +20,8 @@ MAX_PATTERN_ROBOTS = 64
 class ServerOptions:
     """Tuning of the server: compaction thresholds, group-commit size, progress interval, and
     the limits of docs/protocol.md ("Limits"): payload size (None: derived from the grid),
-    inbox per robot, which robots may send (None: the mission's), the information bound."""
+    inbox per robot, which robots may send (None: the mission's), the information bound, and
+    the whole-map queries taken on at once (map_server.query_gate)."""
 
     compact_bytes: int = 256 << 20
     compact_records: int = 20_000
@@ -36,6 +38,9 @@ class ServerOptions:
     slack_frames: int = SLACK_FRAMES
     max_epochs: int = MAX_EPOCHS
     quarantine: tuple[str, ...] = ()
+    max_queries: int = MAX_QUERIES
+    max_queries_per_requester: int = MAX_QUERIES_PER_REQUESTER
+    query_workers: int = QUERY_WORKERS
 
 
 def max_payload_for(grid: Grid) -> int:

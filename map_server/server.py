@@ -25,6 +25,7 @@ from map_server.inbox import Inbox
 from map_server.ledger import Ledger, Rejected, carries_information, describe_grid, validate_delta
 from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
+from map_server.query_gate import QueryGate
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector, region_of
@@ -112,6 +113,9 @@ class MapServer:
         self._inbox = Inbox(
             self.options.inbox_messages, self.options.inbox_bytes or max(2 * self.max_payload, 16 << 20)
         )
+        self._queries = QueryGate(
+            self.options.max_queries, self.options.max_queries_per_requester, self.options.query_workers
+        )
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
@@ -129,13 +133,14 @@ class MapServer:
         key = self.key
         self._merged_pub = bus.reliable_publisher(self.session, key("merged"))
         handlers = {
-            "stats": self._on_stats,
-            "acks": self._on_acks,
-            "snapshot": self._on_snapshot,
-            "region": self._on_region,
+            "stats": guarded(self._on_stats),
+            "acks": guarded(self._on_acks),
+            # the whole-map answers (16 bytes per voxel each) go through the gate
+            "snapshot": self._queries.wrap("snapshot", self._on_snapshot),
+            "region": self._queries.wrap("region", self._on_region),
         }
         for part, handler in handlers.items():
-            self._declared.append(self.session.declare_queryable(key("map", part), guarded(handler)))
+            self._declared.append(self.session.declare_queryable(key("map", part), handler))
         self._worker.start()
         self._delta_sub = self.session.declare_subscriber(
             bus.key_pattern(self.name, "delta", "*"), self._on_sample
@@ -166,6 +171,7 @@ class MapServer:
         for entity in self._declared:
             entity.undeclare()
         self._declared.clear()
+        self._queries.close()
         if self._merged_pub is not None:
             self._merged_pub.undeclare()
             self._merged_pub = None
@@ -363,6 +369,7 @@ class MapServer:
             "snapshots_written": self.store.snapshots_written,
             "queued": len(self._inbox),
             "inbox": self._inbox.stats(),
+            "queries": self._queries.stats(),
             "max_payload_bytes": self.max_payload,
             "uptime_s": round(time.monotonic() - self._started, 3),
         }

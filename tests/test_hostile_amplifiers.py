@@ -77,3 +77,68 @@ def test_a_flood_of_zero_information_deltas_is_neither_logged_nor_sent_on(tmp_pa
     expected = oracle(mission, [honest])
     np.testing.assert_array_equal(snap.lam, expected.cmap.lam)
     np.testing.assert_array_equal(snap.eta, expected.cmap.eta)
+
+
+class _SlowToEncode:
+    """A snapshot whose encoding takes ``seconds`` (a large map's, on a busy machine)."""
+
+    def __init__(self, snap, seconds: float) -> None:
+        self.snap, self.seconds = snap, seconds
+
+    def encode(self) -> bytes:
+        time.sleep(self.seconds)
+        return self.snap.encode()
+
+
+def test_a_flood_of_snapshot_queries_gets_busy_replies_and_deltas_go_on(tmp_path: Path):
+    """64 snapshot queries at once, each taking 0.2 s to answer: all were taken on and answered
+    one after the other (13 s of work for one stranger's burst, every team member's snapshot
+    behind it). At most 8 are taken on (2 answered at once); the others get "busy" at once,
+    and r1's deltas are merged meanwhile; a MapClient told "busy" asks again."""
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    burst = 64
+    with (
+        running_server(mission, tmp_path / "store", OPTIONS) as (server, endpoint),
+        client_session(endpoint) as session,
+        client_session(endpoint) as stranger,
+    ):
+        client = MapClient(session, mission.mission, timeout=10.0, endpoint=endpoint)
+        client.stats()  # the queryables are there
+        real = server.team.snapshot
+        server.team.snapshot = lambda: _SlowToEncode(real(), 0.2)
+        pub = publishers(session, mission.mission, ["r1"])["r1"]
+        key = bus.key(mission.mission, "map", "snapshot")
+        handles = [stranger.get(key, timeout=60.0) for _ in range(burst)]
+        for seq in range(1, 6):
+            pub.put(good(grid, "r1", seq=seq, idx=(seq, 200 + seq)))
+        wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 5, 10, "r1's deltas during the burst")
+        during = client.snapshot()  # a team member's client asks again while it is told "busy"
+        replies = [r for h in handles for r in h]
+        stats = client.stats()
+        server.team.snapshot = real
+        snap = client.snapshot()
+    errors = [r.err.payload.to_string() for r in replies if r.err is not None]
+    assert len(replies) == burst
+    assert len(errors) >= burst - stats["queries"]["max"], errors[:3]
+    assert all(": busy: " in e for e in errors), errors[:3]
+    assert stats["queries"]["high_water"] <= stats["queries"]["max"] == 8
+    assert stats["queries"]["busy"]["snapshot"] >= len(errors)  # and the MapClient's, told to wait
+    expected = oracle(mission, [good(grid, "r1", seq=s, idx=(s, 200 + s)) for s in range(1, 6)])
+    np.testing.assert_array_equal(snap.lam, expected.cmap.lam)
+    assert during.acks["r1"][EPOCH] >= 1
+
+
+def test_the_query_gate_bounds_each_requester_and_all_of_them():
+    from map_server.query_gate import QueryGate
+
+    gate = QueryGate(total=3, per_requester=2, workers=1)
+    try:
+        assert gate._enter("a") is None and gate._enter("a") is None
+        assert "queries of 'a'" in gate._enter("a")  # a's third
+        assert gate._enter(None) is None  # no stated id: only the total binds it
+        assert "3 whole-map queries" in gate._enter("b")
+        gate._leave("a")
+        assert gate._enter("b") is None and gate.stats()["in_flight"] == 3
+    finally:
+        gate.close()
