@@ -4,10 +4,12 @@ Real Zenoh sessions on loopback, explicit endpoints, multicast scouting off."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from map_server.options import ServerOptions
 from swarm.protocol import bus
@@ -142,3 +144,66 @@ def test_the_query_gate_bounds_each_requester_and_all_of_them():
         assert gate._enter("b") is None and gate.stats()["in_flight"] == 3
     finally:
         gate.close()
+
+
+def _remote_stranger(endpoint: str) -> zenoh.Session:
+    """A client session without shared memory, as a stranger on another machine has."""
+    conf = bus.make_config(connect=[endpoint], mode="client")
+    conf.insert_json5("transport/shared_memory/enabled", "false")
+    return zenoh.open(conf)
+
+
+def test_the_server_session_drops_a_message_over_its_bound(tmp_path: Path):
+    """Zenoh put together any fragmented message up to 1 GiB on the server's links before the
+    server's own size check saw it. The server's session now takes at most its bound (here
+    2 MiB, set small for the test): a 3 MiB message never reaches the server, a 1 MiB one is
+    refused by the server (too_large), and the link goes on carrying r4's deltas."""
+    from map_server.process import server_session
+    from map_server.server import MapServer
+
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    options = ServerOptions(robots=ROBOTS, max_message_bytes=2 << 20)
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    server = MapServer(mission, tmp_path / "store", options=options)
+    session = server_session(server, mission, [endpoint])
+    server.start(session)
+    stranger = _remote_stranger(endpoint)
+    try:
+        with client_session(endpoint) as team:
+            client = MapClient(team, mission.mission, timeout=5.0, endpoint=endpoint)
+            pub = publishers(stranger, mission.mission, ["r4"])["r4"]
+            pub.put(bytes(3 << 20))  # over the session's bound
+            pub.put(bytes(1 << 20))  # under it, over the server's payload limit
+            pub.put(good(grid, "r4", seq=1))
+            wait_until(lambda: client.acks().get("r4", {}).get(EPOCH) == 1, 20, "r4's delta")
+            stats = client.stats()
+    finally:
+        stranger.close()
+        server.stop()
+        session.close()
+    assert stats["rejected"]["too_large"] == 1
+
+
+def test_the_coordinator_and_server_bounds_fit_the_largest_legitimate_messages(tmp_path: Path):
+    """The bounds are twice the largest message each role must take, at least 64 MiB, far below
+    Zenoh's 1 GiB; a config file's own value wins."""
+    from coordinator.command import message_limit_of
+    from map_server.options import max_payload_for, message_limit_for
+    from swarm.config import load_mission
+    from swarm.protocol.message_size import delta_bytes, frame_bytes, snapshot_bytes
+
+    office = load_mission(Path(__file__).parents[1] / "configs" / "office.yaml")
+    grid = office.workspace.grid()
+    coordinator = message_limit_of(office)
+    assert coordinator >= 2 * snapshot_bytes(grid, len(office.robot_ids) + 64) >= 2 * delta_bytes(grid)
+    server = message_limit_for(office, ServerOptions(), max_payload_for(grid))
+    rig = office.rig_for(office.robot_ids[0])
+    assert server >= max(64 << 20, 2 * max_payload_for(grid), 2 * frame_bytes(rig.width, rig.height))
+    assert max(server, coordinator) < 1 << 30
+    conf, _, _ = bus.session_config([], ["tcp/127.0.0.1:1"], max_message_bytes=coordinator)
+    assert json.loads(conf.get_json("transport/link/rx/max_message_size")) == coordinator
+    own = tmp_path / "zenoh.json5"
+    own.write_text("{transport: {link: {rx: {max_message_size: 5000000}}}}")
+    conf, _, _ = bus.session_config([], ["tcp/127.0.0.1:1"], config_file=own, max_message_bytes=coordinator)
+    assert json.loads(conf.get_json("transport/link/rx/max_message_size")) == 5_000_000
