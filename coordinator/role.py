@@ -37,6 +37,7 @@ from coordinator.assignment import (
 from coordinator.requests import RequestQueue
 from coordinator.state import Answer, CoordinatorState
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.navigation import planner
 from swarm.protocol import bus, replies
 from swarm.protocol.codec import short
@@ -88,6 +89,8 @@ class Coordinator:
         self._statuses: dict[str, bytes] = {}
         self._statuses_lock = threading.Lock()
         self._refused: Counter[str] = Counter()  # refused stream messages by kind, for the log
+        #: what a remote peer makes the coordinator log: one line per reason per 10 s, with counts
+        self._peer_log = LogLimiter(log)
         #: waiting coord/assign queries and their requests, the latest of each robot
         self._requests: RequestQueue[tuple[zenoh.Query, AssignRequest]] = RequestQueue()
         self._stop = threading.Event()
@@ -188,12 +191,12 @@ class Coordinator:
             result = handler(*args)
         except WireError as exc:
             self._refused[kind] += 1
-            if self._refused[kind] <= 10 or self._refused[kind] % 1000 == 0:
-                log.warning("rejected %s message (#%d): %s", kind, self._refused[kind], exc)
+            count = self._refused[kind]
+            self._peer_log.warning(f"rejected:{kind}", "rejected %s message (#%d): %s", kind, count, exc)
             return
         except Exception:  # never die of one message
             self.state.counts["worker_errors"] += 1
-            log.exception("error handling a %s message", kind)
+            self._peer_log.exception(f"failed:{kind}", "error handling a %s message", kind)
             return
         for robot, reason in result if kind != "merged" else ():
             log.info("released the target of %s: %s", robot, reason)
@@ -216,7 +219,8 @@ class Coordinator:
             try:
                 request = self.state.decode_request(str(query.key_expr), payload)
             except WireError as exc:
-                log.warning("rejected assign request: %s", exc)
+                count = self.state.counts["requests_rejected"]
+                self._peer_log.warning("assign_rejected", "rejected assign request (#%d): %s", count, exc)
                 self._refuse(query, started, str(exc))
                 return
             replaced, taken = self._requests.offer(request.robot, (query, request))
@@ -230,7 +234,7 @@ class Coordinator:
                 waiting = self._requests.max_robots
                 self._refuse(query, started, f"busy: {waiting} robots are waiting for an answer; ask again")
         except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
-            log.exception("coord/assign callback failed")
+            self._peer_log.exception("assign_callback", "coord/assign callback failed")
 
     def _refuse(self, query: zenoh.Query, started: float, reason: str) -> None:
         """An error reply ``coord/assign: <reason>``, timed like an answer."""
@@ -269,20 +273,21 @@ class Coordinator:
             text = json.dumps(self.stats(), allow_nan=False)
             query.reply(query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
         except Exception as exc:  # never die of one query
-            log.exception("coord/stats failed")
+            self._peer_log.exception("stats_failed", "coord/stats failed")
             query.reply_err(f"coord/stats: {exc}".encode())
 
     def _answer(self, query: zenoh.Query, request: AssignRequest, started: float) -> None:
         try:
             answer = self.state.answer_request(request, self.clock())
         except WireError as exc:
-            log.warning("rejected assign request: %s", exc)
+            count = self.state.counts["requests_rejected"]
+            self._peer_log.warning("assign_rejected", "rejected assign request (#%d): %s", count, exc)
             self._timed(started)
             query.reply_err(f"coord/assign: {exc}".encode())
             return
         except Exception as exc:  # never die of one request
             self.state.counts["requests_failed"] += 1
-            log.exception("assign request failed")
+            self._peer_log.exception("assign_failed", "assign request failed")
             self._timed(started)
             query.reply_err(f"coord/assign: internal error: {short(exc)}".encode())
             return

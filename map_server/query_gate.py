@@ -21,10 +21,12 @@ from concurrent.futures import ThreadPoolExecutor
 import zenoh
 
 from map_server.replies import guarded
+from swarm.log_limit import LogLimiter
 from swarm.protocol.codec import short
 from swarm.protocol.map_client import BUSY
 
 log = logging.getLogger("swarm.server")
+_peer_log = LogLimiter(log)
 
 #: Whole-map queries taken on at once (being answered or waiting for a worker), all requesters.
 MAX_QUERIES = 8
@@ -80,7 +82,7 @@ class QueryGate:
                     query.reply_err(f"{query.key_expr}: the map server is stopping".encode())
                     query.drop()
             except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
-                log.exception("map/%s callback failed", part)
+                _peer_log.exception(f"{part}_callback", "map/%s callback failed", part)
 
         return callback
 

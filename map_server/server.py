@@ -30,6 +30,7 @@ from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
 from swarm.protocol.codec import short
 from swarm.protocol.map_messages import PRIOR_SOURCE
@@ -116,6 +117,8 @@ class MapServer:
         self._queries = QueryGate(
             self.options.max_queries, self.options.max_queries_per_requester, self.options.query_workers
         )
+        #: what a remote peer makes the server log: one line per reason per 10 s, with counts
+        self._peer_log = LogLimiter(log)
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
@@ -218,22 +221,29 @@ class MapServer:
                 self._reject(robot, None, Rejected("too_large", reason))
             elif not self._inbox.offer(robot, sample.payload.to_bytes()):
                 refused = self._inbox.refused[robot]
-                if refused <= 10 or refused % 1000 == 0:
-                    log.warning(
-                        "inbox of %s full: payload refused (#%d; its agent resends it)", robot, refused
-                    )
+                self._peer_log.warning(
+                    "inbox_full",
+                    "inbox of %s full: payload refused (#%d; its agent resends it)",
+                    robot,
+                    refused,
+                )
         except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
-            log.exception("delta callback failed")
+            self._peer_log.exception("delta_callback", "delta callback failed")
 
     def _reject(self, robot: str, msg: DeltaMessage | None, exc: Rejected) -> None:
-        """Count a refused delta under its kind and log it (the first 10 of a kind, then every 1000th)."""
+        """Count a refused delta under its kind and log it (one line per kind per 10 s, with counts)."""
         with self._lock:
             count = self.team.count_rejected(exc.kind)
-        if count <= 10 or count % 1000 == 0:
-            ident = "" if msg is None else f" epoch {msg.epoch} seq {msg.seq}"
-            log.warning(
-                "rejected delta on delta/%s%s (%s, #%d): %s", short(robot, 40), ident, exc.kind, count, exc
-            )
+        ident = "" if msg is None else f" epoch {msg.epoch} seq {msg.seq}"
+        self._peer_log.warning(
+            f"rejected:{exc.kind}",
+            "rejected delta on delta/%s%s (%s, #%d): %s",
+            short(robot, 40),
+            ident,
+            exc.kind,
+            count,
+            exc,
+        )
 
     def _work(self) -> None:
         while True:
@@ -266,7 +276,9 @@ class MapServer:
         except Rejected as exc:
             self._reject(robot, msg, exc)
         except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)
-            log.exception("unexpected failure admitting a delta of %s", short(robot, 40))
+            self._peer_log.exception(
+                "admit_failure", "unexpected failure admitting a delta of %s", short(robot, 40)
+            )
             self._reject(robot, msg, Rejected("internal_error", f"{type(exc).__name__}: {short(exc)}"))
         return None
 

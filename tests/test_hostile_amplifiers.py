@@ -5,6 +5,7 @@ Real Zenoh sessions on loopback, explicit endpoints, multicast scouting off."""
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -207,3 +208,93 @@ def test_the_coordinator_and_server_bounds_fit_the_largest_legitimate_messages(t
     own.write_text("{transport: {link: {rx: {max_message_size: 5000000}}}}")
     conf, _, _ = bus.session_config([], ["tcp/127.0.0.1:1"], config_file=own, max_message_bytes=coordinator)
     assert json.loads(conf.get_json("transport/link/rx/max_message_size")) == 5_000_000
+
+
+class _Lines(logging.Handler):
+    """The log lines of one logger, while in a ``with`` block."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(logging.DEBUG)
+        self.logger, self.lines = logging.getLogger(name), []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
+
+    def __enter__(self):
+        self.logger.addHandler(self)
+        self.logger.setLevel(logging.DEBUG)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.logger.removeHandler(self)
+
+
+def test_a_flood_of_malformed_deltas_logs_a_line_per_reason_not_per_delta(tmp_path: Path):
+    """3,000 malformed deltas logged 13 lines (the first ten of a kind, then every thousandth):
+    a sustained flood wrote one line per thousand deltas without end. Now one line per kind
+    per 10 s, which counts the unlogged ones."""
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    flood, rounds = 3000, 15
+    with (
+        _Lines("swarm.server") as logged,
+        running_server(mission, tmp_path / "store", OPTIONS) as (_server, endpoint),
+        client_session(endpoint) as session,
+    ):
+        client = MapClient(session, mission.mission, timeout=5.0, endpoint=endpoint)
+        pubs = publishers(session, mission.mission, ["r1", "r4"])
+        for n in range(rounds):  # in rounds the inbox holds, so that every delta is refused as malformed
+            for i in range(flood // rounds):
+                pubs["r4"].put(b"\x00not a delta %d" % i)
+            handled = (n + 1) * (flood // rounds)
+            wait_until(
+                lambda h=handled: client.stats()["rejected"]["malformed"] >= h, 20, f"{handled} refused"
+            )
+        pubs["r1"].put(good(grid, "r1"))
+        wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10, "r1's delta")
+    rejected_lines = [line for line in logged.lines if line.startswith("rejected delta")]
+    assert 1 <= len(rejected_lines) <= 3, rejected_lines  # one per 10 s: a slow machine may take 20 s
+
+
+def test_a_flood_of_malformed_assign_requests_logs_a_line_per_reason():
+    """Each malformed coord/assign request logged a line: 300 requests, 300 lines."""
+    from coordinator.role import Coordinator
+    from swarm.protocol.coord_client import assign_key
+    from swarm.protocol.wire import Snapshot
+    from tests.test_coordinator import MapServerStandIn, corridor_map
+    from tests.test_coordinator import mission as coordinated_mission
+
+    m = coordinated_mission()
+    full = corridor_map(m)
+    server = MapServerStandIn(m.mission, Snapshot(full.grid, full.lam, full.eta))
+    coord_session = bus.open_session(connect=[server.endpoint])
+    stranger = bus.open_session(connect=[server.endpoint])
+    coordinator = Coordinator(m, coord_session, snapshot_timeout=5.0)
+    try:
+        with _Lines("coordinator") as logged:
+            coordinator.start()
+            key = assign_key(m.mission, "r1")
+            handles = [stranger.get(key, payload=b"\xc1%d" % i, timeout=10.0) for i in range(300)]
+            errors = sum(r.err is not None for h in handles for r in h)
+    finally:
+        coordinator.stop()
+        coord_session.close()
+        stranger.close()
+        server.close()
+    assert errors == 300
+    rejected_lines = [line for line in logged.lines if line.startswith("rejected assign request")]
+    assert 1 <= len(rejected_lines) <= 3, rejected_lines[:5]
+
+
+def test_the_log_limiter_counts_what_it_left_unlogged():
+    from swarm.log_limit import LogLimiter
+
+    now = [0.0]
+    with _Lines("test.limiter") as logged:
+        limiter = LogLimiter(logging.getLogger("test.limiter"), interval_s=10.0, clock=lambda: now[0])
+        for i in range(5):
+            limiter.warning("a", "bad %d", i)
+        limiter.warning("b", "other")
+        now[0] = 12.0
+        limiter.warning("a", "bad %d", 99)
+    assert logged.lines == ["bad 0", "other", "bad 99 (4 more like it unlogged in the last 12 s)"]
