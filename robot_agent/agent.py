@@ -30,10 +30,12 @@ from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
 from robot_agent.sharing import DeltaOutbox
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.map.delta import Delta
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.protocol import bus, replies
 from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.codec import short
 from swarm.protocol.coord_client import ask_for_target
 from swarm.protocol.map_client import (
     MapClient,
@@ -93,6 +95,8 @@ class Agent:
         self.applied = AppliedDeltas()
         self.merged_counts: Counter[str] = Counter()
         self._merged: queue.Queue = queue.Queue()
+        #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
+        self._peer_log = LogLimiter(log)
         self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), lambda _k, p: self._merged.put(p))
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
@@ -192,11 +196,13 @@ class Agent:
             frame = Frame.decode(payload)
         except WireError as exc:
             self.rejected_frames += 1
-            log.warning("%s: rejected frame: %s", self.robot_id, exc)
+            self._peer_log.warning("frame", "%s: rejected frame: %s", self.robot_id, exc)
             return None
         if frame.robot != self.robot_id:
             self.rejected_frames += 1
-            log.warning("%s: rejected frame addressed to %s", self.robot_id, frame.robot)
+            self._peer_log.warning(
+                "frame_robot", "%s: rejected frame addressed to %s", self.robot_id, short(frame.robot, 40)
+            )
             return None
         self.last_t = frame.t
         self._pose = frame.pose
@@ -279,7 +285,7 @@ class Agent:
                     raise WireError(f"merged delta on grid {msg.grid}, not the mission's")
             except WireError as exc:
                 self.merged_counts["rejected"] += 1
-                log.warning("%s: rejected merged delta: %s", self.robot_id, exc)
+                self._peer_log.warning("merged", "%s: rejected merged delta: %s", self.robot_id, exc)
                 continue
             if msg.robot == self.robot_id and msg.epoch == self.epoch:
                 self.merged_counts["own"] += 1  # already in the local map
@@ -291,7 +297,7 @@ class Agent:
                 self.explorer.apply_external(Delta(msg.idx, msg.dlam, msg.deta))
             except ValueError as exc:
                 self.merged_counts["rejected"] += 1
-                log.warning("%s: rejected merged delta: %s", self.robot_id, exc)
+                self._peer_log.warning("merged", "%s: rejected merged delta: %s", self.robot_id, exc)
                 continue
             self.merged_counts["applied"] += 1
             applied += 1

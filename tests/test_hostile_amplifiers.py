@@ -298,3 +298,30 @@ def test_the_log_limiter_counts_what_it_left_unlogged():
         now[0] = 12.0
         limiter.warning("a", "bad %d", 99)
     assert logged.lines == ["bad 0", "other", "bad 99 (4 more like it unlogged in the last 12 s)"]
+
+
+def test_an_agent_logs_floods_of_bad_frames_and_merged_deltas_a_line_per_reason():
+    """An agent logged each undecodable frame and each bad message on ``merged`` (which anyone
+    on an open bus can publish): 300 of each, 600 lines."""
+    from robot_agent.agent import Agent
+
+    mission = small_mission()
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    session = bus.open_session(listen=[endpoint])
+    try:
+        with _Lines("swarm.agent") as logged, client_session(endpoint) as stranger:
+            agent = Agent(mission, "r1", session, coordination=False)
+            merged = bus.reliable_publisher(stranger, bus.key(mission.mission, "merged"))
+            assert bus.wait_for_subscribers([merged], 10.0)
+            for i in range(300):
+                merged.put(b"\xc1 not a delta %d" % i)
+                assert agent.handle(b"\xc1 not a frame %d" % i) is None
+            wait_until(
+                lambda: agent.apply_merged() >= 0 and agent.merged_counts["rejected"] == 300, 20, "the flood"
+            )
+    finally:
+        session.close()
+    assert agent.rejected_frames == 300
+    frames = [line for line in logged.lines if "rejected frame" in line]
+    deltas = [line for line in logged.lines if "rejected merged delta" in line]
+    assert 1 <= len(frames) <= 3 and 1 <= len(deltas) <= 3, (len(frames), len(deltas))
