@@ -325,3 +325,49 @@ def test_an_agent_logs_floods_of_bad_frames_and_merged_deltas_a_line_per_reason(
     frames = [line for line in logged.lines if "rejected frame" in line]
     deltas = [line for line in logged.lines if "rejected merged delta" in line]
     assert 1 <= len(frames) <= 3 and 1 <= len(deltas) <= 3, (len(frames), len(deltas))
+
+
+def test_deltas_of_invented_robots_on_merged_cost_the_coordinator_a_bounded_amount():
+    """The coordinator's replica kept 8 bytes per map column for every robot id seen on
+    ``merged`` and went through all of them for each answer: 3,000 one-voxel deltas of invented
+    robots (about 600 KB on the wire) took 411 MB of the office's coordinator and made each
+    answer 0.11 s slower. It tracks the mission's robots and 65 more; empty deltas are refused."""
+    from coordinator.role import Coordinator
+    from swarm.protocol.coord_client import assign_key
+    from swarm.protocol.message_size import PATTERN_ROBOTS
+    from swarm.protocol.wire import AssignRequest, Snapshot
+    from tests.test_coordinator import MapServerStandIn, corridor_map, pose
+    from tests.test_coordinator import mission as coordinated_mission
+
+    m = coordinated_mission()
+    grid = m.workspace.grid()
+    full = corridor_map(m)
+    server = MapServerStandIn(m.mission, Snapshot(full.grid, full.lam, full.eta))
+    coord_session = bus.open_session(connect=[server.endpoint])
+    coordinator = Coordinator(m, coord_session, snapshot_timeout=5.0)
+    invented, empty = 400, 100
+    one = np.ones(1, np.float32)
+    try:
+        coordinator.start()
+        assert bus.wait_for_subscribers([server.merged], 10.0)
+        for i in range(invented):
+            idx = np.array([i % grid.size], np.uint32)
+            server.merged.put(DeltaMessage(f"x{i}", 1, 1, 0.0, grid, idx, one, one * 0.5).encode())
+        for i in range(empty):
+            nothing = np.zeros(0, np.float32)
+            server.merged.put(
+                DeltaMessage(f"y{i}", 1, 1, 0.0, grid, np.zeros(0, np.uint32), nothing, nothing).encode()
+            )
+        counts = coordinator.state.team.counts
+        wait_until(lambda: counts["applied"] + counts["rejected"] == invented + empty, 20, "the merged flood")
+        request = AssignRequest("r1", pose("r1")).encode()
+        replies = list(coord_session.get(assign_key(m.mission, "r1"), payload=request, timeout=10.0))
+        tracked = coordinator.state.team.columns.robots()
+    finally:
+        coordinator.stop()
+        coord_session.close()
+        server.close()
+    assert len(replies) == 1 and replies[0].ok is not None
+    assert counts["rejected"] == empty and counts["applied"] == invented
+    assert len(tracked) == len(m.robot_ids) + PATTERN_ROBOTS + 1
+    assert counts["unattributed"] == invented - len(tracked)
