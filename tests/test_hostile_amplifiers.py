@@ -371,3 +371,33 @@ def test_deltas_of_invented_robots_on_merged_cost_the_coordinator_a_bounded_amou
     assert counts["rejected"] == empty and counts["applied"] == invented
     assert len(tracked) == len(m.robot_ids) + PATTERN_ROBOTS + 1
     assert counts["unattributed"] == invented - len(tracked)
+
+
+def test_the_mission_monitor_attributes_a_bounded_number_of_robots():
+    """The runner's monitor kept a 4-byte-per-voxel array for every robot id seen on delta/*
+    (1.4 MB each on the office grid) and printed every refused delta."""
+    from swarm.mission.team_monitor import TeamMonitor
+    from swarm.protocol.message_size import PATTERN_ROBOTS
+
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    session = bus.open_session(listen=[endpoint])
+    monitor = TeamMonitor(mission)
+    sub = bus.subscribe(session, bus.key_pattern(mission.mission, "delta", "*"), monitor.on_delta)
+    invented, malformed = 200, 100
+    bound = len(mission.robot_ids) + PATTERN_ROBOTS + 1
+    try:
+        with _Lines("swarm.monitor") as logged, client_session(endpoint) as stranger:
+            pubs = publishers(stranger, mission.mission, [f"x{i}" for i in range(invented)])
+            for i, pub in enumerate(pubs.values()):
+                pub.put(good(grid, f"x{i}", idx=(i,)))
+            for i in range(malformed):
+                pubs["x0"].put(b"\xc1 not a delta %d" % i)
+            wait_until(lambda: monitor.applied + monitor.rejected == invented + malformed, 20, "the flood")
+    finally:
+        sub.undeclare()
+        session.close()
+    assert len(monitor.first_delta) == bound and monitor.unattributed == invented - bound
+    assert monitor.applied == invented
+    assert 1 <= len([line for line in logged.lines if "rejected delta" in line]) <= 3
