@@ -107,11 +107,12 @@ def test_a_flood_of_snapshot_queries_gets_busy_replies_and_deltas_go_on(tmp_path
         client_session(endpoint) as stranger,
     ):
         client = MapClient(session, mission.mission, timeout=10.0, endpoint=endpoint)
-        client.stats()  # the queryables are there
+        key = bus.key(mission.mission, "map", "snapshot")
+        # the queryables' declarations reach each session a little after start
+        wait_until(lambda: list(stranger.get(key, timeout=5.0)) != [], 10, "the stranger sees map/snapshot")
         real = server.team.snapshot
         server.team.snapshot = lambda: _SlowToEncode(real(), 0.2)
         pub = publishers(session, mission.mission, ["r1"])["r1"]
-        key = bus.key(mission.mission, "map", "snapshot")
         handles = [stranger.get(key, timeout=60.0) for _ in range(burst)]
         for seq in range(1, 6):
             pub.put(good(grid, "r1", seq=seq, idx=(seq, 200 + seq)))
@@ -229,6 +230,11 @@ class _Lines(logging.Handler):
         self.logger.removeHandler(self)
 
 
+def _allowed_lines(since: float) -> int:
+    """Lines of one reason a 10 s limiter may write from ``since`` (time.monotonic()) to now."""
+    return 1 + int((time.monotonic() - since) / 10.0)
+
+
 def test_a_flood_of_malformed_deltas_logs_a_line_per_reason_not_per_delta(tmp_path: Path):
     """3,000 malformed deltas logged 13 lines (the first ten of a kind, then every thousandth):
     a sustained flood wrote one line per thousand deltas without end. Now one line per kind
@@ -236,6 +242,7 @@ def test_a_flood_of_malformed_deltas_logs_a_line_per_reason_not_per_delta(tmp_pa
     mission = small_mission()
     grid = mission.workspace.grid()
     flood, rounds = 3000, 15
+    since = time.monotonic()
     with (
         _Lines("swarm.server") as logged,
         running_server(mission, tmp_path / "store", OPTIONS) as (_server, endpoint),
@@ -252,8 +259,9 @@ def test_a_flood_of_malformed_deltas_logs_a_line_per_reason_not_per_delta(tmp_pa
             )
         pubs["r1"].put(good(grid, "r1"))
         wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10, "r1's delta")
+    allowed = _allowed_lines(since)
     rejected_lines = [line for line in logged.lines if line.startswith("rejected delta")]
-    assert 1 <= len(rejected_lines) <= 3, rejected_lines  # one per 10 s: a slow machine may take 20 s
+    assert 1 <= len(rejected_lines) <= allowed, rejected_lines
 
 
 def test_a_flood_of_malformed_assign_requests_logs_a_line_per_reason():
@@ -270,12 +278,18 @@ def test_a_flood_of_malformed_assign_requests_logs_a_line_per_reason():
     coord_session = bus.open_session(connect=[server.endpoint])
     stranger = bus.open_session(connect=[server.endpoint])
     coordinator = Coordinator(m, coord_session, snapshot_timeout=5.0)
+    since = time.monotonic()
     try:
         with _Lines("coordinator") as logged:
             coordinator.start()
             key = assign_key(m.mission, "r1")
+            # the queryable's declaration reaches the stranger's session a little after start
+            wait_until(
+                lambda: list(stranger.get(key, payload=b"\xc1", timeout=5.0)) != [], 10, "the queryable"
+            )
             handles = [stranger.get(key, payload=b"\xc1%d" % i, timeout=10.0) for i in range(300)]
             errors = sum(r.err is not None for h in handles for r in h)
+        allowed = _allowed_lines(since)
     finally:
         coordinator.stop()
         coord_session.close()
@@ -283,7 +297,7 @@ def test_a_flood_of_malformed_assign_requests_logs_a_line_per_reason():
         server.close()
     assert errors == 300
     rejected_lines = [line for line in logged.lines if line.startswith("rejected assign request")]
-    assert 1 <= len(rejected_lines) <= 3, rejected_lines[:5]
+    assert 1 <= len(rejected_lines) <= allowed, rejected_lines[:5]
 
 
 def test_the_log_limiter_counts_what_it_left_unlogged():
@@ -309,6 +323,7 @@ def test_an_agent_logs_floods_of_bad_frames_and_merged_deltas_a_line_per_reason(
     endpoint = bus.tcp_endpoint(bus.free_port())
     session = bus.open_session(listen=[endpoint])
     try:
+        since = time.monotonic()
         with _Lines("swarm.agent") as logged, client_session(endpoint) as stranger:
             agent = Agent(mission, "r1", session, coordination=False)
             merged = bus.reliable_publisher(stranger, bus.key(mission.mission, "merged"))
@@ -319,12 +334,13 @@ def test_an_agent_logs_floods_of_bad_frames_and_merged_deltas_a_line_per_reason(
             wait_until(
                 lambda: agent.apply_merged() >= 0 and agent.merged_counts["rejected"] == 300, 20, "the flood"
             )
+        allowed = _allowed_lines(since)
     finally:
         session.close()
     assert agent.rejected_frames == 300
     frames = [line for line in logged.lines if "rejected frame" in line]
     deltas = [line for line in logged.lines if "rejected merged delta" in line]
-    assert 1 <= len(frames) <= 3 and 1 <= len(deltas) <= 3, (len(frames), len(deltas))
+    assert 1 <= len(frames) <= allowed and 1 <= len(deltas) <= allowed, (len(frames), len(deltas))
 
 
 def test_deltas_of_invented_robots_on_merged_cost_the_coordinator_a_bounded_amount():
@@ -388,6 +404,7 @@ def test_the_mission_monitor_attributes_a_bounded_number_of_robots():
     invented, malformed = 200, 100
     bound = len(mission.robot_ids) + PATTERN_ROBOTS + 1
     try:
+        since = time.monotonic()
         with _Lines("swarm.monitor") as logged, client_session(endpoint) as stranger:
             pubs = publishers(stranger, mission.mission, [f"x{i}" for i in range(invented)])
             for i, pub in enumerate(pubs.values()):
@@ -395,9 +412,10 @@ def test_the_mission_monitor_attributes_a_bounded_number_of_robots():
             for i in range(malformed):
                 pubs["x0"].put(b"\xc1 not a delta %d" % i)
             wait_until(lambda: monitor.applied + monitor.rejected == invented + malformed, 20, "the flood")
+        allowed = _allowed_lines(since)
     finally:
         sub.undeclare()
         session.close()
     assert len(monitor.first_delta) == bound and monitor.unattributed == invented - bound
     assert monitor.applied == invented
-    assert 1 <= len([line for line in logged.lines if "rejected delta" in line]) <= 3
+    assert 1 <= len([line for line in logged.lines if "rejected delta" in line]) <= allowed
