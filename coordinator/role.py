@@ -41,6 +41,7 @@ from swarm.log_limit import LogLimiter
 from swarm.navigation import planner
 from swarm.protocol import bus, replies
 from swarm.protocol.codec import short
+from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
@@ -140,8 +141,17 @@ class Coordinator:
         )
 
     def _load_snapshot(self) -> None:
+        """Start the replica from the map server's snapshot, asking again while the server
+        answers "busy" (it takes few whole-map queries at once) and time is left."""
+        deadline = time.monotonic() + self.snapshot_timeout
         try:
-            answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), self.snapshot_timeout)
+            while True:
+                left = max(deadline - time.monotonic(), 0.05)
+                answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), left)
+                busy = answer is not None and answer.ok is None and BUSY in str(answer.error)
+                if not busy or time.monotonic() + BUSY_PAUSE_S >= deadline:
+                    break
+                time.sleep(BUSY_PAUSE_S)
             if answer is not None and answer.ok is None:
                 log.warning("map/snapshot answered an error: %s", answer.error)
             elif answer is not None:

@@ -419,3 +419,42 @@ def test_the_mission_monitor_attributes_a_bounded_number_of_robots():
     assert len(monitor.first_delta) == bound and monitor.unattributed == invented - bound
     assert monitor.applied == invented
     assert 1 <= len([line for line in logged.lines if "rejected delta" in line]) <= allowed
+
+
+def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
+    """A "busy" answer to the coordinator's start-up map/snapshot (a stranger's query burst at
+    that moment) made it start from the prior and never see the map built so far."""
+    from coordinator.role import Coordinator
+    from swarm.protocol.wire import Snapshot
+    from tests.test_coordinator import corridor_map
+    from tests.test_coordinator import mission as coordinated_mission
+
+    m = coordinated_mission()
+    full = corridor_map(m)
+    payload = Snapshot(full.grid, full.lam, full.eta).encode()
+    asked = []
+
+    def busy_twice(query: zenoh.Query) -> None:
+        asked.append(1)
+        if len(asked) <= 2:
+            query.reply_err(f"{query.key_expr}: busy: 8 whole-map queries are being answered".encode())
+        else:
+            query.reply(query.key_expr, payload)
+
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    router = bus.open_session(listen=[endpoint])
+    queryable = router.declare_queryable(bus.key(m.mission, "map", "snapshot"), busy_twice)
+    coord_session = bus.open_session(connect=[endpoint])
+    key = bus.key(m.mission, "map", "snapshot")
+    wait_until(lambda: list(coord_session.get(key, timeout=5.0)) != [], 10, "the queryable")
+    asked.clear()
+    coordinator = Coordinator(m, coord_session, snapshot_timeout=10.0)
+    try:
+        coordinator.start()
+        started_from_snapshot = coordinator.started_from_snapshot
+    finally:
+        coordinator.stop()
+        coord_session.close()
+        queryable.undeclare()
+        router.close()
+    assert started_from_snapshot and len(asked) == 3
