@@ -55,6 +55,9 @@ ANSWER_TIMES_KEPT = 10_000
 #: The largest ``coord/assign`` payload read (a request is about 100 bytes; up to 256 robots'
 #: requests wait at once, each holding its payload).
 MAX_REQUEST_BYTES = 64 << 10
+#: Bytes of merged deltas that may wait for the worker (the honest stream is far below it:
+#: 16 robots sharing 50 KB a second each fill 1 MB a second, and the worker keeps up).
+MAX_QUEUED_MERGED_BYTES = 256 << 20
 
 
 # ---------------------------------------------------------------------------------------
@@ -76,6 +79,7 @@ class Coordinator:
         mission_name: str | None = None,
         snapshot_timeout: float = SNAPSHOT_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
+        max_queued_merged_bytes: int = MAX_QUEUED_MERGED_BYTES,
     ) -> None:
         self.state = CoordinatorState(mission, params)
         self.session = session
@@ -84,6 +88,11 @@ class Coordinator:
         self.clock = clock
         self.started_from_snapshot = False
         self._inbox: queue.Queue = queue.Queue()
+        #: bytes of merged payloads waiting in the inbox, and their bound: anyone on an open bus
+        #: can put on merged faster than the worker applies, and a refused one is only counted
+        self.max_queued_merged_bytes = max_queued_merged_bytes
+        self._queued_merged_bytes = 0
+        self._queued_lock = threading.Lock()
         #: the latest status payload of each status key not handled yet: a status says where a
         #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
         #: costs the worker one status per round, not a backlog that holds merged deltas back
@@ -161,6 +170,26 @@ class Coordinator:
             log.warning("no usable map snapshot (%s); starting from the prior", exc)
 
     def _on_merged(self, _key: str, payload: bytes) -> None:
+        """Queue a merged payload for the worker, unless the merged payloads waiting already
+        hold ``max_queued_merged_bytes`` (then it is dropped, counted ``merged_dropped``)."""
+        with self._queued_lock:
+            queued = self._queued_merged_bytes + len(payload)
+            if queued > self.max_queued_merged_bytes:
+                self.state.counts["merged_dropped"] += 1
+                dropped = self.state.counts["merged_dropped"]
+            else:
+                self._queued_merged_bytes = queued
+                high = max(self.state.counts["merged_queued_bytes_high_water"], queued)
+                self.state.counts["merged_queued_bytes_high_water"] = high
+                dropped = 0
+        if dropped:
+            self._peer_log.warning(
+                "merged_dropped",
+                "merged delta dropped (#%d): %s bytes of merged deltas are waiting already",
+                dropped,
+                f"{self.max_queued_merged_bytes:,}",
+            )
+            return
         self._inbox.put(("merged", payload))
 
     def _on_status(self, key: str, payload: bytes) -> None:
@@ -183,6 +212,8 @@ class Coordinator:
                 kind = None
             now = self.clock()
             if kind == "merged":
+                with self._queued_lock:
+                    self._queued_merged_bytes -= len(payload)
                 self._handle("merged", self.state.team.apply_payload, payload)
             elif kind == "statuses":
                 with self._statuses_lock:

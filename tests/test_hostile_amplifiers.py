@@ -458,3 +458,47 @@ def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
         queryable.undeclare()
         router.close()
     assert started_from_snapshot and len(asked) == 3
+
+
+def test_a_flood_on_merged_faster_than_the_coordinator_applies_is_bounded():
+    """Merged payloads waited for the coordinator's worker in an unbounded queue: a stranger
+    putting deltas on merged faster than it applies them grew its memory without end. The
+    bytes waiting are bounded (here 1 MiB); beyond, a payload is dropped and counted."""
+    from coordinator.role import Coordinator
+    from swarm.protocol.wire import Snapshot
+    from tests.test_coordinator import MapServerStandIn, corridor_map
+    from tests.test_coordinator import mission as coordinated_mission
+
+    m = coordinated_mission()
+    grid = m.workspace.grid()
+    full = corridor_map(m)
+    server = MapServerStandIn(m.mission, Snapshot(full.grid, full.lam, full.eta))
+    coord_session = bus.open_session(connect=[server.endpoint])
+    coordinator = Coordinator(m, coord_session, snapshot_timeout=5.0, max_queued_merged_bytes=1 << 20)
+    real = coordinator.state.team.apply_payload
+
+    def slow_apply(payload: bytes) -> str:
+        time.sleep(0.02)  # a large map on a loaded machine
+        return real(payload)
+
+    coordinator.state.team.apply_payload = slow_apply
+    idx = np.arange(min(grid.size, 8000), dtype=np.uint32)
+    lam = np.full(len(idx), 1e-3, np.float32)
+    flood = [DeltaMessage("r2", 1, seq, 0.0, grid, idx, lam, lam * 0.5).encode() for seq in range(1, 201)]
+    try:
+        coordinator.start()
+        assert bus.wait_for_subscribers([server.merged], 10.0)
+        for payload in flood:
+            server.merged.put(payload)
+        wait_until(
+            lambda: sum(coordinator.counts[k] for k in ("merged_applied", "merged_dropped")) == len(flood),
+            30,
+            "the flood handled",
+        )
+        counts = coordinator.counts
+    finally:
+        coordinator.stop()
+        coord_session.close()
+        server.close()
+    assert counts["merged_dropped"] > 0 and counts["merged_applied"] > 0
+    assert 0 < counts["merged_queued_bytes_high_water"] <= 1 << 20
