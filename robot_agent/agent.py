@@ -48,6 +48,10 @@ from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireErro
 
 log = logging.getLogger("swarm.agent")
 
+#: Bytes of merged deltas that may wait for the agent's next frame (the honest stream between
+#: two frames is far below it).
+MAX_QUEUED_MERGED_BYTES = 256 << 20
+
 ACK_POLL_S = 2.0
 RESEND_AFTER_S = 5.0
 STATUS_EVERY = 4  # frames
@@ -97,7 +101,12 @@ class Agent:
         self._merged: queue.Queue = queue.Queue()
         #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
-        self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), lambda _k, p: self._merged.put(p))
+        #: bytes of merged payloads waiting for the next frame, at most max_queued_merged_bytes:
+        #: anyone on an open bus can put on merged faster than the agent takes them
+        self.max_queued_merged_bytes = MAX_QUEUED_MERGED_BYTES
+        self._queued_merged_bytes = 0
+        self._queued_lock = threading.Lock()
+        self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), self._on_merged)
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
         self._coordinator_quiet_until = 0.0
@@ -271,6 +280,21 @@ class Agent:
         log.info("%s: started from the team map (entropy %.0f bits)", self.robot_id, entropy)
         return True
 
+    def _on_merged(self, _key: str, payload: bytes) -> None:
+        """Queue a merged payload for the next frame, unless the waiting ones hold
+        ``max_queued_merged_bytes`` already (then it is dropped, counted ``dropped``)."""
+        with self._queued_lock:
+            queued = self._queued_merged_bytes + len(payload)
+            full = queued > self.max_queued_merged_bytes
+            if full:
+                self.merged_counts["dropped"] += 1
+            else:
+                self._queued_merged_bytes = queued
+        if full:
+            self._peer_log.warning("merged_dropped", "%s: merged delta dropped (queue full)", self.robot_id)
+        else:
+            self._merged.put(payload)
+
     def apply_merged(self) -> int:
         """Add the merged deltas received since the last frame; returns how many were applied."""
         applied = 0
@@ -279,6 +303,8 @@ class Agent:
                 payload = self._merged.get_nowait()
             except queue.Empty:
                 return applied
+            with self._queued_lock:
+                self._queued_merged_bytes -= len(payload)
             try:
                 msg = DeltaMessage.decode(payload)
                 if not self.explorer.grid.matches(msg.grid):

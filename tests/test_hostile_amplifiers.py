@@ -502,3 +502,34 @@ def test_a_flood_on_merged_faster_than_the_coordinator_applies_is_bounded():
         server.close()
     assert counts["merged_dropped"] > 0 and counts["merged_applied"] > 0
     assert 0 < counts["merged_queued_bytes_high_water"] <= 1 << 20
+
+
+def test_a_flood_on_merged_between_two_frames_is_bounded_in_the_agent():
+    """The agent queued every merged payload until its next frame, without bound: a stranger
+    flooding merged grew a robot's memory at the flood's rate. The bytes waiting are bounded
+    (here 1 MiB); beyond, a payload is dropped and counted."""
+    from robot_agent.agent import Agent
+
+    mission = small_mission()
+    grid = mission.workspace.grid()
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    session = bus.open_session(listen=[endpoint])
+    idx = np.arange(min(grid.size, 8000), dtype=np.uint32)
+    lam = np.full(len(idx), 1e-3, np.float32)
+    flood = [DeltaMessage("r2", 1, seq, 0.0, grid, idx, lam, lam * 0.5).encode() for seq in range(1, 101)]
+    try:
+        with client_session(endpoint) as stranger:
+            agent = Agent(mission, "r1", session, coordination=False)
+            agent.max_queued_merged_bytes = 1 << 20
+            merged = bus.reliable_publisher(stranger, bus.key(mission.mission, "merged"))
+            assert bus.wait_for_subscribers([merged], 10.0)
+            for payload in flood:  # no frame meanwhile: nothing is taken from the queue
+                merged.put(payload)
+            counts = agent.merged_counts
+            wait_until(lambda: counts["dropped"] + agent._merged.qsize() == len(flood), 20, "the flood")
+            waiting = sum(len(p) for p in list(agent._merged.queue))
+            applied = agent.apply_merged()
+    finally:
+        session.close()
+    assert counts["dropped"] > 0 and 0 < waiting <= 1 << 20
+    assert applied == len(flood) - counts["dropped"]
