@@ -40,6 +40,7 @@ from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.navigation import planner
 from swarm.protocol import bus, replies
+from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.codec import short
 from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
@@ -55,9 +56,6 @@ ANSWER_TIMES_KEPT = 10_000
 #: The largest ``coord/assign`` payload read (a request is about 100 bytes; up to 256 robots'
 #: requests wait at once, each holding its payload).
 MAX_REQUEST_BYTES = 64 << 10
-#: Bytes of merged deltas that may wait for the worker (the honest stream is far below it:
-#: 16 robots sharing 50 KB a second each fill 1 MB a second, and the worker keeps up).
-MAX_QUEUED_MERGED_BYTES = 256 << 20
 
 
 # ---------------------------------------------------------------------------------------
@@ -88,11 +86,9 @@ class Coordinator:
         self.clock = clock
         self.started_from_snapshot = False
         self._inbox: queue.Queue = queue.Queue()
-        #: bytes of merged payloads waiting in the inbox, and their bound: anyone on an open bus
-        #: can put on merged faster than the worker applies, and a refused one is only counted
-        self.max_queued_merged_bytes = max_queued_merged_bytes
-        self._queued_merged_bytes = 0
-        self._queued_lock = threading.Lock()
+        #: bytes of merged payloads waiting in the inbox: anyone on an open bus can put on
+        #: merged faster than the worker applies
+        self.merged_budget = ByteBudget(max_queued_merged_bytes)
         #: the latest status payload of each status key not handled yet: a status says where a
         #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
         #: costs the worker one status per round, not a backlog that holds merged deltas back
@@ -115,6 +111,7 @@ class Coordinator:
         """Every counter: requests, merged deltas (``merged_*``), statuses, releases."""
         out = Counter(self.state.counts)
         out.update({f"merged_{k}": v for k, v in self.state.team.counts.items()})
+        out["merged_queued_bytes_high_water"] = self.merged_budget.high_water
         return out
 
     def start(self) -> None:
@@ -171,26 +168,17 @@ class Coordinator:
 
     def _on_merged(self, _key: str, payload: bytes) -> None:
         """Queue a merged payload for the worker, unless the merged payloads waiting already
-        hold ``max_queued_merged_bytes`` (then it is dropped, counted ``merged_dropped``)."""
-        with self._queued_lock:
-            queued = self._queued_merged_bytes + len(payload)
-            if queued > self.max_queued_merged_bytes:
-                self.state.counts["merged_dropped"] += 1
-                dropped = self.state.counts["merged_dropped"]
-            else:
-                self._queued_merged_bytes = queued
-                high = max(self.state.counts["merged_queued_bytes_high_water"], queued)
-                self.state.counts["merged_queued_bytes_high_water"] = high
-                dropped = 0
-        if dropped:
-            self._peer_log.warning(
-                "merged_dropped",
-                "merged delta dropped (#%d): %s bytes of merged deltas are waiting already",
-                dropped,
-                f"{self.max_queued_merged_bytes:,}",
-            )
+        fill ``merged_budget`` (then it is dropped, counted ``merged_dropped``)."""
+        if self.merged_budget.take(len(payload)):
+            self._inbox.put(("merged", payload))
             return
-        self._inbox.put(("merged", payload))
+        self.state.counts["merged_dropped"] += 1
+        self._peer_log.warning(
+            "merged_dropped",
+            "merged delta dropped (#%d): %s bytes of merged deltas are waiting already",
+            self.state.counts["merged_dropped"],
+            f"{self.merged_budget.limit:,}",
+        )
 
     def _on_status(self, key: str, payload: bytes) -> None:
         with self._statuses_lock:
@@ -212,8 +200,7 @@ class Coordinator:
                 kind = None
             now = self.clock()
             if kind == "merged":
-                with self._queued_lock:
-                    self._queued_merged_bytes -= len(payload)
+                self.merged_budget.give(len(payload))
                 self._handle("merged", self.state.team.apply_payload, payload)
             elif kind == "statuses":
                 with self._statuses_lock:

@@ -35,6 +35,7 @@ from swarm.map.delta import Delta
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.protocol import bus, replies
 from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.codec import short
 from swarm.protocol.coord_client import ask_for_target
 from swarm.protocol.map_client import (
@@ -47,10 +48,6 @@ from swarm.protocol.map_client import (
 from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
-
-#: Bytes of merged deltas that may wait for the agent's next frame (the honest stream between
-#: two frames is far below it).
-MAX_QUEUED_MERGED_BYTES = 256 << 20
 
 ACK_POLL_S = 2.0
 RESEND_AFTER_S = 5.0
@@ -101,11 +98,9 @@ class Agent:
         self._merged: queue.Queue = queue.Queue()
         #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
-        #: bytes of merged payloads waiting for the next frame, at most max_queued_merged_bytes:
-        #: anyone on an open bus can put on merged faster than the agent takes them
-        self.max_queued_merged_bytes = MAX_QUEUED_MERGED_BYTES
-        self._queued_merged_bytes = 0
-        self._queued_lock = threading.Lock()
+        #: bytes of merged payloads waiting for the next frame: anyone on an open bus can put
+        #: on merged faster than the agent takes them
+        self.merged_budget = ByteBudget(MAX_QUEUED_MERGED_BYTES)
         self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), self._on_merged)
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
@@ -281,19 +276,13 @@ class Agent:
         return True
 
     def _on_merged(self, _key: str, payload: bytes) -> None:
-        """Queue a merged payload for the next frame, unless the waiting ones hold
-        ``max_queued_merged_bytes`` already (then it is dropped, counted ``dropped``)."""
-        with self._queued_lock:
-            queued = self._queued_merged_bytes + len(payload)
-            full = queued > self.max_queued_merged_bytes
-            if full:
-                self.merged_counts["dropped"] += 1
-            else:
-                self._queued_merged_bytes = queued
-        if full:
-            self._peer_log.warning("merged_dropped", "%s: merged delta dropped (queue full)", self.robot_id)
-        else:
+        """Queue a merged payload for the next frame, unless the waiting ones fill
+        ``merged_budget`` (then it is dropped, counted ``dropped``)."""
+        if self.merged_budget.take(len(payload)):
             self._merged.put(payload)
+            return
+        self.merged_counts["dropped"] += 1
+        self._peer_log.warning("merged_dropped", "%s: merged delta dropped (queue full)", self.robot_id)
 
     def apply_merged(self) -> int:
         """Add the merged deltas received since the last frame; returns how many were applied."""
@@ -303,8 +292,7 @@ class Agent:
                 payload = self._merged.get_nowait()
             except queue.Empty:
                 return applied
-            with self._queued_lock:
-                self._queued_merged_bytes -= len(payload)
+            self.merged_budget.give(len(payload))
             try:
                 msg = DeltaMessage.decode(payload)
                 if not self.explorer.grid.matches(msg.grid):

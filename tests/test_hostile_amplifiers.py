@@ -509,6 +509,7 @@ def test_a_flood_on_merged_between_two_frames_is_bounded_in_the_agent():
     flooding merged grew a robot's memory at the flood's rate. The bytes waiting are bounded
     (here 1 MiB); beyond, a payload is dropped and counted."""
     from robot_agent.agent import Agent
+    from swarm.protocol.byte_budget import ByteBudget
 
     mission = small_mission()
     grid = mission.workspace.grid()
@@ -520,7 +521,7 @@ def test_a_flood_on_merged_between_two_frames_is_bounded_in_the_agent():
     try:
         with client_session(endpoint) as stranger:
             agent = Agent(mission, "r1", session, coordination=False)
-            agent.max_queued_merged_bytes = 1 << 20
+            agent.merged_budget = ByteBudget(1 << 20)
             merged = bus.reliable_publisher(stranger, bus.key(mission.mission, "merged"))
             assert bus.wait_for_subscribers([merged], 10.0)
             for payload in flood:  # no frame meanwhile: nothing is taken from the queue
