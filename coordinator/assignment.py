@@ -287,23 +287,32 @@ class ObservedColumns:
     does not make a room mapped by a teammate one's own. Feeds f_r(t) (:func:`teammates_share`).
 
     ``shape`` is the grid's (nx, ny, nz); voxel indices are flat in C order, so a voxel's
-    column is its index // nz.
+    column is its index // nz. Each robot costs 8 bytes per cell and a pass in
+    :meth:`teammates_ground`: at most ``max_robots`` robots are credited (the first to come;
+    None: no bound), since on an open bus anyone can put deltas of invented robots on ``merged``.
     """
 
-    def __init__(self, shape: Sequence[int]) -> None:
+    def __init__(self, shape: Sequence[int], max_robots: int | None = None) -> None:
         nx, ny, nz = (int(n) for n in shape)
         self.shape = (nx, ny)
         self._nz = nz
+        self.max_robots = max_robots
         self._by_robot: dict[str, np.ndarray] = {}
 
-    def add(self, robot: str, voxels, information) -> None:
-        """Credit ``robot`` with ``information`` (dlam, >= 0) on ``voxels`` (flat indices)."""
+    def add(self, robot: str, voxels, information) -> bool:
+        """Credit ``robot`` with ``information`` (dlam, >= 0) on ``voxels`` (flat indices); False
+        (nothing credited) for a new robot beyond ``max_robots``."""
         cells = np.asarray(voxels, dtype=np.int64) // self._nz
         info = np.clip(np.nan_to_num(np.asarray(information, dtype=np.float64)), 0.0, None)
         if cells.shape != info.shape:
             raise ValueError(f"{cells.shape[0]} voxels but information of shape {info.shape}")
-        total = self._by_robot.setdefault(robot, np.zeros(self.shape[0] * self.shape[1]))
+        total = self._by_robot.get(robot)
+        if total is None:
+            if self.max_robots is not None and len(self._by_robot) >= self.max_robots:
+                return False
+            total = self._by_robot[robot] = np.zeros(self.shape[0] * self.shape[1])
         total += np.bincount(cells, weights=info, minlength=total.size)
+        return True
 
     def robots(self) -> list[str]:
         return sorted(self._by_robot)

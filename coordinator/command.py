@@ -43,6 +43,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
 
 
+def message_limit_of(mission) -> int:
+    """The largest message (bytes) the coordinator's Zenoh session takes from a link: twice the
+    largest it must take (a merged delta of the default maximum size, or the map server's
+    snapshot with the ledger of every robot it may accept), at least 64 MiB
+    (docs/protocol.md, "Message sizes")."""
+    from swarm.protocol.message_size import PATTERN_ROBOTS, delta_bytes, message_limit, snapshot_bytes
+
+    grid = mission.workspace.grid()
+    robots = len(mission.robot_ids) + PATTERN_ROBOTS
+    return message_limit(delta_bytes(grid), snapshot_bytes(grid, robots))
+
+
 def run(args: argparse.Namespace) -> int:
     """``swarm coordinator``: run until SIGINT/SIGTERM; 0 on a clean stop, 2 on bad arguments."""
     import sys
@@ -62,7 +74,12 @@ def run(args: argparse.Namespace) -> int:
         if args.mission is not None:
             bus.key(args.mission)  # a valid key part
         log.info(bus.describe_connection(args.listen, args.connect))
-        session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
+        session = bus.open_session(
+            args.listen,
+            args.connect,
+            config_file=args.zenoh_config,
+            max_message_bytes=message_limit_of(mission),
+        )
         log.info(
             "connected; mission %r (from %s): loading the planner's kernels and the team map",
             args.mission or mission.mission,

@@ -17,6 +17,7 @@ from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.codec import short
 from swarm.protocol.wire import DeltaMessage, Snapshot, WireError
 
 
@@ -28,7 +29,8 @@ class TeamMap:
     ``rejected``).
     """
 
-    def __init__(self, grid: Grid, sensor: SensorModel) -> None:
+    def __init__(self, grid: Grid, sensor: SensorModel, max_robots: int | None = None) -> None:
+        """``max_robots``: how many robots' ground is tracked (ObservedColumns), None: all."""
         self.grid = grid
         self.map = CoverageMap(grid, sensor)
         self.table = default_table()
@@ -36,7 +38,7 @@ class TeamMap:
         self.lock = threading.Lock()
         self.counts: Counter[str] = Counter()
         self._seen = AppliedDeltas()
-        self.columns = ObservedColumns(grid.shape)
+        self.columns = ObservedColumns(grid.shape, max_robots)
 
     def load_snapshot(self, snap: Snapshot) -> None:
         """Start from a map server's snapshot; the deltas its acks cover count as applied."""
@@ -50,11 +52,15 @@ class TeamMap:
 
     def apply_payload(self, payload: bytes) -> str:
         """Apply one ``merged`` payload: returns "applied" or "duplicate"; raises WireError
-        (counted as rejected) for a malformed message or one on another grid."""
+        (counted as rejected) for a malformed message, one on another grid, or one that changes
+        nothing (empty or zeros: the map server refuses those, so it is forged). A delta of a
+        robot beyond the ``max_robots`` tracked is applied, counted ``unattributed``."""
         try:
             msg = DeltaMessage.decode(payload)
             if not self.grid.matches(msg.grid):
                 raise WireError(f"delta: grid {msg.grid} is not the mission's {self.grid}")
+            if not (np.any(msg.dlam) or np.any(msg.deta)):  # the map server never sends one
+                raise WireError(f"delta of {short(msg.robot, 40)} changes nothing (empty, or zeros)")
         except WireError:
             self.counts["rejected"] += 1
             raise
@@ -70,7 +76,8 @@ class TeamMap:
             self._seen.add(msg.robot, msg.epoch, msg.seq)
             idx = msg.idx.astype(np.int64)
             self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
-            self.columns.add(msg.robot, idx, msg.dlam)
+            if not self.columns.add(msg.robot, idx, msg.dlam):
+                self.counts["unattributed"] += 1  # applied, but the robot's ground is not tracked
         self.counts["applied"] += 1
         return "applied"
 

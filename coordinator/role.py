@@ -37,9 +37,12 @@ from coordinator.assignment import (
 from coordinator.requests import RequestQueue
 from coordinator.state import Answer, CoordinatorState
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.navigation import planner
 from swarm.protocol import bus, replies
+from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.codec import short
+from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
@@ -74,6 +77,7 @@ class Coordinator:
         mission_name: str | None = None,
         snapshot_timeout: float = SNAPSHOT_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
+        max_queued_merged_bytes: int = MAX_QUEUED_MERGED_BYTES,
     ) -> None:
         self.state = CoordinatorState(mission, params)
         self.session = session
@@ -82,12 +86,17 @@ class Coordinator:
         self.clock = clock
         self.started_from_snapshot = False
         self._inbox: queue.Queue = queue.Queue()
+        #: bytes of merged payloads waiting in the inbox: anyone on an open bus can put on
+        #: merged faster than the worker applies
+        self.merged_budget = ByteBudget(max_queued_merged_bytes)
         #: the latest status payload of each status key not handled yet: a status says where a
         #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
         #: costs the worker one status per round, not a backlog that holds merged deltas back
         self._statuses: dict[str, bytes] = {}
         self._statuses_lock = threading.Lock()
         self._refused: Counter[str] = Counter()  # refused stream messages by kind, for the log
+        #: what a remote peer makes the coordinator log: one line per reason per 10 s, with counts
+        self._peer_log = LogLimiter(log)
         #: waiting coord/assign queries and their requests, the latest of each robot
         self._requests: RequestQueue[tuple[zenoh.Query, AssignRequest]] = RequestQueue()
         self._stop = threading.Event()
@@ -102,6 +111,7 @@ class Coordinator:
         """Every counter: requests, merged deltas (``merged_*``), statuses, releases."""
         out = Counter(self.state.counts)
         out.update({f"merged_{k}": v for k, v in self.state.team.counts.items()})
+        out["merged_queued_bytes_high_water"] = self.merged_budget.high_water
         return out
 
     def start(self) -> None:
@@ -137,8 +147,17 @@ class Coordinator:
         )
 
     def _load_snapshot(self) -> None:
+        """Start the replica from the map server's snapshot, asking again while the server
+        answers "busy" (it takes few whole-map queries at once) and time is left."""
+        deadline = time.monotonic() + self.snapshot_timeout
         try:
-            answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), self.snapshot_timeout)
+            while True:
+                left = max(deadline - time.monotonic(), 0.05)
+                answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), left)
+                busy = answer is not None and answer.ok is None and BUSY in str(answer.error)
+                if not busy or time.monotonic() + BUSY_PAUSE_S >= deadline:
+                    break
+                time.sleep(BUSY_PAUSE_S)
             if answer is not None and answer.ok is None:
                 log.warning("map/snapshot answered an error: %s", answer.error)
             elif answer is not None:
@@ -148,7 +167,18 @@ class Coordinator:
             log.warning("no usable map snapshot (%s); starting from the prior", exc)
 
     def _on_merged(self, _key: str, payload: bytes) -> None:
-        self._inbox.put(("merged", payload))
+        """Queue a merged payload for the worker, unless the merged payloads waiting already
+        fill ``merged_budget`` (then it is dropped, counted ``merged_dropped``)."""
+        if self.merged_budget.take(len(payload)):
+            self._inbox.put(("merged", payload))
+            return
+        self.state.counts["merged_dropped"] += 1
+        self._peer_log.warning(
+            "merged_dropped",
+            "merged delta dropped (#%d): %s bytes of merged deltas are waiting already",
+            self.state.counts["merged_dropped"],
+            f"{self.merged_budget.limit:,}",
+        )
 
     def _on_status(self, key: str, payload: bytes) -> None:
         with self._statuses_lock:
@@ -170,6 +200,7 @@ class Coordinator:
                 kind = None
             now = self.clock()
             if kind == "merged":
+                self.merged_budget.give(len(payload))
                 self._handle("merged", self.state.team.apply_payload, payload)
             elif kind == "statuses":
                 with self._statuses_lock:
@@ -188,12 +219,12 @@ class Coordinator:
             result = handler(*args)
         except WireError as exc:
             self._refused[kind] += 1
-            if self._refused[kind] <= 10 or self._refused[kind] % 1000 == 0:
-                log.warning("rejected %s message (#%d): %s", kind, self._refused[kind], exc)
+            count = self._refused[kind]
+            self._peer_log.warning(f"rejected:{kind}", "rejected %s message (#%d): %s", kind, count, exc)
             return
         except Exception:  # never die of one message
             self.state.counts["worker_errors"] += 1
-            log.exception("error handling a %s message", kind)
+            self._peer_log.exception(f"failed:{kind}", "error handling a %s message", kind)
             return
         for robot, reason in result if kind != "merged" else ():
             log.info("released the target of %s: %s", robot, reason)
@@ -216,7 +247,8 @@ class Coordinator:
             try:
                 request = self.state.decode_request(str(query.key_expr), payload)
             except WireError as exc:
-                log.warning("rejected assign request: %s", exc)
+                count = self.state.counts["requests_rejected"]
+                self._peer_log.warning("assign_rejected", "rejected assign request (#%d): %s", count, exc)
                 self._refuse(query, started, str(exc))
                 return
             replaced, taken = self._requests.offer(request.robot, (query, request))
@@ -230,7 +262,7 @@ class Coordinator:
                 waiting = self._requests.max_robots
                 self._refuse(query, started, f"busy: {waiting} robots are waiting for an answer; ask again")
         except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
-            log.exception("coord/assign callback failed")
+            self._peer_log.exception("assign_callback", "coord/assign callback failed")
 
     def _refuse(self, query: zenoh.Query, started: float, reason: str) -> None:
         """An error reply ``coord/assign: <reason>``, timed like an answer."""
@@ -269,20 +301,21 @@ class Coordinator:
             text = json.dumps(self.stats(), allow_nan=False)
             query.reply(query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
         except Exception as exc:  # never die of one query
-            log.exception("coord/stats failed")
+            self._peer_log.exception("stats_failed", "coord/stats failed")
             query.reply_err(f"coord/stats: {exc}".encode())
 
     def _answer(self, query: zenoh.Query, request: AssignRequest, started: float) -> None:
         try:
             answer = self.state.answer_request(request, self.clock())
         except WireError as exc:
-            log.warning("rejected assign request: %s", exc)
+            count = self.state.counts["requests_rejected"]
+            self._peer_log.warning("assign_rejected", "rejected assign request (#%d): %s", count, exc)
             self._timed(started)
             query.reply_err(f"coord/assign: {exc}".encode())
             return
         except Exception as exc:  # never die of one request
             self.state.counts["requests_failed"] += 1
-            log.exception("assign request failed")
+            self._peer_log.exception("assign_failed", "assign request failed")
             self._timed(started)
             query.reply_err(f"coord/assign: internal error: {short(exc)}".encode())
             return

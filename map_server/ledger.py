@@ -40,6 +40,7 @@ REJECT_KINDS = (
     "seq_out_of_window",  # seq too far beyond the robot's contiguous ack
     "map_overflow",  # would lift a voxel's information over LAM_MAX
     "quarantined",  # the robot is quarantined (swarm server --quarantine, or at run time)
+    "no_information",  # empty, or every dlam and deta zero: it would change nothing (not logged, not sent on)
     "internal_error",  # any other exception while validating or applying this one delta
 )
 
@@ -100,6 +101,15 @@ def _validate(payload: bytes, grid: Grid, robot: str | None, increments: bool) -
     if increments and (np.any(msg.deta < 0) or np.any(msg.deta > msg.dlam * np.float32(1 + ETA_TOLERANCE))):
         raise Rejected("mean_outside_unit", "delta: deta must lie in [0, dlam] (a coverage mean in [0, 1])")
     return msg
+
+
+def carries_information(msg: DeltaMessage) -> bool:
+    """Whether applying ``msg`` would change any voxel: some ``dlam`` or ``deta`` is not zero.
+
+    An empty delta, or one of zeros only, changes nothing in the map; the server refuses it
+    (``no_information``) rather than log it durably and send it on to every replica.
+    """
+    return bool(np.any(msg.dlam) or np.any(msg.deta))
 
 
 #: Relative float32 rounding allowed in deta <= dlam (sums of mu * lam and of lam in float32).

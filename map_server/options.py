@@ -8,18 +8,23 @@ from dataclasses import dataclass
 
 from map_server.ledger import MAX_EPOCHS
 from map_server.limits import SLACK_FRAMES
+from map_server.query_gate import MAX_QUERIES, MAX_QUERIES_PER_REQUESTER, QUERY_WORKERS
+from swarm.config import Mission
 from swarm.map.grid import Grid
+from swarm.protocol.message_size import PATTERN_ROBOTS, frame_bytes, message_limit
 
 #: Robot ids ``--robot-pattern`` admits at most (first come): each costs the server 8 bytes
 #: per voxel (its contribution, map_server.contributions), a queue, a budget and ledger rows.
-MAX_PATTERN_ROBOTS = 64
+MAX_PATTERN_ROBOTS = PATTERN_ROBOTS
 
 
 @dataclass(frozen=True)
 class ServerOptions:
     """Tuning of the server: compaction thresholds, group-commit size, progress interval, and
     the limits of docs/protocol.md ("Limits"): payload size (None: derived from the grid),
-    inbox per robot, which robots may send (None: the mission's), the information bound."""
+    inbox per robot, which robots may send (None: the mission's), the information bound, and
+    the whole-map queries taken on at once (map_server.query_gate), and the largest message its
+    Zenoh session takes from a link (None: :func:`message_limit_for`)."""
 
     compact_bytes: int = 256 << 20
     compact_records: int = 20_000
@@ -36,8 +41,22 @@ class ServerOptions:
     slack_frames: int = SLACK_FRAMES
     max_epochs: int = MAX_EPOCHS
     quarantine: tuple[str, ...] = ()
+    max_queries: int = MAX_QUERIES
+    max_queries_per_requester: int = MAX_QUERIES_PER_REQUESTER
+    query_workers: int = QUERY_WORKERS
+    max_message_bytes: int | None = None
 
 
 def max_payload_for(grid: Grid) -> int:
     """The default largest delta payload: every voxel once (12 bytes each) plus 64 KiB of fields."""
     return 12 * grid.size + (64 << 10)
+
+
+def message_limit_for(mission: Mission, options: ServerOptions, max_payload: int) -> int:
+    """The largest message (bytes) the server's Zenoh session takes from a link: twice the
+    largest it must take (a delta of ``max_payload`` bytes, or a frame of one of the mission's
+    rigs that it forwards as the router), at least 64 MiB; ``options.max_message_bytes`` if set."""
+    if options.max_message_bytes is not None:
+        return options.max_message_bytes
+    rigs = (mission.rig_for(rid) for rid in mission.robot_ids)
+    return message_limit(max_payload, *(frame_bytes(rig.width, rig.height) for rig in rigs))

@@ -8,7 +8,9 @@ import signal
 import threading
 from pathlib import Path
 
-from map_server.options import ServerOptions
+import zenoh
+
+from map_server.options import ServerOptions, message_limit_for
 from map_server.server import MapServer
 from swarm.config import Mission
 from swarm.protocol import bus
@@ -30,6 +32,27 @@ def quarantine_list(path: Path) -> list[str]:
     return [r for r in (line.split("#", 1)[0].strip() for line in lines) if r]
 
 
+def server_session(
+    server: MapServer,
+    mission: Mission,
+    listen: list[str],
+    connect: list[str] | None = None,
+    zenoh_config: Path | None = None,
+) -> zenoh.Session:
+    """The server's Zenoh session (the mission's router), which takes no message over
+    :func:`~map_server.options.message_limit_for` from a link (docs/protocol.md, "Message sizes")."""
+    limit = message_limit_for(mission, server.options, server.max_payload)
+    session = bus.open_session(
+        listen=listen, connect=connect or [], config_file=zenoh_config, max_message_bytes=limit
+    )
+    log.info(
+        "Zenoh drops a received message over %s bytes (transport/link/rx/max_message_size; "
+        "a --zenoh-config file that sets it wins)",
+        f"{limit:,}",
+    )
+    return session
+
+
 def serve(
     mission: Mission,
     listen: list[str],
@@ -49,7 +72,7 @@ def serve(
     try:
         server = MapServer(mission, store_dir, mission_name, options)
         try:
-            session = bus.open_session(listen=listen, connect=connect or [], config_file=zenoh_config)
+            session = server_session(server, mission, listen, connect or [], zenoh_config)
         except BaseException:
             server.store.close()
             raise

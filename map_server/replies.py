@@ -7,9 +7,12 @@ import logging
 
 import zenoh
 
+from swarm.log_limit import LogLimiter
 from swarm.protocol.codec import short
 
 log = logging.getLogger("swarm.server")
+#: a query's failure, which a stranger may repeat: one line per 10 s, with counts
+_peer_log = LogLimiter(log)
 
 
 def guarded(handler):
@@ -19,7 +22,7 @@ def guarded(handler):
         try:
             handler(query)
         except Exception as exc:  # noqa: BLE001 (one bad query must not take the server down)
-            log.exception("query %s failed", short(str(query.selector), 200))
+            _peer_log.exception("query_failed", "query %s failed", short(str(query.selector), 200))
             try:
                 query.reply_err(f"{query.key_expr}: server error: {short(exc, 200)}".encode())
             except zenoh.ZError:

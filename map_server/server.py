@@ -22,13 +22,15 @@ import zenoh
 
 from map_server.contributions import Contributions
 from map_server.inbox import Inbox
-from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
+from map_server.ledger import Ledger, Rejected, carries_information, describe_grid, validate_delta
 from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
+from map_server.query_gate import QueryGate
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
 from swarm.protocol.codec import short
 from swarm.protocol.map_messages import PRIOR_SOURCE
@@ -112,6 +114,11 @@ class MapServer:
         self._inbox = Inbox(
             self.options.inbox_messages, self.options.inbox_bytes or max(2 * self.max_payload, 16 << 20)
         )
+        self._queries = QueryGate(
+            self.options.max_queries, self.options.max_queries_per_requester, self.options.query_workers
+        )
+        #: what a remote peer makes the server log: one line per reason per 10 s, with counts
+        self._peer_log = LogLimiter(log)
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
@@ -129,13 +136,14 @@ class MapServer:
         key = self.key
         self._merged_pub = bus.reliable_publisher(self.session, key("merged"))
         handlers = {
-            "stats": self._on_stats,
-            "acks": self._on_acks,
-            "snapshot": self._on_snapshot,
-            "region": self._on_region,
+            "stats": guarded(self._on_stats),
+            "acks": guarded(self._on_acks),
+            # the whole-map answers (16 bytes per voxel each) go through the gate
+            "snapshot": self._queries.wrap("snapshot", self._on_snapshot),
+            "region": self._queries.wrap("region", self._on_region),
         }
         for part, handler in handlers.items():
-            self._declared.append(self.session.declare_queryable(key("map", part), guarded(handler)))
+            self._declared.append(self.session.declare_queryable(key("map", part), handler))
         self._worker.start()
         self._delta_sub = self.session.declare_subscriber(
             bus.key_pattern(self.name, "delta", "*"), self._on_sample
@@ -166,6 +174,7 @@ class MapServer:
         for entity in self._declared:
             entity.undeclare()
         self._declared.clear()
+        self._queries.close()
         if self._merged_pub is not None:
             self._merged_pub.undeclare()
             self._merged_pub = None
@@ -212,22 +221,29 @@ class MapServer:
                 self._reject(robot, None, Rejected("too_large", reason))
             elif not self._inbox.offer(robot, sample.payload.to_bytes()):
                 refused = self._inbox.refused[robot]
-                if refused <= 10 or refused % 1000 == 0:
-                    log.warning(
-                        "inbox of %s full: payload refused (#%d; its agent resends it)", robot, refused
-                    )
+                self._peer_log.warning(
+                    "inbox_full",
+                    "inbox of %s full: payload refused (#%d; its agent resends it)",
+                    robot,
+                    refused,
+                )
         except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
-            log.exception("delta callback failed")
+            self._peer_log.exception("delta_callback", "delta callback failed")
 
     def _reject(self, robot: str, msg: DeltaMessage | None, exc: Rejected) -> None:
-        """Count a refused delta under its kind and log it (the first 10 of a kind, then every 1000th)."""
+        """Count a refused delta under its kind and log it (one line per kind per 10 s, with counts)."""
         with self._lock:
             count = self.team.count_rejected(exc.kind)
-        if count <= 10 or count % 1000 == 0:
-            ident = "" if msg is None else f" epoch {msg.epoch} seq {msg.seq}"
-            log.warning(
-                "rejected delta on delta/%s%s (%s, #%d): %s", short(robot, 40), ident, exc.kind, count, exc
-            )
+        ident = "" if msg is None else f" epoch {msg.epoch} seq {msg.seq}"
+        self._peer_log.warning(
+            f"rejected:{exc.kind}",
+            "rejected delta on delta/%s%s (%s, #%d): %s",
+            short(robot, 40),
+            ident,
+            exc.kind,
+            count,
+            exc,
+        )
 
     def _work(self) -> None:
         while True:
@@ -252,13 +268,17 @@ class MapServer:
         try:
             prior = robot == PRIOR_SOURCE and robot not in self.robots
             msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
+            if not carries_information(msg):  # no agent sends one: a flood would cost every replica
+                raise Rejected("no_information", f"delta of {len(msg.idx)} voxels that changes nothing")
             bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
             with self._lock:
                 return msg if self.team.admit(msg, bound, now_ns=time.time_ns()) else None
         except Rejected as exc:
             self._reject(robot, msg, exc)
         except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)
-            log.exception("unexpected failure admitting a delta of %s", short(robot, 40))
+            self._peer_log.exception(
+                "admit_failure", "unexpected failure admitting a delta of %s", short(robot, 40)
+            )
             self._reject(robot, msg, Rejected("internal_error", f"{type(exc).__name__}: {short(exc)}"))
         return None
 
@@ -361,6 +381,7 @@ class MapServer:
             "snapshots_written": self.store.snapshots_written,
             "queued": len(self._inbox),
             "inbox": self._inbox.stats(),
+            "queries": self._queries.stats(),
             "max_payload_bytes": self.max_payload,
             "uptime_s": round(time.monotonic() - self._started, 3),
         }

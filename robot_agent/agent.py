@@ -30,10 +30,13 @@ from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
 from robot_agent.sharing import DeltaOutbox
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.map.delta import Delta
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.protocol import bus, replies
 from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
+from swarm.protocol.codec import short
 from swarm.protocol.coord_client import ask_for_target
 from swarm.protocol.map_client import (
     MapClient,
@@ -93,7 +96,12 @@ class Agent:
         self.applied = AppliedDeltas()
         self.merged_counts: Counter[str] = Counter()
         self._merged: queue.Queue = queue.Queue()
-        self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), lambda _k, p: self._merged.put(p))
+        #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
+        self._peer_log = LogLimiter(log)
+        #: bytes of merged payloads waiting for the next frame: anyone on an open bus can put
+        #: on merged faster than the agent takes them
+        self.merged_budget = ByteBudget(MAX_QUEUED_MERGED_BYTES)
+        self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), self._on_merged)
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
         self._coordinator_quiet_until = 0.0
@@ -192,11 +200,13 @@ class Agent:
             frame = Frame.decode(payload)
         except WireError as exc:
             self.rejected_frames += 1
-            log.warning("%s: rejected frame: %s", self.robot_id, exc)
+            self._peer_log.warning("frame", "%s: rejected frame: %s", self.robot_id, exc)
             return None
         if frame.robot != self.robot_id:
             self.rejected_frames += 1
-            log.warning("%s: rejected frame addressed to %s", self.robot_id, frame.robot)
+            self._peer_log.warning(
+                "frame_robot", "%s: rejected frame addressed to %s", self.robot_id, short(frame.robot, 40)
+            )
             return None
         self.last_t = frame.t
         self._pose = frame.pose
@@ -265,6 +275,15 @@ class Agent:
         log.info("%s: started from the team map (entropy %.0f bits)", self.robot_id, entropy)
         return True
 
+    def _on_merged(self, _key: str, payload: bytes) -> None:
+        """Queue a merged payload for the next frame, unless the waiting ones fill
+        ``merged_budget`` (then it is dropped, counted ``dropped``)."""
+        if self.merged_budget.take(len(payload)):
+            self._merged.put(payload)
+            return
+        self.merged_counts["dropped"] += 1
+        self._peer_log.warning("merged_dropped", "%s: merged delta dropped (queue full)", self.robot_id)
+
     def apply_merged(self) -> int:
         """Add the merged deltas received since the last frame; returns how many were applied."""
         applied = 0
@@ -273,13 +292,14 @@ class Agent:
                 payload = self._merged.get_nowait()
             except queue.Empty:
                 return applied
+            self.merged_budget.give(len(payload))
             try:
                 msg = DeltaMessage.decode(payload)
                 if not self.explorer.grid.matches(msg.grid):
                     raise WireError(f"merged delta on grid {msg.grid}, not the mission's")
             except WireError as exc:
                 self.merged_counts["rejected"] += 1
-                log.warning("%s: rejected merged delta: %s", self.robot_id, exc)
+                self._peer_log.warning("merged", "%s: rejected merged delta: %s", self.robot_id, exc)
                 continue
             if msg.robot == self.robot_id and msg.epoch == self.epoch:
                 self.merged_counts["own"] += 1  # already in the local map
@@ -291,7 +311,7 @@ class Agent:
                 self.explorer.apply_external(Delta(msg.idx, msg.dlam, msg.deta))
             except ValueError as exc:
                 self.merged_counts["rejected"] += 1
-                log.warning("%s: rejected merged delta: %s", self.robot_id, exc)
+                self._peer_log.warning("merged", "%s: rejected merged delta: %s", self.robot_id, exc)
                 continue
             self.merged_counts["applied"] += 1
             applied += 1

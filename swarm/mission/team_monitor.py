@@ -9,20 +9,24 @@ first carried each voxel (for the overlap over time). ``swarm sim`` and ``swarm 
 
 from __future__ import annotations
 
-import sys
+import logging
 import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from swarm.config import Mission
+from swarm.log_limit import LogLimiter
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE
 from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.message_size import PATTERN_ROBOTS
 from swarm.protocol.wire import DeltaMessage, TruthPoses, WireError, status_on_key
+
+log = logging.getLogger("swarm.monitor")
 
 NEVER = np.iinfo(np.int32).max  # first_delta of a voxel no delta of the robot carried
 
@@ -47,6 +51,10 @@ class TeamMonitor:
     seen: AppliedDeltas = field(default_factory=AppliedDeltas)
     applied: int = 0  # distinct deltas in the map
     prior_deltas: int = 0  # of which the previous map's (delta/prior): the starting belief
+    #: robots with per-robot figures (first_delta, bytes_shared: 4 bytes per voxel each); on an
+    #: open bus anyone can put deltas of invented robots: those are applied but not attributed
+    max_robots: int = 0  # 0: the mission's robots, the 64 pattern robots a server may take, the prior
+    unattributed: int = 0
 
     def __post_init__(self) -> None:
         grid = self.mission.workspace.grid()
@@ -54,6 +62,8 @@ class TeamMonitor:
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
         self.curve.append((0.0, float(self.entropy.total)))
         self._lock = threading.Lock()
+        self.max_robots = self.max_robots or len(self.mission.robot_ids) + PATTERN_ROBOTS + 1
+        self._peer_log = LogLimiter(log)  # one line per 10 s however many deltas are refused
 
     def on_delta(self, _key: str, payload: bytes) -> None:
         try:
@@ -75,13 +85,16 @@ class TeamMonitor:
                     return
                 self.curve.append((float(msg.t), float(self.entropy.total)))
                 first = self.first_delta.get(msg.robot)
-                if first is None:
+                if first is None and len(self.first_delta) < self.max_robots:
                     first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
+                if first is None:  # an id beyond the bound: in the map, not in the per-robot figures
+                    self.unattributed += 1
+                    return
                 first[idx] = np.minimum(first[idx], self.applied - self.prior_deltas)
                 self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
         except (WireError, ValueError) as exc:
             self.rejected += 1
-            print(f"monitor: rejected delta: {exc}", file=sys.stderr)
+            self._peer_log.warning("rejected", "monitor: rejected delta: %s", exc)
 
     def on_truth(self, _key: str, payload: bytes) -> None:
         try:

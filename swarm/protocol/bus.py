@@ -25,6 +25,8 @@ from pathlib import Path
 
 import zenoh
 
+from swarm.protocol.message_size import bound_received_messages
+
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ROOT = "swarm"
 CONFIG_ENV = "ZENOH_CONFIG"
@@ -118,12 +120,14 @@ def session_config(
     *,
     config_file: str | Path | None = None,
     multicast_scouting: bool = False,
+    max_message_bytes: int | None = None,
 ) -> tuple[zenoh.Config, list[str], list[str]]:
     """The config a role opens its session with, and the effective listen/connect endpoints.
 
     Endpoints given here win over the file's (``config_file`` or ``$ZENOH_CONFIG``); with
     neither, the session connects to ``DEFAULT_ENDPOINT``. A session that listens is a
-    router, one that only connects a client.
+    router, one that only connects a client. ``max_message_bytes``: the largest message the
+    session takes from a link (``swarm.protocol.message_size``; a file's own value wins).
     """
     listen = list(listen or [])
     connect = list(connect or [])
@@ -137,6 +141,8 @@ def session_config(
         connect = [DEFAULT_ENDPOINT]
     mode = "router" if listen else "client"
     conf = make_config(listen, connect, multicast_scouting=multicast_scouting, mode=mode, base=base)
+    if max_message_bytes is not None:
+        bound_received_messages(conf, max_message_bytes)
     return conf, listen, connect
 
 
@@ -147,6 +153,7 @@ def open_session(
     multicast_scouting: bool = False,
     wait_s: float = 30.0,
     config_file: str | Path | None = None,
+    max_message_bytes: int | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default.
 
@@ -158,10 +165,10 @@ def open_session(
     its endpoints are used when none are given here. Raises ``ValueError`` for a bad config
     file, ``zenoh.ZError`` when it cannot listen, and ``ConnectionError`` when no router
     accepts the connection in time (for TLS: a wrong certificate looks the same from this side).
+    ``max_message_bytes`` bounds the messages it receives (``session_config``).
     """
-    conf, listen, connect = session_config(
-        listen, connect, config_file=config_file, multicast_scouting=multicast_scouting
-    )
+    options = {"multicast_scouting": multicast_scouting, "max_message_bytes": max_message_bytes}
+    conf, listen, connect = session_config(listen, connect, config_file=config_file, **options)
     if listen:
         return zenoh.open(conf)  # a busy port raises zenoh.ZError (the CLI prints it as one line)
     deadline = time.monotonic() + wait_s
@@ -176,9 +183,7 @@ def open_session(
                     "over TLS, check the certificates in the --zenoh-config file)"
                 ) from exc
             time.sleep(0.5)
-            conf = session_config(
-                listen, connect, config_file=config_file, multicast_scouting=multicast_scouting
-            )[0]
+            conf = session_config(listen, connect, config_file=config_file, **options)[0]
 
 
 def add_client_arguments(parser: argparse.ArgumentParser) -> None:

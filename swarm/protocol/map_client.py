@@ -31,6 +31,11 @@ class MapServerUnavailable(ConnectionError):
     """No map server answered in time; the text names the key and endpoint."""
 
 
+#: What a map server's error reply says when it takes no more queries for now (map_server.query_gate).
+BUSY = ": busy: "
+BUSY_PAUSE_S = 0.2
+
+
 class MapQueryError(RuntimeError):
     """The map server answered a query with an error, or with a reply that cannot be read."""
 
@@ -137,9 +142,13 @@ class MapClient:
             except ConflictingReplies as exc:
                 raise ConflictingMapReplies(str(exc)) from exc
             if answer is not None:
-                if answer.ok is None:
+                if answer.ok is not None:
+                    return answer.ok
+                # the server takes few whole-map queries at once: ask again while time is left
+                if BUSY not in str(answer.error) or time.monotonic() + BUSY_PAUSE_S >= deadline:
                     raise MapQueryError(str(answer.error))
-                return answer.ok
+                time.sleep(BUSY_PAUSE_S)
+                continue
             if time.monotonic() >= deadline:
                 break
             time.sleep(0.05)
