@@ -60,7 +60,8 @@ def test_a_gap_the_laser_never_saw_is_closed(tmp_path):
 
 
 def test_free_space_on_the_image_border_is_closed(tmp_path):
-    """Free cells on the image's border (Nav2's depot, SLAM maps cropped to the floor): the world
+    """Free cells on the image's border (SLAM maps cropped to the floor; Nav2's depot read with its
+    free_thresh 0.25, as map_server reads it): the world
     ended there with no wall, and a robot could drive off the map."""
     image = np.full((30, 30), FREE)
     image[:, 0] = WALL  # one wall only; the other three sides are free up to the border
