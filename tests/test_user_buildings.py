@@ -319,6 +319,20 @@ def test_a_robot_shut_in_by_a_door_narrower_than_itself_is_warned_of(tmp_path):
     assert confined_robots(mission(5.0)) == []
 
 
+def test_floor_beyond_a_cut_workspace_is_not_warned_of_as_shut_behind_passages(tmp_path):
+    """A mission that explores part of a map (configs/depot_bay.yaml: x 18-30.2 m, y 0-8 m of
+    Nav2's depot) was warned that "321.7 m^2 of floor where the robots fit lies behind
+    passages their planner does not take": the floor outside its workspace, which is no part
+    of the mission, counted as floor the planner never reaches."""
+    image = np.pad(np.full((38, 78), FREE), 1, constant_values=WALL)  # 8 m x 4 m at 0.1 m, one room
+    path = write_map(tmp_path, image)
+    whole = mission_from_dict(mission_on(path, 1.0, 2.0), source=tmp_path / "site.yaml")
+    assert confined_robots(whole) == []
+    cut = mission_on(path, 1.0, 2.0)
+    cut["workspace"] = {"lo": [0.0, 0.0, 0.0], "hi": [4.0, 4.0, 2.2]}  # the room's west half
+    assert confined_robots(mission_from_dict(cut, source=tmp_path / "site.yaml")) == []
+
+
 def test_a_negative_robot_count_on_a_map_is_refused(tmp_path):
     """``swarm sim run --map site.yaml --robots -1`` started a robot on every free spot 1 m
     apart (17 processes on TurtleBot3's world map, hundreds on a building)."""
