@@ -16,6 +16,7 @@ from swarm.formats.floor_plan import (
     load_ros_map,
     merge_cells,
 )
+from swarm.formats.map_image import read_map_image
 from swarm.formats.ros_map import RosMap
 
 MAPS = Path(__file__).resolve().parent.parent / "configs" / "maps"
@@ -105,6 +106,17 @@ def test_depot_extent():
     assert plan.max_height == 3.0
     # The west wall: image columns 1-2 (x 0.05-0.15 m) are occupied, column 0 is not.
     assert plan.height_at(np.array([[0.1, 7.0], [0.02, 7.0], [0.2, 7.0]])).tolist() == [3.0, 0.0, 0.0]
+
+
+def test_depot_grey_cells_are_unknown_whatever_its_free_thresh_says():
+    """Nav2's depot is a map_saver image (0, 205, 254) with free_thresh 0.25, which read its
+    grey cells as free (map_server does so): the floor ran under the pallet boxes' insides and
+    to the image's border. Read with map_saver's own free_thresh, each shade keeps its meaning."""
+    ros = load_ros_map(MAPS / "depot.yaml")
+    levels = np.round(read_map_image(MAPS / "depot.pgm").shade * 255)[::-1]
+    np.testing.assert_array_equal(ros.occupied, levels == 0)
+    np.testing.assert_array_equal(ros.free, levels == 254)
+    assert (levels == 205).any()
 
 
 def test_ros_map_thresholds_negate_and_origin(tmp_path):

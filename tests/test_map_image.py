@@ -174,6 +174,9 @@ def test_classification_matches_the_map_server_oracle(
         folder, "m.png", mode=mode, negate=int(negate), occupied_thresh=occ_th, free_thresh=free_th
     )
     ros_map = load_ros_map(path)
+    saver = set(grey) <= {0, 205, 254} and 205 in grey and alpha is None and mode == "trinary" and not negate
+    if saver and occ_th >= 1 - 205 / 255:  # map_saver's own image: 205 stays unknown (test below)
+        free_th = min(free_th, 0.196)
     for r in range(3):
         for c in range(4):
             want = classify_like_map_server(
@@ -304,3 +307,84 @@ def test_mode_is_read_in_any_case_as_nav2_does(tmp_path, mode):
     want = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode.lower()))
     got = load_ros_map(write_map(tmp_path, "site.pgm", mode=mode))
     assert np.array_equal(got.occupied, want.occupied) and np.array_equal(got.free, want.free)
+
+
+def saver_image(size: int = 20) -> np.ndarray:
+    """What map_saver writes: a room of free 254 with a wall of 0 inside unknown 205 all round."""
+    image = np.full((size, size), 205, dtype=np.int64)
+    image[2:-2, 2:-2] = room(254, 0, size - 4)
+    return image
+
+
+@pytest.mark.parametrize(("free_thresh", "occupied_thresh"), [(0.25, 0.65), (0.3, 0.9)])
+def test_map_saver_trinary_image_keeps_its_unknown_when_free_thresh_reads_it_free(
+    tmp_path, caplog, free_thresh, occupied_thresh
+):
+    """Nav2's map_saver wrote free_thresh 0.25 beside trinary images (0 wall, 205 unknown, 254
+    free): read as written, every unknown cell (p = 0.196) was free, outside the building too
+    (SteveMacenski/slam_toolbox#587; ros-navigation/navigation2#5278 made the saver write 0.196)."""
+    image = saver_image()
+    (tmp_path / "saved.pgm").write_bytes(pgm(image, 255))
+    path = write_map(tmp_path, "saved.pgm", free_thresh=free_thresh, occupied_thresh=occupied_thresh)
+    with caplog.at_level("WARNING", logger="swarm.formats.ros_map"):
+        got = load_ros_map(path)
+        load_ros_map(path)  # once per file
+    flipped = image[::-1]
+    assert np.array_equal(got.occupied, flipped == 0)
+    assert np.array_equal(got.free, flipped == 254)
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert "\n" not in line and str(path) in line and f"free_thresh: {free_thresh:g}" in line
+    assert f"its {int((image == 205).sum()):,} cells are read as unknown" in line
+
+
+def test_map_saver_image_with_its_own_thresholds_reads_the_same_without_a_warning(tmp_path, caplog):
+    image = saver_image()
+    (tmp_path / "saved.pgm").write_bytes(pgm(image, 255))
+    with caplog.at_level("WARNING", logger="swarm.formats.ros_map"):
+        got = load_ros_map(write_map(tmp_path, "saved.pgm", free_thresh=0.196))
+    assert np.array_equal(got.free, image[::-1] == 254) and not caplog.records
+
+
+def test_a_touched_up_map_saver_image_is_still_one(tmp_path):
+    """A few pixels of other shades (an anti-aliased edit, up to 1% of the image) leave the image
+    map_saver's: its 205 stays unknown; the other shades are read with the saver's free_thresh."""
+    image = saver_image()  # 400 pixels: up to 4 others
+    image[5, 5:9] = [180, 200, 230, 100]  # p = 0.294, 0.216, 0.098, 0.608
+    (tmp_path / "edited.pgm").write_bytes(pgm(image, 255))
+    got = load_ros_map(write_map(tmp_path, "edited.pgm", free_thresh=0.25))
+    flipped = image[::-1]
+    assert not got.free[flipped == 205].any()
+    assert np.array_equal(got.free, (flipped == 254) | (flipped == 230))
+
+
+@pytest.mark.parametrize(
+    ("keys", "why"),
+    [
+        ({"free_thresh": 0.3}, "five other shades: a drawn image, not map_saver's"),
+        ({"free_thresh": 0.3, "negate": 1}, "negate: dark is free, not map_saver's meaning"),
+        ({"free_thresh": 0.3, "occupied_thresh": 0.1}, "205 reads occupied, not free"),
+        ({"free_thresh": 0.3, "mode": "scale"}, "scale mode"),
+    ],
+)
+def test_other_images_keep_the_file_s_thresholds(tmp_path, keys, why):
+    image = saver_image()
+    if "five" in why:
+        image[5, 5:10] = [180, 200, 230, 100, 150]
+    (tmp_path / "m.pgm").write_bytes(pgm(image, 255))
+    got = load_ros_map(write_map(tmp_path, "m.pgm", **keys))
+    flipped = image[::-1]
+    p = flipped / 255 if keys.get("negate") else 1 - flipped / 255
+    occupied = p > keys.get("occupied_thresh", 0.65)
+    assert np.array_equal(got.occupied, occupied), why
+    assert np.array_equal(got.free, ~occupied & (p < keys["free_thresh"])), why
+
+
+def test_a_drawn_image_full_of_grey_205_read_free_is_warned_of(tmp_path, caplog):
+    image = saver_image()
+    image[5, 5:10] = [180, 200, 230, 100, 150]
+    (tmp_path / "drawn.pgm").write_bytes(pgm(image, 255))
+    path = write_map(tmp_path, "drawn.pgm", free_thresh=0.25)
+    with caplog.at_level("WARNING", logger="swarm.formats.ros_map"):
+        assert load_ros_map(path).free[image[::-1] == 205].all()
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert str(path) in line and "free_thresh: 0.25" in line and "kept free" in line

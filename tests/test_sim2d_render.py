@@ -110,7 +110,7 @@ def test_depth_matches_brute_force_on_boxes(pitch):
 
 
 def test_level_and_per_pixel_casting_agree_on_a_ros_map():
-    """The column-ray path (with occlusion pruning) against the per-pixel path, on 1375 quads."""
+    """The column-ray path (with occlusion pruning) against the per-pixel path, on 1,722 quads."""
     renderer = Renderer(load_floor_plan(CONFIGS / "maps" / "depot.yaml"), CAMERA)
     for x, y, yaw in ((15.0, 7.6, 0.0), (5.0, 3.0, 0.7), (25.0, 12.0, 3.5)):
         level = renderer.cast(camera_pose(x, y, yaw, 0.4))

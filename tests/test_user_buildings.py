@@ -60,7 +60,8 @@ def test_a_gap_the_laser_never_saw_is_closed(tmp_path):
 
 
 def test_free_space_on_the_image_border_is_closed(tmp_path):
-    """Free cells on the image's border (Nav2's depot, SLAM maps cropped to the floor): the world
+    """Free cells on the image's border (SLAM maps cropped to the floor; Nav2's depot read with its
+    free_thresh 0.25, as map_server reads it): the world
     ended there with no wall, and a robot could drive off the map."""
     image = np.full((30, 30), FREE)
     image[:, 0] = WALL  # one wall only; the other three sides are free up to the border
@@ -318,6 +319,20 @@ def test_a_robot_shut_in_by_a_door_narrower_than_itself_is_warned_of(tmp_path):
         warning.startswith("warning: r1 starts in a free region of 5.1 m^2") and "(0.36 m across)" in warning
     )
     assert confined_robots(mission(5.0)) == []
+
+
+def test_floor_beyond_a_cut_workspace_is_not_warned_of_as_shut_behind_passages(tmp_path):
+    """A mission that explores part of a map (configs/depot_bay.yaml: x 18-30.2 m, y 0-8 m of
+    Nav2's depot) was warned that "321.7 m^2 of floor where the robots fit lies behind
+    passages their planner does not take": the floor outside its workspace, which is no part
+    of the mission, counted as floor the planner never reaches."""
+    image = np.pad(np.full((38, 78), FREE), 1, constant_values=WALL)  # 8 m x 4 m at 0.1 m, one room
+    path = write_map(tmp_path, image)
+    whole = mission_from_dict(mission_on(path, 1.0, 2.0), source=tmp_path / "site.yaml")
+    assert confined_robots(whole) == []
+    cut = mission_on(path, 1.0, 2.0)
+    cut["workspace"] = {"lo": [0.0, 0.0, 0.0], "hi": [4.0, 4.0, 2.2]}  # the room's west half
+    assert confined_robots(mission_from_dict(cut, source=tmp_path / "site.yaml")) == []
 
 
 def test_a_negative_robot_count_on_a_map_is_refused(tmp_path):

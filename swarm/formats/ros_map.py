@@ -17,10 +17,20 @@ alpha channel is averaged in with the colour channels (as map_server does, so tr
 pixels read darker). ``scale``: a pixel that is not fully opaque is unknown, the rest as
 trinary. ``raw``: the value round(255 s) is the occupancy in percent (0..100; above 100
 unknown), occupied above occupied_thresh x 100, free below free_thresh x 100.
+
+map_saver's trinary images hold three shades: 0 occupied, 205 unknown (p = 0.196), 254 free.
+Nav2's saver wrote its ``free_thresh_default`` 0.25 beside them, which reads every unknown
+cell as free (SteveMacenski/slam_toolbox#587; navigation2#5278 made the saver write 0.196).
+A ``trinary`` image (not ``negate``, no alpha) whose pixels are those three shades, 205 among
+them, with at most 1% of other shades (touch-ups), is read with free_thresh 0.196 when the
+file's would read 205 as free; the file's occupied_thresh is kept. Other images keep the
+file's thresholds. One warning line names the file and ``free_thresh`` when the file's value
+reads the grey 205 as free (in other images: when 205 covers 1% of the image or more).
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -32,6 +42,17 @@ from swarm.formats.errors import FloorPlanError, user_path
 from swarm.formats.map_image import read_map_image
 from swarm.formats.validation_errors import describe_validation_error
 from swarm.formats.yaml_file import read_yaml
+
+log = logging.getLogger(__name__)
+
+#: map_saver's trinary shades (of 255): occupied, unknown, free.
+SAVER_SHADES = (0, 205, 254)
+#: The free_thresh map_saver writes for them (navigation2#5278): grey 205 (p = 0.19608) lies above it.
+SAVER_FREE_THRESH = 0.196
+#: The share of other shades a map_saver image may hold (hand touch-ups) and still be one.
+SAVER_OTHER_SHADES = 0.01
+_UNKNOWN_P = 1.0 - 205 / 255
+_warned: set[tuple[Path, float]] = set()
 
 
 @dataclass(frozen=True)
@@ -144,6 +165,47 @@ class RosMapSpec(BaseModel):
         raise ValueError(f"must be 0, 1, true or false (got {value!r})")
 
 
+def _saver_free_thresh(path: Path, spec: RosMapSpec, shade: np.ndarray) -> float:
+    """The free_thresh to read a trinary image (shades in [0, 1], any shape) with: 0.196 for a
+    map_saver image whose file's thresholds read its unknown grey 205 as free, else the file's.
+    Logs one warning line (once per file and process) when the file's value reads 205 as free."""
+    reads_free = spec.free_thresh > _UNKNOWN_P and spec.occupied_thresh >= _UNKNOWN_P
+    if not reads_free:
+        return spec.free_thresh
+    levels = np.round(shade * 255)
+    grey = int(np.count_nonzero(levels == 205))
+    if grey == 0:
+        return spec.free_thresh
+    other = int(np.count_nonzero(~np.isin(levels, SAVER_SHADES)))
+    saver = other <= SAVER_OTHER_SHADES * levels.size
+    if saver:
+        others = f" (and {other:,} pixels of other shades)" if other else ""
+        note = (
+            f"read as unknown with free_thresh {SAVER_FREE_THRESH}, as map_saver writes since "
+            f"navigation2#5278: the image holds map_saver's shades 0, 205, 254{others}; "
+            f"free_thresh: {SAVER_FREE_THRESH} in the file makes Nav2 read it so too"
+        )
+    elif grey >= SAVER_OTHER_SHADES * levels.size:
+        note = (
+            f"kept free: the image also holds {other:,} pixels of other shades, so it is not "
+            f"taken for map_saver's; write free_thresh: {SAVER_FREE_THRESH} if 205 means unknown"
+        )
+    else:
+        return spec.free_thresh
+    key = (path.resolve(), path.stat().st_mtime)
+    if key not in _warned:
+        _warned.add(key)
+        log.warning(
+            "warning: %s: free_thresh: %g reads the grey 205 (map_saver's unknown, p = 0.196) as free; "
+            "its %s cells are %s",
+            path,
+            spec.free_thresh,
+            f"{grey:,}",
+            note,
+        )
+    return SAVER_FREE_THRESH if saver else spec.free_thresh
+
+
 def is_ros_map(data: object) -> bool:
     """True when a parsed YAML document looks like a ROS map_server map description."""
     return isinstance(data, dict) and "image" in data and "resolution" in data
@@ -183,9 +245,12 @@ def load_ros_map(path: str | Path) -> RosMap:
         occupied = known & (percent > spec.occupied_thresh * 100)
         free = known & ~occupied & (percent < spec.free_thresh * 100)
     else:
+        free_thresh = spec.free_thresh
+        if spec.mode == "trinary" and image.alpha is None and not spec.negate:
+            free_thresh = _saver_free_thresh(path, spec, shade)
         p = shade if spec.negate else 1.0 - shade
         occupied = p > spec.occupied_thresh
-        free = ~occupied & (p < spec.free_thresh)
+        free = ~occupied & (p < free_thresh)
         if spec.mode == "scale" and image.alpha is not None:
             opaque = image.alpha >= 1.0
             occupied &= opaque

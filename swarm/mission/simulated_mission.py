@@ -94,11 +94,14 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
 def _floor_the_planner_never_reaches(
     mission: Mission, labels: np.ndarray, ros_map
 ) -> tuple[float, list[tuple[float, tuple[float, float]]]]:
-    """Area (m^2) of the ROS map's cells in the robots' body-fit regions (``labels``) that lie
-    farther than 1.5 voxel edges from every column the planner reaches from a start on a
-    perfect map (``sim2d.observability.planner_floor``, the rule of H_th's reachable floor),
-    and its 8-connected parts as (area m^2, (x, y) of their centroid in map coordinates),
-    largest first."""
+    """Area (m^2) of the ROS map's cells in the robots' body-fit regions (``labels``) and in the
+    workspace that lie farther than 1.5 voxel edges from every column the planner reaches from
+    a start on a perfect map (``sim2d.observability.planner_floor``, the rule of H_th's
+    reachable floor), and its 8-connected parts as (area m^2, (x, y) of their centroid in map
+    coordinates), largest first. Floor outside the workspace (a mission cut to part of a map)
+    is no part of the mission, and floor within radius + half a voxel of the workspace's edge
+    is floor no robot's centre may stand on whatever the passages (the planner counts the
+    outside of its grid as blocked): neither is counted."""
     from scipy import ndimage
 
     from sim2d.observability import planner_floor
@@ -121,11 +124,12 @@ def _floor_the_planner_never_reaches(
     rows, cols = np.nonzero(np.isin(labels, list(keep)))
     xy = ros_map.to_world(cols + 0.5, rows + 0.5)
     ij = np.floor((xy - grid.lo[:2]) / grid.voxel).astype(int)
-    ok = np.all((ij >= 0) & (ij < np.array(grid.shape[:2])), axis=1)
+    margin = mission.robot.radius + grid.voxel / 2
+    ok = np.all((xy >= grid.lo[:2] + margin) & (xy <= grid.hi[:2] - margin), axis=1)
     reached = np.zeros(len(ij), dtype=bool)
     reached[ok] = near[ij[ok, 0], ij[ok, 1]]
     never = np.zeros(labels.shape, dtype=bool)
-    never[rows[~reached], cols[~reached]] = True
+    never[rows[ok & ~reached], cols[ok & ~reached]] = True
     parts, count = ndimage.label(never, structure=np.ones((3, 3), dtype=bool))
     cell_area = ros_map.resolution**2
     pieces = []
