@@ -42,13 +42,14 @@ from swarm.protocol.map_client import (
     MissionMismatch,
     missions_answering,
 )
+from swarm.protocol.robot_messages import status_on_key
 from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
 
 ACK_POLL_S = 2.0
 RESEND_AFTER_S = 5.0
-STATUS_EVERY = 4  # frames
+STATUS_EVERY = 1  # frames: every frame, so that teammates avoid this robot where it is now
 COORDINATOR_TIMEOUT_S = 1.0  # wait this long for coord/assign before choosing alone
 COORDINATOR_RETRY_S = 10.0  # after a silence, choose alone this long before asking again
 PROGRESS_EVERY_S = 10.0  # seconds between progress lines (and "still waiting" lines)
@@ -94,6 +95,12 @@ class Agent:
         self.merged_counts: Counter[str] = Counter()
         self._merged: queue.Queue = queue.Queue()
         self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), lambda _k, p: self._merged.put(p))
+        # the teammates' statuses: where they are, for avoiding them (swarm.navigation.teammates)
+        self._statuses: queue.Queue = queue.Queue()
+        self.rejected_statuses = 0
+        self._status_sub = bus.subscribe(
+            session, bus.key_pattern(name, "robot", "*", "status"), lambda k, p: self._statuses.put((k, p))
+        )
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
         self._coordinator_quiet_until = 0.0
@@ -201,11 +208,12 @@ class Agent:
         self.last_t = frame.t
         self._pose = frame.pose
         self.apply_merged()
+        self.apply_statuses()
         delta = self.explorer.fuse(frame)
         self.frames_fused += 1
         self.outbox.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
-        decision = self.explorer.decide(x, y, frame.pose.ypr[0])
+        decision = self.explorer.decide(x, y, frame.pose.ypr[0], frame.t)
         cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega, decision.tilt)
         self._cmd_pub.put(cmd.encode())
         self._share(flush=decision.state == "done")
@@ -295,6 +303,24 @@ class Agent:
                 continue
             self.merged_counts["applied"] += 1
             applied += 1
+
+    def apply_statuses(self) -> int:
+        """Note the teammates' positions from the statuses received since the last frame; returns
+        how many were kept (this robot's own and stale ones are not)."""
+        kept = 0
+        while True:
+            try:
+                key, payload = self._statuses.get_nowait()
+            except queue.Empty:
+                return kept
+            try:
+                status = status_on_key(key, payload)
+            except WireError as exc:
+                self.rejected_statuses += 1
+                log.debug("%s: rejected status on %s: %s", self.robot_id, key, exc)
+                continue
+            xyz = status.pose.xyz
+            kept += self.explorer.teammates.update(status.robot, status.t, xyz[0], xyz[1])
 
     # -- the coordinator -------------------------------------------------------------------
     def _ask_coordinator(self) -> ExplorationTarget | None:
@@ -394,3 +420,4 @@ class Agent:
         )
         self._frame_sub.undeclare()
         self._merged_sub.undeclare()
+        self._status_sub.undeclare()
