@@ -373,7 +373,7 @@ class Explorer(LocalMapping):
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
-        discs = self._teammate_discs(here)
+        discs = self._teammate_discs()  # full size: never nearer a teammate than its disc
         mate = blocking_teammate(self.follower.remaining_path()[1:], here, discs) if discs else None
         if mate is not None:
             return self._make_way(here, yaw, discs, mate)
@@ -398,8 +398,9 @@ class Explorer(LocalMapping):
         return Decision(command.v, command.omega, "drive", self._target_xy())
 
     # -- teammates -------------------------------------------------------------------------
-    def _teammate_discs(self, here: np.ndarray) -> list:
-        """The teammates' fresh keep-out discs (``Teammates.discs``); none without a frame time."""
+    def _teammate_discs(self, here: np.ndarray | None = None) -> list:
+        """The teammates' fresh keep-out discs (``Teammates.discs``; with ``here``, those the
+        robot stands in shrunk, to plan from its cell); none without a frame time."""
         return [] if self.now is None else self.teammates.discs(self.now, here)
 
     def _make_way(self, here: np.ndarray, yaw: float, discs: list, mate: str) -> Decision:
@@ -413,7 +414,7 @@ class Explorer(LocalMapping):
             if self.trav is None:
                 self._refresh_traversability()
             base = self.optimistic if self.target.kind == "probe" else self.trav
-            path = GridPlanner(block_teammates(base, discs)).plan(here, self.target.xy)
+            path = GridPlanner(block_teammates(base, self._teammate_discs(here))).plan(here, self.target.xy)
             if path is not None and len(path) >= 2 and blocking_teammate(path[1:], here, discs) is None:
                 self.follower.set_path(path)
                 command = self.follower.command(here[0], here[1], yaw)

@@ -47,7 +47,8 @@ def test_a_teammate_blocks_the_cells_around_it_and_the_path_into_it():
     assert blocking_teammate(np.array([[3.5, 1.0]]), near, mates.discs(10.0, near)) == "r2"
     # standing inside the disc already: moving away is allowed, coming nearer is not
     inside = np.array([1.7, 1.0])
-    discs = mates.discs(10.0, inside)
+    assert mates.discs(10.0, inside)[0][1] == pytest.approx(0.15)  # shrunk for planning
+    discs = mates.discs(10.0)
     assert blocking_teammate(np.array([[0.5, 1.0]]), inside, discs) is None
     assert blocking_teammate(np.array([[1.9, 1.0]]), inside, discs) == "r2"
 
@@ -76,11 +77,14 @@ def two_robots(free_band: tuple[float, float] = (0.0, 2.0)) -> dict[str, Explore
     return robots
 
 
-def drive(robots: dict[str, Explorer], frames: int) -> tuple[float, dict[str, list[str]]]:
-    """Run both explorers ``frames`` frames on unicycle kinematics, each told the other's pose
-    every frame (as the agents' statuses do): the least distance between them (m) and the
-    states each went through."""
-    pose = {"r1": [1.05, 1.05, 0.0], "r2": [3.05, 1.05, math.pi]}
+def drive(
+    robots: dict[str, Explorer], frames: int, pose: dict[str, list[float]] | None = None
+) -> tuple[float, dict[str, list[str]]]:
+    """Run both explorers ``frames`` frames on unicycle kinematics from ``pose`` (rid: [x, y,
+    yaw]; default: where ``two_robots`` puts them, facing each other), each told the other's
+    pose every frame (as the agents' statuses do): the least distance between them (m) and
+    the states each went through."""
+    pose = pose or {"r1": [1.05, 1.05, 0.0], "r2": [3.05, 1.05, math.pi]}
     states: dict[str, list[str]] = {rid: [] for rid in robots}
     least = math.inf
     for n in range(frames):
@@ -116,3 +120,19 @@ def test_in_a_corridor_the_later_robot_yields_and_sets_its_target_aside_for_a_wh
     assert not any(np.allclose(xy, [1.05, 1.05]) for xy in robots["r2"].failed)
     assert len(robots["r2"].deferred) == 1 and np.allclose(robots["r2"].deferred[0][0], [1.05, 1.05])
     assert not robots["r1"].give_ups and "choose" not in states["r1"]
+
+
+def test_a_robot_starting_near_a_teammate_does_not_come_nearer_passing_it():
+    # As at the office's start (robots 0.5 m apart): r2 stands 0.5 m from r1 (which stays
+    # put) inside its keep-out disc, and its path passes r1 0.4 m away. It must wait (r1
+    # comes first), not creep nearer: before the fix the way ahead was checked against the
+    # disc shrunk for planning (0.15 m inside the distance), and r2 passed at 0.40 m.
+    robots = two_robots()
+    robots["r1"].state = "done"
+    r2 = robots["r2"]
+    r2.target = ExplorationTarget(np.array([0.3, 1.45]), 0.0, 1.0, None, "entropy")
+    r2.follower.set_path(np.array([[1.35, 1.45], [0.3, 1.45]]))
+    pose = {"r1": [1.05, 1.05, 0.0], "r2": [1.35, 1.45, math.pi]}
+    least, states = drive(robots, 8, pose)
+    assert least >= 0.5 - 1e-6
+    assert "wait" in states["r2"]

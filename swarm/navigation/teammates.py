@@ -15,7 +15,8 @@ ignored (a stopped or dead agent does not block the floor for ever).
 Two uses (``robot_agent.explorer``):
 
 * planning: the keep-out discs are blocked in the traversability grid the planner plans on
-  (``block_teammates``), so paths go around teammates;
+  (``block_teammates``), so paths go around teammates (a disc the robot stands in, as at a
+  start 0.5 m apart, shrinks so that its own cell stays free to plan from);
 * following: each frame, a teammate whose keep-out disc the next ``look_ahead`` metres of
   the path enter (coming nearer to it; moving away is always allowed) stops the robot
   (``blocking_teammate``): it replans around, or waits.
@@ -107,8 +108,10 @@ class Teammates:
 
     def discs(self, now: float, here: np.ndarray | None = None) -> list[Disc]:
         """The fresh keep-out discs ``(centre (2,), radius m, robot)`` at time ``now``. With
-        ``here`` (x, y; m), a disc this robot already stands in shrinks to just inside its
-        distance from the teammate (STAND_SLACK): it may stay or move away, not come nearer."""
+        ``here`` (x, y; m), a disc this robot already stands in shrinks to STAND_SLACK inside
+        its distance from the teammate, for planning: its own cell stays free to plan from.
+        Check paths against the full discs (``blocking_teammate``): inside one, the robot may
+        stay or move away, not come nearer."""
         out = []
         for s in self.fresh(now):
             centre = np.asarray(s.xy, dtype=np.float64)
