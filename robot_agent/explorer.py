@@ -373,11 +373,6 @@ class Explorer(LocalMapping):
         )
 
     def _drive(self, here: np.ndarray, yaw: float) -> Decision:
-        discs = self._teammate_discs()  # full size: never nearer a teammate than its disc
-        mate = blocking_teammate(self.follower.remaining_path()[1:], here, discs) if discs else None
-        if mate is not None:
-            return self._make_way(here, yaw, discs, mate)
-        self.waited = 0
         reason = self.progress.update(here, self.follower.way_left(here[0], here[1]))
         if reason is not None:
             self.give_ups[reason] += 1
@@ -391,6 +386,12 @@ class Explorer(LocalMapping):
                 if path is None or len(path) < 2:
                     return self._give_up()
                 self.follower.set_path(path)
+        # the path as it is now (after a replan too): full discs, never nearer than one
+        discs = self._teammate_discs()
+        mate = blocking_teammate(self.follower.remaining_path()[1:], here, discs) if discs else None
+        if mate is not None:
+            return self._make_way(here, yaw, discs, mate)
+        self.waited = 0
         command = self.follower.command(here[0], here[1], yaw)
         if command.arrived:
             self.state = "gaze"

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_agent.explorer import YIELD_FRAMES, Explorer
+from robot_agent.explorer import REPLAN_EVERY, YIELD_FRAMES, Explorer
 from swarm.config import load_mission
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.navigation.teammates import Teammates, block_teammates, blocking_teammate
@@ -136,3 +136,20 @@ def test_a_robot_starting_near_a_teammate_does_not_come_nearer_passing_it():
     least, states = drive(robots, 8, pose)
     assert least >= 0.5 - 1e-6
     assert "wait" in states["r2"]
+
+
+def test_a_path_replanned_for_the_map_is_checked_for_teammates_before_it_is_driven():
+    # r2's path first leads up and away from r1 (clear of it) but leaves the map, so this
+    # frame's periodic replan (every REPLAN_EVERY frames) takes the straight way to the
+    # target, which passes r1 0.3 m away. The way ahead must be checked after the replan:
+    # before the fix it was checked before, and r2 drove one frame on the new path (0.34 m).
+    robots = two_robots()
+    robots["r1"].state = "done"
+    r2 = robots["r2"]
+    r2.target = ExplorationTarget(np.array([0.3, 1.45]), 0.0, 1.0, None, "entropy")
+    r2.follower.set_path(np.array([[1.35, 1.45], [1.35, 2.5], [0.3, 2.5], [0.3, 1.45]]))
+    r2.frames = REPLAN_EVERY - 1  # the next frame replans
+    pose = {"r1": [0.95, 1.15, 0.0], "r2": [1.35, 1.45, math.pi]}
+    least, states = drive(robots, 3, pose)
+    assert least >= 0.5 - 1e-6
+    assert states["r2"][0] == "wait"
