@@ -396,6 +396,11 @@ class Explorer(LocalMapping):
         if command.arrived:
             self.state = "gaze"
             return self._gaze(yaw)
+        if discs and command.v > 0:
+            # the arc to the path may head nearer a teammate than the path does: turn on the spot
+            step = command.v * self.mission.sim.frame_period_s * np.array([math.cos(yaw), math.sin(yaw)])
+            if blocking_teammate((here + step)[None], here, discs) is not None:
+                return Decision(0.0, command.omega, "drive", self._target_xy())
         return Decision(command.v, command.omega, "drive", self._target_xy())
 
     # -- teammates -------------------------------------------------------------------------

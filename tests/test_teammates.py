@@ -153,3 +153,18 @@ def test_a_path_replanned_for_the_map_is_checked_for_teammates_before_it_is_driv
     least, states = drive(robots, 3, pose)
     assert least >= 0.5 - 1e-6
     assert states["r2"][0] == "wait"
+
+
+def test_a_robot_whose_heading_points_nearer_a_teammate_turns_before_it_drives():
+    # r2 stands 0.5 m south of r1 (which stays put), its path runs east (away from r1), but
+    # it faces north-east: the follower's arc would first take it nearer r1 (0.45 m in the
+    # office's run 6, at 18 s). It turns on the spot first.
+    robots = two_robots()
+    robots["r1"].state = "done"
+    r2 = robots["r2"]
+    r2.target = ExplorationTarget(np.array([3.05, 1.05]), 0.0, 1.0, None, "entropy")
+    r2.follower.set_path(np.array([[1.05, 1.05], [3.05, 1.05]]))
+    pose = {"r1": [1.05, 1.55, 0.0], "r2": [1.05, 1.05, math.radians(50)]}
+    least, states = drive(robots, 6, pose)
+    assert least >= 0.5 - 1e-6
+    assert states["r2"] == ["drive"] * 6 and math.dist(*(p[:2] for p in pose.values())) > 0.5
