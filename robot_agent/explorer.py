@@ -44,6 +44,7 @@ from swarm.navigation.exploration import ExplorationTarget, choose_target, last_
 from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free_cell
 from swarm.navigation.probing import open_swept, optimistic_traversability
+from swarm.navigation.teammates import Teammates, block_teammates, blocking_teammate
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, robot_band_top
 from swarm.navigation.view_targets import CameraReach
 
@@ -61,6 +62,12 @@ TEAM_SPREAD_RADIUS = 2.0  # m: a robot choosing alone first keeps this far from 
 # entropy left that a reachable cell can see are looked at first, each column once
 LAST_LOOK_SHARE = 0.5
 VIEW_KINDS = ("view", "frontier3d", "last look")  # targets that look at a map column chosen here
+# a teammate in the way (swarm.navigation.teammates): frames a robot waits before it gives its
+# target up, when the teammate comes before it in the mission's robot list (it yields) and
+# when after (it holds on longer, so that the other yields first)
+YIELD_FRAMES = 4
+HOLD_FRAMES = 16
+DEFER_S = 20.0  # s: a target given up for a teammate is set aside this long, not for ever
 
 
 @dataclass
@@ -140,10 +147,18 @@ class Explorer(LocalMapping):
         self.head = 0.0  # the tilt this robot asks for now
         #: Asked first for each new target (the coordinator); None: choose alone.
         self.assigner: Callable[[], ExplorationTarget | None] | None = None
+        #: where the teammates were last seen (the agent feeds their statuses in)
+        self.teammates = Teammates(robot_id, body.radius, body.max_speed, lead_s=mission.sim.frame_period_s)
+        self.priority = list(mission.robot_ids).index(robot_id)  # 0 first: the others yield to it
+        self.now: float | None = None  # the frame's mission time (s); None: teammates ignored
+        self.deferred: list[tuple[np.ndarray, float]] = []  # (target x-y, set aside until t)
+        self.waited = 0  # frames waited in a row for a teammate in the way
 
     # -- decisions -----------------------------------------------------------------------
-    def decide(self, x: float, y: float, yaw: float) -> Decision:
-        """The command for this frame, given the robot's pose (from the frame)."""
+    def decide(self, x: float, y: float, yaw: float, t: float | None = None) -> Decision:
+        """The command for this frame, given the robot's pose (from the frame) and the frame's
+        time ``t`` (s, the mission's clock; None: teammates are not avoided)."""
+        self.now = t
         decision = self._decide(x, y, yaw)
         decision.tilt = self.head if self.has_head else None
         return decision
@@ -205,7 +220,8 @@ class Explorer(LocalMapping):
         return self.trav
 
     def _choose(self, here: np.ndarray, yaw: float) -> Decision:
-        trav = self._refresh_traversability()
+        discs = self._teammate_discs(here)
+        trav = block_teammates(self._refresh_traversability(), discs)
         planner = GridPlanner(trav)
         cell = tuple(int(c) for c in trav.cell_of(here))
         start = here
@@ -228,7 +244,7 @@ class Explorer(LocalMapping):
             if beyond is not None:
                 cell, start = beyond, trav.centre(np.array(beyond))
                 cost = planner.cost_map(cell)
-        exclude = self.failed[-FAILED_MEMORY:]
+        exclude = self.failed[-FAILED_MEMORY:] + self._set_aside()
         target = self.assigner() if self.assigner is not None else None
         if target is not None and _near_any(target.xy, exclude, FAILED_RADIUS):
             # The coordinator does not know what this robot gave up: it offers the same spot
@@ -286,11 +302,14 @@ class Explorer(LocalMapping):
             self.failed.append(np.asarray(target.xy))
             return Decision(0.0, 0.0, "choose")
         if target.kind == "probe":
-            planner = GridPlanner(self.optimistic)
+            planner = GridPlanner(block_teammates(self.optimistic, discs))
         path = planner.plan(start, target.xy)
         if start is not here and path is not None and len(path) < 2:
             path = np.vstack([here, start])  # the target is where the robot leaves from
         if path is None or len(path) < 2:
+            if discs and self._reachable_without_teammates(start, target):
+                self._set_aside_target(target)  # teammates in the way: later again
+                return Decision(0.0, 0.0, "choose")
             self.failed.append(np.asarray(target.xy))
             self.failures_in_a_row += 1
             return Decision(0.0, 0.0, "choose")
@@ -367,11 +386,67 @@ class Explorer(LocalMapping):
                 if path is None or len(path) < 2:
                     return self._give_up()
                 self.follower.set_path(path)
+        # the path as it is now (after a replan too): full discs, never nearer than one
+        discs = self._teammate_discs()
+        mate = blocking_teammate(self.follower.remaining_path()[1:], here, discs) if discs else None
+        if mate is not None:
+            return self._make_way(here, yaw, discs, mate)
+        self.waited = 0
         command = self.follower.command(here[0], here[1], yaw)
         if command.arrived:
             self.state = "gaze"
             return self._gaze(yaw)
+        if discs and command.v > 0:
+            # the arc to the path may head nearer a teammate than the path does: turn on the spot
+            step = command.v * self.mission.sim.frame_period_s * np.array([math.cos(yaw), math.sin(yaw)])
+            if blocking_teammate((here + step)[None], here, discs) is not None:
+                return Decision(0.0, command.omega, "drive", self._target_xy())
         return Decision(command.v, command.omega, "drive", self._target_xy())
+
+    # -- teammates -------------------------------------------------------------------------
+    def _teammate_discs(self, here: np.ndarray | None = None) -> list:
+        """The teammates' fresh keep-out discs (``Teammates.discs``; with ``here``, those the
+        robot stands in shrunk, to plan from its cell); none without a frame time."""
+        return [] if self.now is None else self.teammates.discs(self.now, here)
+
+    def _make_way(self, here: np.ndarray, yaw: float, discs: list, mate: str) -> Decision:
+        """A teammate's disc lies on the path ahead. One that comes first in the robot list:
+        wait, and after YIELD_FRAMES set the target aside and choose another. One that comes
+        after: drive around it if a path does, else wait, HOLD_FRAMES at most."""
+        self.waited += 1
+        self.progress = DriveWatch(here)  # waiting is not being stuck
+        first = list(self.mission.robot_ids).index(mate) < self.priority
+        if not first and self.waited % REPLAN_EVERY == 1:
+            if self.trav is None:
+                self._refresh_traversability()
+            base = self.optimistic if self.target.kind == "probe" else self.trav
+            path = GridPlanner(block_teammates(base, self._teammate_discs(here))).plan(here, self.target.xy)
+            if path is not None and len(path) >= 2 and blocking_teammate(path[1:], here, discs) is None:
+                self.follower.set_path(path)
+                command = self.follower.command(here[0], here[1], yaw)
+                return Decision(command.v, command.omega, "drive", self._target_xy())
+        if self.waited > (YIELD_FRAMES if first else HOLD_FRAMES):
+            self.give_ups["teammate"] += 1
+            self._set_aside_target(self.target)
+            self.target = None
+            self.state = "choose"
+            self.waited = 0
+            return Decision(0.0, 0.0, "choose")
+        return Decision(0.0, 0.0, "wait", self._target_xy())
+
+    def _set_aside_target(self, target: ExplorationTarget) -> None:
+        self.deferred.append((np.asarray(target.xy, dtype=np.float64), (self.now or 0.0) + DEFER_S))
+
+    def _set_aside(self) -> list[np.ndarray]:
+        """The targets set aside for teammates that are still set aside now."""
+        self.deferred = [(xy, until) for xy, until in self.deferred if self.now is None or until > self.now]
+        return [xy for xy, _until in self.deferred]
+
+    def _reachable_without_teammates(self, start: np.ndarray, target: ExplorationTarget) -> bool:
+        """Whether a path to the target exists on the map's grid alone (no teammates)."""
+        base = self.optimistic if target.kind == "probe" else self.trav
+        path = GridPlanner(base).plan(start, target.xy)
+        return path is not None and len(path) >= 2
 
     def _give_up(self) -> Decision:
         self.failures_in_a_row += 1
