@@ -29,6 +29,7 @@ import zenoh
 from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
 from robot_agent.sharing import DeltaOutbox
+from robot_agent.teammate_statuses import TeammateStatuses
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.map.delta import Delta
@@ -45,7 +46,6 @@ from swarm.protocol.map_client import (
     MissionMismatch,
     missions_answering,
 )
-from swarm.protocol.robot_messages import status_on_key
 from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
@@ -57,7 +57,6 @@ COORDINATOR_TIMEOUT_S = 1.0  # wait this long for coord/assign before choosing a
 COORDINATOR_RETRY_S = 10.0  # after a silence, choose alone this long before asking again
 PROGRESS_EVERY_S = 10.0  # seconds between progress lines (and "still waiting" lines)
 SHUTDOWN_ACK_WAIT_S = 5.0  # at shutdown, wait this long at most for the server to ack every delta
-MAX_QUEUED_STATUSES = 4096  # teammates' statuses waiting for the next frame (honest: one per robot)
 
 
 class Agent:
@@ -104,12 +103,8 @@ class Agent:
         #: on merged faster than the agent takes them
         self.merged_budget = ByteBudget(MAX_QUEUED_MERGED_BYTES)
         self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), self._on_merged)
-        # the teammates' statuses: where they are, for avoiding them (swarm.navigation.teammates)
-        self._statuses: queue.Queue = queue.Queue(maxsize=MAX_QUEUED_STATUSES)
-        self.rejected_statuses = 0
-        self._status_sub = bus.subscribe(
-            session, bus.key_pattern(name, "robot", "*", "status"), self._on_status
-        )
+        #: the teammates' statuses: where they are, for keeping out of their way
+        self.statuses = TeammateStatuses(session, name, robot_id, self._peer_log)
         self.coordination = coordination and strategy == "entropy"
         self.coordinator_counts: Counter[str] = Counter()
         self._coordinator_quiet_until = 0.0
@@ -219,7 +214,7 @@ class Agent:
         self.last_t = frame.t
         self._pose = frame.pose
         self.apply_merged()
-        self.apply_statuses()
+        self.statuses.apply(self.explorer.teammates, frame.t)
         delta = self.explorer.fuse(frame)
         self.frames_fused += 1
         self.outbox.add(delta)
@@ -325,32 +320,6 @@ class Agent:
             self.merged_counts["applied"] += 1
             applied += 1
 
-    def _on_status(self, key: str, payload: bytes) -> None:
-        """Queue a teammate's status for the next frame; dropped (counted) when the queue is full."""
-        try:
-            self._statuses.put_nowait((key, payload))
-        except queue.Full:
-            self.rejected_statuses += 1
-            self._peer_log.warning("status_dropped", "%s: status dropped (queue full)", self.robot_id)
-
-    def apply_statuses(self) -> int:
-        """Note the teammates' positions from the statuses received since the last frame; returns
-        how many were kept (this robot's own and stale ones are not)."""
-        kept = 0
-        while True:
-            try:
-                key, payload = self._statuses.get_nowait()
-            except queue.Empty:
-                return kept
-            try:
-                status = status_on_key(key, payload)
-            except WireError as exc:
-                self.rejected_statuses += 1
-                log.debug("%s: rejected status on %s: %s", self.robot_id, key, exc)
-                continue
-            xyz = status.pose.xyz
-            kept += self.explorer.teammates.update(status.robot, status.t, xyz[0], xyz[1], self.explorer.now)
-
     # -- the coordinator -------------------------------------------------------------------
     def _ask_coordinator(self) -> ExplorationTarget | None:
         """The coordinator's target for this robot, or None to choose alone (eq. 35)."""
@@ -449,4 +418,4 @@ class Agent:
         )
         self._frame_sub.undeclare()
         self._merged_sub.undeclare()
-        self._status_sub.undeclare()
+        self.statuses.undeclare()

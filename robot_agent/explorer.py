@@ -27,13 +27,14 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from robot_agent import stereo
+from robot_agent.decision import Decision
 from robot_agent.local_map import LocalMapping
 from robot_agent.stereo import matcher_for_rig
+from robot_agent.teammate_avoidance import TeammateAvoidance, robot_rank
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.entropy_cache import EntropyCache
@@ -62,23 +63,6 @@ TEAM_SPREAD_RADIUS = 2.0  # m: a robot choosing alone first keeps this far from 
 # entropy left that a reachable cell can see are looked at first, each column once
 LAST_LOOK_SHARE = 0.5
 VIEW_KINDS = ("view", "frontier3d", "last look")  # targets that look at a map column chosen here
-# a teammate in the way (swarm.navigation.teammates): frames a robot waits before it gives its
-# target up, when the teammate comes before it in the mission's robot list (it yields) and
-# when after (it holds on longer, so that the other yields first)
-YIELD_FRAMES = 4
-HOLD_FRAMES = 16
-DEFER_S = 20.0  # s: a target given up for a teammate is set aside this long, not for ever
-
-
-@dataclass
-class Decision:
-    """What the robot does this frame."""
-
-    v: float
-    omega: float
-    state: str
-    target: tuple[float, float] | None = None
-    tilt: float | None = None  # camera head tilt (rad, positive down); None: no tilt head
 
 
 def load_kernels() -> None:
@@ -90,7 +74,7 @@ def load_kernels() -> None:
     planner.warm_up()
 
 
-class Explorer(LocalMapping):
+class Explorer(TeammateAvoidance, LocalMapping):
     """The local map of one robot and the decisions it drives by."""
 
     def __init__(self, mission: Mission, robot_id: str, strategy: str = "entropy", seed: int = 0) -> None:
@@ -149,7 +133,7 @@ class Explorer(LocalMapping):
         self.assigner: Callable[[], ExplorationTarget | None] | None = None
         #: where the teammates were last seen (the agent feeds their statuses in)
         self.teammates = Teammates(robot_id, body.radius, body.max_speed, lead_s=mission.sim.frame_period_s)
-        self.priority = list(mission.robot_ids).index(robot_id)  # 0 first: the others yield to it
+        self.priority = robot_rank(mission.robot_ids, robot_id)  # lowest first: the others yield to it
         self.now: float | None = None  # the frame's mission time (s); None: teammates ignored
         self.deferred: list[tuple[np.ndarray, float]] = []  # (target x-y, set aside until t)
         self.waited = 0  # frames waited in a row for a teammate in the way
@@ -402,51 +386,6 @@ class Explorer(LocalMapping):
             if blocking_teammate((here + step)[None], here, discs) is not None:
                 return Decision(0.0, command.omega, "drive", self._target_xy())
         return Decision(command.v, command.omega, "drive", self._target_xy())
-
-    # -- teammates -------------------------------------------------------------------------
-    def _teammate_discs(self, here: np.ndarray | None = None) -> list:
-        """The teammates' fresh keep-out discs (``Teammates.discs``; with ``here``, those the
-        robot stands in shrunk, to plan from its cell); none without a frame time."""
-        return [] if self.now is None else self.teammates.discs(self.now, here)
-
-    def _make_way(self, here: np.ndarray, yaw: float, discs: list, mate: str) -> Decision:
-        """A teammate's disc lies on the path ahead. One that comes first in the robot list:
-        wait, and after YIELD_FRAMES set the target aside and choose another. One that comes
-        after: drive around it if a path does, else wait, HOLD_FRAMES at most."""
-        self.waited += 1
-        self.progress = DriveWatch(here)  # waiting is not being stuck
-        first = list(self.mission.robot_ids).index(mate) < self.priority
-        if not first and self.waited % REPLAN_EVERY == 1:
-            if self.trav is None:
-                self._refresh_traversability()
-            base = self.optimistic if self.target.kind == "probe" else self.trav
-            path = GridPlanner(block_teammates(base, self._teammate_discs(here))).plan(here, self.target.xy)
-            if path is not None and len(path) >= 2 and blocking_teammate(path[1:], here, discs) is None:
-                self.follower.set_path(path)
-                command = self.follower.command(here[0], here[1], yaw)
-                return Decision(command.v, command.omega, "drive", self._target_xy())
-        if self.waited > (YIELD_FRAMES if first else HOLD_FRAMES):
-            self.give_ups["teammate"] += 1
-            self._set_aside_target(self.target)
-            self.target = None
-            self.state = "choose"
-            self.waited = 0
-            return Decision(0.0, 0.0, "choose")
-        return Decision(0.0, 0.0, "wait", self._target_xy())
-
-    def _set_aside_target(self, target: ExplorationTarget) -> None:
-        self.deferred.append((np.asarray(target.xy, dtype=np.float64), (self.now or 0.0) + DEFER_S))
-
-    def _set_aside(self) -> list[np.ndarray]:
-        """The targets set aside for teammates that are still set aside now."""
-        self.deferred = [(xy, until) for xy, until in self.deferred if self.now is None or until > self.now]
-        return [xy for xy, _until in self.deferred]
-
-    def _reachable_without_teammates(self, start: np.ndarray, target: ExplorationTarget) -> bool:
-        """Whether a path to the target exists on the map's grid alone (no teammates)."""
-        base = self.optimistic if target.kind == "probe" else self.trav
-        path = GridPlanner(base).plan(start, target.xy)
-        return path is not None and len(path) >= 2
 
     def _give_up(self) -> Decision:
         self.failures_in_a_row += 1

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_agent.explorer import REPLAN_EVERY, YIELD_FRAMES, Explorer
+from robot_agent.explorer import REPLAN_EVERY, Explorer
+from robot_agent.teammate_avoidance import YIELD_FRAMES, robot_rank
 from swarm.config import load_mission
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.navigation.teammates import MAX_TEAMMATES, Teammates, block_teammates, blocking_teammate
@@ -186,3 +187,17 @@ def test_a_robot_whose_heading_points_nearer_a_teammate_turns_before_it_drives()
     least, states = drive(robots, 6, pose)
     assert least >= 0.5 - 1e-6
     assert states["r2"] == ["drive"] * 6 and math.dist(*(p[:2] for p in pose.values())) > 0.5
+
+
+def test_a_teammate_beyond_the_missions_list_ranks_after_it_and_crashes_nothing():
+    """A status with an id nobody configured (anyone on an open bus can send one) ranks after the
+    listed robots; meeting such a teammate made the explorer raise ValueError (a robot-list
+    index), which ended the agent."""
+    ids = ["r1", "r2"]
+    assert robot_rank(ids, "r1") < robot_rank(ids, "r2") < robot_rank(ids, "a0") < robot_rank(ids, "r9")
+    robots = two_robots()
+    assert robots["r1"].priority < robots["r2"].priority
+    r1 = robots["r1"]
+    r1.teammates.update("x7", 0.0, 1.6, 1.05)  # on r1's path, 0.55 m ahead
+    decision = r1.decide(1.05, 1.05, 0.0, 0.0)
+    assert decision.state in ("wait", "drive") and r1.waited == 1
