@@ -162,9 +162,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     if bits_note:
         print(f"note: {bits_note}")
-    for note in calib.notes:  # a "warning: ..." note (an uncertain unit) goes to stderr as it is
-        warning = note.startswith("warning:")
-        print(note if warning else f"note: {note}", file=sys.stderr if warning else sys.stdout, flush=True)
+    calib.print_notes()
     (hl, wl), (hr, wr) = left.shape[:2], right.shape[:2]
     if (hl, wl) != (hr, wr):
         return _fail(

@@ -201,9 +201,7 @@ def _replay(args: argparse.Namespace, opener) -> int:
     except (RecordingError, CalibrationError, ConfigError, ValueError) as exc:
         return _fail(str(exc))
     calib = recording.calibration
-    for note in calib.notes:  # a "warning: ..." note (an uncertain unit) goes to stderr as it is
-        warning = note.startswith("warning:")
-        print(note if warning else f"note: {note}", file=sys.stderr if warning else sys.stdout, flush=True)
+    calib.print_notes()
     frames = getattr(recording, "pose_frames", None)
     if frames:
         print(f"poses: {frames}", flush=True)

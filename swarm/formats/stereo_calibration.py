@@ -35,6 +35,7 @@ from a rectified pair is in the *rectified* left camera's frame.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -112,6 +113,15 @@ class StereoCalibration:
             raise CalibrationError(
                 f"{self.source}: image_size: calibration is for {w}x{h} images, {what} is {width}x{height}"
             )
+
+    def print_notes(self) -> None:
+        """Print the notes for the user: a ``warning: ...`` note (an uncertain unit) on stderr as
+        it is, the others on stdout as ``note: ...``."""
+        for note in self.notes:
+            if note.startswith("warning:"):
+                print(note, file=sys.stderr, flush=True)
+            else:
+                print(f"note: {note}", flush=True)
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rectified versions of a raw pair (unchanged when the rig is rectified already)."""
