@@ -59,7 +59,7 @@ class TeamMap:
             msg = DeltaMessage.decode(payload)
             if not self.grid.matches(msg.grid):
                 raise WireError(f"delta: grid {msg.grid} is not the mission's {self.grid}")
-            if not (np.any(msg.dlam) or np.any(msg.deta)):  # the map server never sends one
+            if not msg.carries_information():  # the map server never sends one
                 raise WireError(f"delta of {short(msg.robot, 40)} changes nothing (empty, or zeros)")
         except WireError:
             self.counts["rejected"] += 1

@@ -103,15 +103,6 @@ def _validate(payload: bytes, grid: Grid, robot: str | None, increments: bool) -
     return msg
 
 
-def carries_information(msg: DeltaMessage) -> bool:
-    """Whether applying ``msg`` would change any voxel: some ``dlam`` or ``deta`` is not zero.
-
-    An empty delta, or one of zeros only, changes nothing in the map; the server refuses it
-    (``no_information``) rather than log it durably and send it on to every replica.
-    """
-    return bool(np.any(msg.dlam) or np.any(msg.deta))
-
-
 #: Relative float32 rounding allowed in deta <= dlam (sums of mu * lam and of lam in float32).
 ETA_TOLERANCE = 1e-5
 

@@ -22,7 +22,7 @@ import zenoh
 
 from map_server.contributions import Contributions
 from map_server.inbox import Inbox
-from map_server.ledger import Ledger, Rejected, carries_information, describe_grid, validate_delta
+from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
 from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
 from map_server.query_gate import QueryGate
@@ -268,7 +268,7 @@ class MapServer:
         try:
             prior = robot == PRIOR_SOURCE and robot not in self.robots
             msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
-            if not carries_information(msg):  # no agent sends one: a flood would cost every replica
+            if not msg.carries_information():  # no agent sends one: a flood would cost every replica
                 raise Rejected("no_information", f"delta of {len(msg.idx)} voxels that changes nothing")
             bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
             with self._lock:

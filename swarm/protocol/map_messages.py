@@ -72,6 +72,12 @@ class DeltaMessage:
 
     KIND = "delta"
 
+    def carries_information(self) -> bool:
+        """Whether applying it would change any voxel: some ``dlam`` or ``deta`` is not zero. An
+        empty delta, or one of zeros only, changes nothing; no agent sends one, and the map server
+        refuses it (``no_information``) rather than log it and send it on to every replica."""
+        return bool(np.any(self.dlam) or np.any(self.deta))
+
     def encode(self) -> bytes:
         n = len(self.idx)
         if len(self.dlam) != n or len(self.deta) != n:
