@@ -31,7 +31,7 @@ from swarm.navigation.exploration import (
 from swarm.navigation.planner import GridPlanner, nearest_free_cell
 from swarm.navigation.traversability import build_traversability, robot_band_top
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
-from swarm.protocol.message_size import PATTERN_ROBOTS
+from swarm.protocol.message_size import sources_of_deltas
 from swarm.protocol.wire import (
     AssignReply,
     AssignRequest,
@@ -102,9 +102,8 @@ class CoordinatorState:
         self.params = params or params_from_mission(mission)
         # the team's reach (rigs' hit range) decides what is still in view, as on the robots
         sensor = replace(mission.sensor.model(), hit_range=mission.sensor_reach())
-        # the ground of the mission's robots, of the 64 more a map server may take
-        # (--robot-pattern) and of the previous map (delta/prior) is tracked, no more
-        robots = len(mission.robot_ids) + PATTERN_ROBOTS + 1
+        # the ground of every source a map server may take deltas from is tracked, no more
+        robots = sources_of_deltas(len(mission.robot_ids))
         self.team = TeamMap(mission.workspace.grid(), sensor, max_robots=robots)
         self.book = AssignmentBook(self.params)
         self.counts: Counter[str] = Counter()

@@ -23,7 +23,7 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE
 from swarm.protocol.applied_deltas import AppliedDeltas
-from swarm.protocol.message_size import PATTERN_ROBOTS
+from swarm.protocol.message_size import sources_of_deltas
 from swarm.protocol.wire import DeltaMessage, TruthPoses, WireError, status_on_key
 
 log = logging.getLogger("swarm.monitor")
@@ -62,7 +62,7 @@ class TeamMonitor:
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
         self.curve.append((0.0, float(self.entropy.total)))
         self._lock = threading.Lock()
-        self.max_robots = self.max_robots or len(self.mission.robot_ids) + PATTERN_ROBOTS + 1
+        self.max_robots = self.max_robots or sources_of_deltas(len(self.mission.robot_ids))
         self._peer_log = LogLimiter(log)  # one line per 10 s however many deltas are refused
 
     def on_delta(self, _key: str, payload: bytes) -> None:

@@ -33,6 +33,13 @@ CONFIG_KEY = "transport/link/rx/max_message_size"
 PATTERN_ROBOTS = 64
 
 
+def sources_of_deltas(listed_robots: int) -> int:
+    """How many sources may have deltas on a mission's map: its ``listed_robots``, the
+    PATTERN_ROBOTS more a map server may take (``--robot-pattern``) and the previous map
+    (``delta/prior``). Replicas track per-robot state for at most this many."""
+    return listed_robots + PATTERN_ROBOTS + 1
+
+
 def delta_bytes(grid: Grid) -> int:
     """The largest delta payload the map server takes by default: every voxel once, 12 bytes each
     (``idx`` uint32, ``dlam`` and ``deta`` float32)."""
