@@ -258,6 +258,16 @@ def numbers(value: Any, count: int | tuple[int, ...], source: str, field: str) -
     return arr
 
 
+def rectified_camera_differences(
+    left: np.ndarray, right: np.ndarray, tolerance: float
+) -> list[tuple[str, float, float]]:
+    """The terms of one rectified camera that two camera matrices (3x3 K or 3x4 P, pixels) do not
+    share within ``tolerance`` px: (name, left, right) for fx, fy and cy. A rectified pair has one
+    focal length and one ``cy``; only ``cx`` may differ."""
+    terms = (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
+    return [(name, left[ij], right[ij]) for name, ij in terms if abs(left[ij] - right[ij]) > tolerance]
+
+
 def field_value(data: dict, source: str, *names: str) -> Any:
     for name in names:
         if name in data:

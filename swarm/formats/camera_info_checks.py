@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm.formats.calibration_schema import whole_number
+from swarm.formats.calibration_schema import rectified_camera_differences, whole_number
 from swarm.formats.errors import CalibrationError
 
 
@@ -61,9 +61,8 @@ def check_one_rectified_camera(left_p: np.ndarray, right_p: np.ndarray, right_so
     same fx, fy and cy (cx may differ). Two monocular calibrations' own P, with a Tx written in by
     hand, would rectify the images onto rows that do not line up: refused naming what differs."""
     differ = [
-        f"{name} {right_p[i, j]:g} (left {left_p[i, j]:g})"
-        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
-        if abs(left_p[i, j] - right_p[i, j]) > 0.05
+        f"{name} {right:g} (left {left:g})"
+        for name, left, right in rectified_camera_differences(left_p, right_p, tolerance=0.05)
     ]
     if differ:
         raise CalibrationError(

@@ -8,7 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.formats.calibration_schema import MAX_BASELINE_M, metres_per_unit, numbers
+from swarm.formats.calibration_schema import (
+    MAX_BASELINE_M,
+    metres_per_unit,
+    numbers,
+    rectified_camera_differences,
+)
 from swarm.formats.calibration_text import read_calibration_text
 from swarm.formats.errors import CalibrationError
 from swarm.formats.stereo_calibration import StereoCalibration
@@ -99,9 +104,8 @@ def _check_rectified(cam0: np.ndarray, cam1: np.ndarray, source: str) -> None:
     differs, by ``doffs``). Two raw cameras' own matrices copied into it (SimpleStereo#26) would
     be read as a rectified rig, silently wrong: refused, naming the numbers that differ."""
     differ = [
-        f"{name} {cam0[i, j]:g} vs {cam1[i, j]:g}"
-        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cy", (1, 2)))
-        if abs(cam0[i, j] - cam1[i, j]) > 0.01
+        f"{name} {left:g} vs {right:g}"
+        for name, left, right in rectified_camera_differences(cam0, cam1, tolerance=0.01)
     ]
     if differ:
         raise CalibrationError(
