@@ -25,22 +25,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from replay.frames import RecordedPair, fit_image_size
-from replay.matching import Matched, match_stamps
-from replay.poses import camera_from_body, quaternion_matrix
-from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import KalibrCamera, stereo_from_kalibr
-from swarm.formats.errors import InputError
+from swarm.formats.errors import RecordingError
 from swarm.formats.pixel_bits import SignificantBits, to_8_bits
 from swarm.formats.stereo_calibration import StereoCalibration
+from swarm.streams.frames import RecordedPair, fit_image_size
+from swarm.streams.matching import Matched, match_stamps
+from swarm.streams.poses import camera_from_body, quaternion_matrix
+from swarm.streams.trajectory import MAX_GAP_S, Trajectory
 
 NS = 1e-9
 #: how pose rows left out are counted (``AslRecording.matched.dropped``)
 UNUSABLE_POSE_ROW = "unusable pose row (NaN, inf or a zero quaternion)"
-
-
-class RecordingError(InputError):
-    """An unusable recording: the message names the file (and topic or column)."""
 
 
 @dataclass

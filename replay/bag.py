@@ -30,14 +30,14 @@ import numpy as np
 from replay import pose_messages as pm
 from replay.asl import RecordingError
 from replay.bag_files import bag_path, deserialize, messages, open_reader, topic_connections
-from replay.frames import RecordedPair, fit_image_size
-from replay.image_messages import camera_info, decode_image, split_side_by_side
-from replay.matching import Matched, match_stamps
-from replay.tf_tree import Chain, TfError, TfTree
-from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.calibration_formats import stereo_from_camera_infos
 from swarm.formats.pixel_bits import SignificantBits, to_8_bits
 from swarm.formats.stereo_calibration import StereoCalibration
+from swarm.streams.frames import RecordedPair, fit_image_size
+from swarm.streams.image_messages import camera_info, decode_image, split_side_by_side
+from swarm.streams.matching import Matched, match_stamps
+from swarm.streams.tf_tree import Chain, TfError, TfTree
+from swarm.streams.trajectory import MAX_GAP_S, Trajectory
 
 BIT_SAMPLES = 30  # 16-bit images: how many of each camera's, spread over the bag, set the bits
 

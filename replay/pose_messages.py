@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from replay.poses import quaternion_matrix
-from replay.tf_tree import TfTree
+from swarm.streams.poses import quaternion_matrix
+from swarm.streams.tf_tree import TfTree
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 UNUSABLE_POSE = "unusable pose message (NaN, or a zero quaternion)"

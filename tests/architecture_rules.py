@@ -16,7 +16,15 @@ from pathlib import Path
 
 PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay")
 ROLES = ("robot_agent", "map_server", "coordinator", "sim2d", "replay")
-CORE = ("swarm.map", "swarm.navigation", "swarm.formats", "swarm.protocol", "swarm.config")
+CORE = (
+    "swarm.map",
+    "swarm.navigation",
+    "swarm.formats",
+    "swarm.protocol",
+    "swarm.config",
+    "swarm.streams",
+    "swarm.ros2",
+)
 TOOLING = ("swarm.mission", "swarm.bench", "swarm.cli")
 
 #: Project groups each group may import (besides itself); tooling may import anything.
@@ -27,6 +35,8 @@ ALLOWED: dict[str, set[str]] = {
     "swarm.formats": {"swarm.map"},
     "swarm.protocol": {"swarm.map", "swarm.formats"},
     "swarm.config": {"swarm.map", "swarm.formats", "swarm.protocol"},
+    "swarm.streams": {"swarm.map", "swarm.formats", "swarm.protocol"},  # camera streams to frames
+    "swarm.ros2": {"swarm.map", "swarm.formats", "swarm.protocol", "swarm.streams"},  # rmw_zenoh's wire
     "swarm.security": {"swarm.protocol"},  # certificates and access rules; used by the tooling
     **{role: {"swarm", *CORE} for role in ROLES},
     "swarm.view": {"swarm", *CORE},  # the live view: a bus client like a role, never a role itself

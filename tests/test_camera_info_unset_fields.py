@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from replay.image_messages import camera_info
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.stereo_calibration import CalibrationError
+from swarm.streams.image_messages import camera_info
 
 W, H, F, B = 64, 48, 70.0, 0.12
 K = [F, 0, 32.0, 0, F, 24.0, 0, 0, 1]

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from replay.matching import match_stamps
-from replay.poses import camera_from_body, quaternion_matrix, wire_pose
 from swarm.map.rotation import rotation_zyx
+from swarm.streams.matching import match_stamps
+from swarm.streams.poses import camera_from_body, quaternion_matrix, wire_pose
 from tests.euroc_replay import EUROC_MINI as EUROC  # four real pairs (its README)
 
 
@@ -74,8 +74,8 @@ def _floor_fit(points: np.ndarray, camera_z: float) -> tuple[float, float]:
 
 def test_real_euroc_pairs_put_the_floor_093_m_below_the_camera():
     from replay.asl import AslRecording
-    from replay.frames import make_frame, rectified_camera
     from robot_agent.stereo import StereoMatcher, points_from_depth
+    from swarm.streams.frames import make_frame, rectified_camera
 
     rec = AslRecording(EUROC)
     assert len(rec) == 4 and not rec.matched.dropped

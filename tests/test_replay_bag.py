@@ -11,8 +11,8 @@ import pytest
 
 from replay.asl import RecordingError
 from replay.bag import BagRecording
-from replay.frames import make_frame, rectified_camera
 from swarm.formats.calibration_formats import load_stereo_calibration
+from swarm.streams.frames import make_frame, rectified_camera
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402

@@ -10,9 +10,9 @@ import pytest
 
 from replay.asl import RecordingError
 from replay.bag import BagRecording
-from replay.frames import to_gray8
 from swarm.formats.errors import InputError
 from swarm.formats.stereo_calibration import StereoCalibration
+from swarm.streams.frames import to_gray8
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402
@@ -455,7 +455,7 @@ def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, r
     """A driver binning 2x2 publishes half-size images with the CameraInfo of the full sensor and
     binning_x = binning_y = 2 (REP-104): it was refused as 'images are 376x240, the calibration is
     for 752x480'. K and P are now scaled by the binning; a region of interest is refused by name."""
-    from replay.frames import make_frame, rectified_camera
+    from swarm.streams.frames import make_frame, rectified_camera
     from tests.test_replay_bag import _euroc_camera_infos
 
     size, left, right = _euroc_camera_infos()
@@ -487,7 +487,7 @@ def test_poses_slower_than_the_camera_are_interpolated(tmp_path, ros):
     """10 Hz odometry (or /tf) with a 20 Hz camera: every other image had no pose within 10 ms
     and was dropped. Between two poses at most 0.2 s apart, the pose is now interpolated; images
     before the first pose, after the last, or across a gap stay dropped."""
-    from replay.poses import quaternion_matrix
+    from swarm.streams.poses import quaternion_matrix
 
     path = _bag(tmp_path, ros)
     c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)

@@ -11,7 +11,7 @@ import pytest
 
 from replay.asl import RecordingError
 from replay.bag import BagRecording
-from replay.frames import to_gray8
+from swarm.streams.frames import to_gray8
 from tests.test_replay_bag_inputs import CALIB, DriverBag, H, W, _bag, _colour
 
 pytest.importorskip("rosbags")

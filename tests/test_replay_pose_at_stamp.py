@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from replay.bag import BagRecording
-from replay.trajectory import MAX_GAP_S, Trajectory
 from swarm.formats.stereo_calibration import StereoCalibration
+from swarm.streams.trajectory import MAX_GAP_S, Trajectory
 
 pytest.importorskip("rosbags")
 from tests.rosbag_writer import BagWriter  # noqa: E402

@@ -14,9 +14,9 @@ import pytest
 
 from replay.asl import AslRecording, RecordingError
 from replay.bag import BagRecording
-from replay.frames import make_frame, rectified_camera
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.stereo_calibration import StereoCalibration
+from swarm.streams.frames import make_frame, rectified_camera
 
 pytest.importorskip("rosbags")
 from tests.euroc_replay import EUROC_MINI  # noqa: E402

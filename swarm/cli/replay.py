@@ -172,8 +172,8 @@ def _run_bag(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace, opener) -> int:
-    from replay.asl import RecordingError
     from swarm.config import ConfigError, load_mission
+    from swarm.formats.errors import RecordingError
     from swarm.formats.stereo_calibration import CalibrationError
     from swarm.mission.replay_run import ReplayOptions, default_mission, run_replay
 

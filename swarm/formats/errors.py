@@ -24,6 +24,10 @@ class CalibrationError(InputError):
     """An unusable calibration: the message names the file, the field and the problem."""
 
 
+class RecordingError(InputError):
+    """An unusable recording or camera stream: the message names the file or topic (and column or field)."""
+
+
 def non_finite_numbers(data: object, where: str = "") -> Iterator[tuple[str, float]]:
     """(dotted field, value) of every NaN or infinite float inside parsed YAML/JSON ``data``.
 

@@ -23,8 +23,6 @@ from typing import Protocol
 
 import numpy as np
 
-from replay.frames import RecordedPair, make_frame, rectified_camera
-from replay.matching import Matched
 from replay.publisher import FramePublisher
 from robot_agent.explorer import load_kernels
 from robot_agent.stereo import matcher_for_rig
@@ -46,6 +44,8 @@ from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, codec
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import Frame
+from swarm.streams.frames import RecordedPair, make_frame, rectified_camera
+from swarm.streams.matching import Matched
 
 OCCUPIED = 0.5  # E[C] above which a known voxel is drawn as a surface
 AGENT_START_S = 120.0  # wait this long for the agent to subscribe to its frames

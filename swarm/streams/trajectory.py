@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from replay.matching import nearest
-from replay.poses import interpolate_pose
+from swarm.streams.matching import nearest
+from swarm.streams.poses import interpolate_pose
 
 MAX_GAP_S = 0.2  # samples at most this far apart (s) are interpolated between
 

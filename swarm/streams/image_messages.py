@@ -18,8 +18,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from replay.asl import RecordingError
 from swarm.formats.calibration_formats import CameraInfo
+from swarm.formats.errors import RecordingError
 
 # sensor_msgs/image_encodings read (lower case): (pixel type, values a pixel, conversion to gray or BGR)
 _ENCODINGS: dict[str, tuple[type, int, Any]] = {

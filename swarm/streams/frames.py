@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from replay.poses import wire_pose
 from swarm.formats.stereo_calibration import CalibrationError, StereoCalibration
 from swarm.protocol.wire import Camera, Frame
+from swarm.streams.poses import wire_pose
 
 
 @dataclass

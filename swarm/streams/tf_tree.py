@@ -23,8 +23,8 @@ from functools import cached_property
 
 import numpy as np
 
-from replay.poses import quaternion_matrix
-from replay.trajectory import PosesAt, Trajectory
+from swarm.streams.poses import quaternion_matrix
+from swarm.streams.trajectory import PosesAt, Trajectory
 
 
 class TfError(ValueError):
