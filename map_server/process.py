@@ -4,6 +4,7 @@ session until SIGTERM/SIGINT; SIGHUP quarantines the robots listed in ``<store>/
 from __future__ import annotations
 
 import logging
+import resource
 import signal
 import threading
 from pathlib import Path
@@ -30,6 +31,16 @@ def quarantine_list(path: Path) -> list[str]:
         log.error("cannot read %s: %s", path, exc)
         return []
     return [r for r in (line.split("#", 1)[0].strip() for line in lines) if r]
+
+
+def raise_open_files_limit() -> int:
+    """Raise this process's soft limit of open files to its hard limit (every idle connection a
+    stranger holds open costs the router one; docs/security.md, "Transport limits"); returns it."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and soft < hard:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+        return hard
+    return soft
 
 
 def server_session(
@@ -70,11 +81,12 @@ def serve(
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: reread.set())
     try:
+        raise_open_files_limit()
         server = MapServer(mission, store_dir, mission_name, options)
         try:
             session = server_session(server, mission, listen, connect or [], zenoh_config)
         except BaseException:
-            server.store.close()
+            server.store.discard_new()  # a store this start created goes again
             raise
         try:
             server.start(session)
