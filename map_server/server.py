@@ -29,6 +29,7 @@ from map_server.options import ServerOptions, max_payload_for
 from map_server.query_gate import QueryGate
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
+from map_server.store_files import OS_FILES, StoreFiles
 from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
@@ -49,14 +50,16 @@ class MapServer:
         store_dir: str | Path,
         mission_name: str | None = None,
         options: ServerOptions | None = None,
+        files: StoreFiles = OS_FILES,
     ) -> None:
-        """Open the store and recover the map from it (snapshot, then the log); no Zenoh yet."""
+        """Open the store and recover the map from it (snapshot, then the log); no Zenoh yet.
+        ``files``: the store's file layer (map_server.store_files; a recording one in tests)."""
         self.name = mission_name or mission.mission
         self.options = options or ServerOptions()
         self.session: zenoh.Session | None = None
         grid, sensor = mission.workspace.grid(), mission.sensor.model()
         self.store, recovered = Store.open(
-            store_dir, StoreIdentity(self.name, grid, sensor), fsync=self.options.fsync
+            store_dir, StoreIdentity(self.name, grid, sensor), self.options.fsync, files
         )
         self.store.log_reserve_bytes = self.options.log_reserve_bytes
         #: acks paused while the store cannot write, resumed when it can (map_server.disk_pause)

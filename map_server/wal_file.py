@@ -28,10 +28,10 @@ def read_wal(path: Path, truncate: bool = True, files: StoreFiles = OS_FILES) ->
     """The intact records of a WAL file and the number of bytes after them (torn or corrupt),
     which are cut off the file when ``truncate``. Raises StoreError for a file that is not a WAL."""
     data = path.read_bytes()
-    if len(data) < len(WAL_HEADER):
-        if data and not WAL_HEADER.startswith(data):
-            raise StoreError(f"{path}: not a swarm write-ahead log (bad header)")
-        good = 0  # a torn header: the file holds no record
+    if data[: len(WAL_HEADER)] != WAL_HEADER and WAL_HEADER.startswith(data.rstrip(b"\0")):
+        # a header cut short, or zeros where it was never synced (a power cut): the log was new
+        # and held no record, since its header is synced before the first record is written
+        good = 0
         payloads: list[bytes] = []
     else:
         if data[: len(WAL_MAGIC)] != WAL_MAGIC:
@@ -53,7 +53,7 @@ def _records(data: bytes) -> tuple[list[bytes], int]:
     while pos + RECORD_HEADER.size <= len(data):
         length, crc = RECORD_HEADER.unpack_from(data, pos)
         start = pos + RECORD_HEADER.size
-        if length > MAX_RECORD_BYTES or start + length > len(data):
+        if not 0 < length <= MAX_RECORD_BYTES or start + length > len(data):  # 0: a zeroed tail
             break
         payload = data[start : start + length]
         if zlib.crc32(payload) != crc:
