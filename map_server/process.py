@@ -15,6 +15,7 @@ from map_server.options import ServerOptions, message_limit_for
 from map_server.server import MapServer
 from swarm.config import Mission
 from swarm.protocol import bus
+from swarm.protocol.transport_limits import max_sessions_for
 
 log = logging.getLogger("swarm.server")
 
@@ -53,8 +54,13 @@ def server_session(
     """The server's Zenoh session (the mission's router), which takes no message over
     :func:`~map_server.options.message_limit_for` from a link (docs/protocol.md, "Message sizes")."""
     limit = message_limit_for(mission, server.options, server.max_payload)
+    sessions = max_sessions_for(len(mission.robot_ids))
     session = bus.open_session(
-        listen=listen, connect=connect or [], config_file=zenoh_config, max_message_bytes=limit
+        listen=listen,
+        connect=connect or [],
+        config_file=zenoh_config,
+        max_message_bytes=limit,
+        max_sessions=sessions,
     )
     log.info(
         "Zenoh drops a received message over %s bytes (transport/link/rx/max_message_size; "

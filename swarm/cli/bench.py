@@ -174,6 +174,23 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--deltas", type=at_least(2), default=8, help="deltas per robot of the power-cut run (default 8)"
     )
     durable.set_defaults(run=_run_bench_durability)
+    slow = bsub.add_parser(
+        "slowloris",
+        help="new sessions and acks while a stranger holds hundreds of idle connections to the server",
+        description="A swarm server on loopback over TCP, then over mutual TLS; a stranger holds "
+        "--connections idle or stalled-handshake connections for --seconds, reopening each one closed. "
+        "Prints how long a new robot session takes to open before, during and right after, and the "
+        "longest gap between an honest robot's acks (docs/security.md, Transport limits).",
+    )
+    slow.add_argument("--connections", type=at_least(1), default=300, help="idle connections (default 300)")
+    slow.add_argument("--seconds", type=float, default=20.0, help="attack length (default 20)")
+    slow.set_defaults(run=_run_bench_slowloris)
+
+
+def _run_bench_slowloris(args: argparse.Namespace) -> int:
+    from swarm.bench import slowloris
+
+    return slowloris.run(args.connections, args.seconds)
 
 
 def _run_bench_durability(args: argparse.Namespace) -> int:
