@@ -98,7 +98,7 @@ def serve(
             server.start(session)
             _conf, endpoints, _ = bus.session_config(listen, connect or [], config_file=zenoh_config)
             source = "" if listen else f" (from {bus.config_path(zenoh_config)})"
-            log.info("listening on %s%s", ", ".join(endpoints), source)
+            log.info("listening on %s%s", ", ".join(e.split("#", 1)[0] for e in endpoints), source)
             while not stop.wait(0.5):
                 if reread.is_set():
                     reread.clear()
