@@ -160,6 +160,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     soak.add_argument("--voxels", type=int, default=2000, help="voxels per delta, at least (default 2000)")
     soak.set_defaults(run=_run_bench_soak)
+    durable = bsub.add_parser(
+        "durability",
+        help="acked deltas lost by the map server's store under SIGKILL and simulated power cuts",
+        description="Power cuts: the store's file operations recorded while a map server merges and "
+        "compacts, and for every instant of the recording every disk state a cut may leave (unsynced "
+        "data and folder names dropped, torn or zeroed tails) opened by a new server: acked deltas "
+        "lost, and deltas applied twice. SIGKILL: --kills kills of a swarm server process mid-stream "
+        "on loopback, restarted on the same store each time. Exit status 1 if anything acked was lost.",
+    )
+    durable.add_argument("--kills", type=at_least(1), default=15, help="SIGKILL rounds (default 15)")
+    durable.add_argument(
+        "--deltas", type=at_least(2), default=8, help="deltas per robot of the power-cut run (default 8)"
+    )
+    durable.set_defaults(run=_run_bench_durability)
+    slow = bsub.add_parser(
+        "slowloris",
+        help="new sessions and acks while a stranger holds hundreds of idle connections to the server",
+        description="A swarm server on loopback over TCP, then over mutual TLS; a stranger holds "
+        "--connections idle or stalled-handshake connections for --seconds, reopening each one closed. "
+        "Prints how long a new robot session takes to open before, during and right after, and the "
+        "longest gap between an honest robot's acks (docs/security.md, Transport limits).",
+    )
+    slow.add_argument("--connections", type=at_least(1), default=300, help="idle connections (default 300)")
+    slow.add_argument("--seconds", type=float, default=20.0, help="attack length (default 20)")
+    slow.set_defaults(run=_run_bench_slowloris)
+
+
+def _run_bench_slowloris(args: argparse.Namespace) -> int:
+    from swarm.bench import slowloris
+
+    return slowloris.run(args.connections, args.seconds)
+
+
+def _run_bench_durability(args: argparse.Namespace) -> int:
+    from swarm.bench import durability
+
+    return durability.run(args.kills, args.deltas)
 
 
 def _run_bench_soak(args: argparse.Namespace) -> int:
