@@ -51,7 +51,7 @@ class Ros2MapOptions(Section):
     cloud: bool = True
     period_s: FiniteFloat = Field(default=1.0, gt=0)
     cloud_period_s: FiniteFloat = Field(default=2.0, gt=0)
-    cloud_bytes_per_s: FiniteFloat = Field(default=8e6, gt=0)
+    cloud_bytes_per_s: FiniteFloat = Field(default=2e6, gt=0)
     full_period_s: FiniteFloat = Field(default=10.0, gt=0)
     incremental_above: int = Field(default=250_000, ge=0)
 

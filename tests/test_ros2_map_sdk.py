@@ -8,6 +8,8 @@ tests/data/ros2_map_msgs (no network: the SDK would otherwise clone them from Gi
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -263,3 +265,34 @@ def test_a_hostile_merged_stream_is_refused_and_the_published_map_stays_the_serv
             np.testing.assert_array_equal(
                 topics.outputs.grid.cells, oracle_grid(tmp_path / "map.npz", (0.1, 0.5))
             )
+
+
+@pytest.mark.slow
+def test_the_command_publishes_the_team_map_until_its_duration(tmp_path, offline_sdk):
+    """``swarm map ros2`` as a user runs it, on domain 3: a late SDK subscriber gets the grid."""
+    mission = small_mission()
+    grid, sensor = mission.workspace.grid(), mission.sensor.model()
+    with running_server(mission, tmp_path / "store") as (_server, endpoint), client_session(endpoint) as s:
+        _send(s, mission, grid, robot_batches(grid, sensor, robots=2, per_robot=2, seed=51))
+        client = MapClient(s, mission.mission)
+        wait_until(lambda: all_acked(client, {"r1": 2, "r2": 2}), 20, "the deltas")
+        export_map(client, tmp_path / "map.npz")
+        command = [sys.executable, "-m", "swarm.cli", "map", "ros2", "--connect", endpoint,
+                   "--domain-id", "3", "--duration", "8", "--progress-every", "1"]  # fmt: skip
+        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            first = proc.stdout.readline()
+            assert "mission 'srvtest' as ROS 2 domain 3 (jazzy): /map (nav_msgs/msg/OccupancyGrid)" in first
+            grids: list = []
+            deadline = time.monotonic() + 6
+            while not grids and time.monotonic() < deadline:  # until its first grid is out
+                grids = _subscribe("/map", GRID_TYPE, _port(endpoint), domain_id=3)
+                time.sleep(0.5)
+            assert grids, "no latched grid from the command"
+            expected = oracle_grid(tmp_path / "map.npz", (0.1, 0.5))
+            np.testing.assert_array_equal(_grid_cells(grids[-1]), expected)
+            out, err = proc.communicate(timeout=30)
+        finally:
+            proc.kill()
+        assert proc.returncode == 0, err
+        assert "sent 1 grids" in out.splitlines()[-1]

@@ -86,7 +86,7 @@ def register(msub: argparse._SubParsersAction, add_query_arguments, open_client)
         "--cloud-period", type=float, default=2.0, help="seconds between clouds at most (default 2)"
     )
     p.add_argument(
-        "--cloud-rate", type=float, default=8.0, help="MB/s of clouds at most on average (default 8)"
+        "--cloud-rate", type=float, default=2.0, help="MB/s of clouds at most on average (default 2)"
     )
     p.add_argument(
         "--full-period",
@@ -200,7 +200,9 @@ def _follow(topics, args: argparse.Namespace, client, ros_session) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    shown = ", ".join(f"{kind} {name}" for kind, name in topics.topics().items())
+    from ros2_map.role import TYPES
+
+    shown = ", ".join(f"{name} ({TYPES[kind]})" for kind, name in topics.topics().items())
     print(
         f"ros2 map: mission {client.mission!r} as ROS 2 domain {topics.options.domain_id} "
         f"({topics.options.distro}): {shown}",
