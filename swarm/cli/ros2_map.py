@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 from swarm.cli.common import endpoint_problem, fail
 
@@ -52,6 +53,13 @@ def register(msub: argparse._SubParsersAction, add_query_arguments, open_client)
         metavar="ENDPOINT",
         help="publish to the robots' rmw_zenohd router here (e.g. tcp/192.168.1.10:7447) "
         "instead of the team's router (--connect); repeatable",
+    )
+    p.add_argument(
+        "--ros-zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="Zenoh JSON5 config of the robots' side (e.g. rmw_zenoh's TLS, its endpoints unless "
+        "--ros-connect); default with --ros-connect: $ZENOH_CONFIG",
     )
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else 0)")
     p.add_argument(
@@ -182,8 +190,8 @@ def _run(args: argparse.Namespace) -> int:
         return fail(str(exc))
     ros_session = None
     try:  # the ROS side on a session of its own (timestamped: latched topics need it)
-        if args.ros_connect:
-            ros_session = open_ros2_session(args.ros_connect)
+        if args.ros_connect or args.ros_zenoh_config:
+            ros_session = open_ros2_session(args.ros_connect, config_file=args.ros_zenoh_config)
         else:
             ros_session = open_ros2_session(args.connect, config_file=args.zenoh_config)
         topics = TeamMapTopics(client.session, client.mission, options, ros_session)
