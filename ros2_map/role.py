@@ -16,12 +16,14 @@ What goes out when is :mod:`ros2_map.outputs`. Zenoh's callbacks only queue merg
 (at most ``max_queued_bytes`` waiting, larger ones than a whole-map delta refused at once); one
 worker thread applies them (:class:`ros2_map.replica.FollowedMap` refuses bad ones, counted),
 and publishes what is due. When the queue is full a payload is dropped, and since the replica
-then misses a delta, the worker starts again from a fresh snapshot.
+then misses a delta, the worker starts again from a fresh snapshot (at most one per
+``RESYNC_INTERVAL_S``: each costs the server a whole-map query).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -49,6 +51,10 @@ UPDATES_QOS = Qos()
 #: The message type of each kind of output, and the name it is counted under.
 TYPES = {"full": OCCUPANCY_GRID, "update": OCCUPANCY_GRID_UPDATE, "cloud": POINT_CLOUD2}
 COUNTED = {"full": "grids_full", "update": "grid_updates", "cloud": "clouds"}
+#: Seconds at least between two fresh snapshots after dropped deltas (each costs the server a
+#: whole-map query), and at most spent applying queued deltas before the topics' turn.
+RESYNC_INTERVAL_S = 10.0
+DRAIN_S = 0.25
 #: Seconds to wait for the map server's first snapshot.
 SNAPSHOT_TIMEOUT_S = 30.0
 
@@ -84,6 +90,7 @@ class TeamMapTopics:
         self.last_ms: dict[str, float] = {}
         self.outputs: MapOutputs | None = None
         self._max_payload = 0  # set from the snapshot's grid
+        self._last_snapshot = -math.inf
         self._inbox: queue.Queue = queue.Queue()
         self._resync = threading.Event()
         self._stop = threading.Event()
@@ -97,19 +104,31 @@ class TeamMapTopics:
         """Subscribe, declare the node and its publishers, load the snapshot, start the worker.
 
         Raises ConnectionError when no map server of the mission answers within
-        ``snapshot_timeout``; ValueError when the options' band misses every map layer.
+        ``snapshot_timeout``; ValueError when the options' band misses every map layer, or when
+        the ROS 2 session does not timestamp its samples.
         """
         # subscribe before the snapshot so that no merged delta falls between the two
         self._subscriber = bus.subscribe(self.session, bus.key(self.mission, "merged"), self._on_merged)
         options, types = self.options, self.context.types
         self._node = node = self.context.node(options.node_name, options.namespace)
         self.publishers = {}
-        if options.grid:
-            register_map_msgs(types)
-            self.publishers["full"] = node.publisher(options.map_topic, OCCUPANCY_GRID, LATCHED_QOS)
-            self.publishers["update"] = node.publisher(options.updates, OCCUPANCY_GRID_UPDATE, UPDATES_QOS)
-        if options.cloud:
-            self.publishers["cloud"] = node.publisher(options.cloud_topic, POINT_CLOUD2, LATCHED_QOS)
+        try:
+            if options.grid:
+                register_map_msgs(types)
+                self.publishers["full"] = node.publisher(options.map_topic, OCCUPANCY_GRID, LATCHED_QOS)
+                self.publishers["update"] = node.publisher(
+                    options.updates, OCCUPANCY_GRID_UPDATE, UPDATES_QOS
+                )
+            if options.cloud:
+                self.publishers["cloud"] = node.publisher(options.cloud_topic, POINT_CLOUD2, LATCHED_QOS)
+        except zenoh.ZError as exc:
+            self.stop()
+            if "timestamping" not in str(exc):
+                raise
+            raise ValueError(
+                "the ROS 2 session must timestamp its samples for latched topics: open it with "
+                "swarm.ros2.session.open_ros2_session"
+            ) from exc
         try:
             self._catch_up(self.snapshot_timeout)
         except Exception:
@@ -170,6 +189,7 @@ class TeamMapTopics:
             outputs.carry_rates(self.outputs)
         self.outputs = outputs
         self._max_payload = delta_bytes(fmap.grid)
+        self._last_snapshot = time.monotonic()
 
     def _on_merged(self, _key: str, payload: bytes) -> None:
         """Zenoh's callback: queue the payload within the budget (module doc); never raises."""
@@ -194,12 +214,14 @@ class TeamMapTopics:
             if payload is not None:
                 self._apply(payload)
                 self._drain()
-            if self._resync.is_set():
+            if self._resync.is_set() and time.monotonic() - self._last_snapshot >= RESYNC_INTERVAL_S:
                 self._start_again()
             self._publish_due()
 
     def _drain(self) -> None:
-        while True:
+        """Apply what is queued, for at most DRAIN_S: a flood must not hold the topics back."""
+        deadline = time.monotonic() + DRAIN_S
+        while time.monotonic() < deadline:
             try:
                 payload = self._inbox.get_nowait()
             except queue.Empty:
@@ -227,7 +249,6 @@ class TeamMapTopics:
         except ConnectionError as exc:
             self._resync.set()
             self._peer_log.warning("resync", "cannot start again from a snapshot: %s", exc)
-            self._stop.wait(1.0)
 
     # -- the topics ---------------------------------------------------------------------------------
     def _publish_due(self) -> None:
