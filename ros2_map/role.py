@@ -42,7 +42,7 @@ from swarm.protocol.message_size import delta_bytes
 from swarm.protocol.wire import WireError
 from swarm.ros2.graph import LATCHED_QOS, Qos
 from swarm.ros2.map_messages import OCCUPANCY_GRID, OCCUPANCY_GRID_UPDATE, POINT_CLOUD2, register_map_msgs
-from swarm.ros2.node import Ros2Context
+from swarm.ros2.node import Ros2Context, Ros2Publisher
 
 log = logging.getLogger("ros2_map")
 
@@ -89,6 +89,7 @@ class TeamMapTopics:
         self.counts: Counter[str] = Counter()
         self.last_ms: dict[str, float] = {}
         self.outputs: MapOutputs | None = None
+        self.publishers: dict[str, Ros2Publisher] = {}  # by kind: "full", "update", "cloud"
         self._max_payload = 0  # set from the snapshot's grid
         self._last_snapshot = -math.inf
         self._inbox: queue.Queue = queue.Queue()
@@ -111,7 +112,6 @@ class TeamMapTopics:
         self._subscriber = bus.subscribe(self.session, bus.key(self.mission, "merged"), self._on_merged)
         options, types = self.options, self.context.types
         self._node = node = self.context.node(options.node_name, options.namespace)
-        self.publishers = {}
         try:
             if options.grid:
                 register_map_msgs(types)
