@@ -39,7 +39,11 @@ def tree(tmp_path: Path) -> Path:
             "robot_agent may not import coordinator",
         ),
         ("map_server/server.py", "import sim2d.render", "map_server may not import sim2d"),
-        ("ros2_map/role.py", "from coordinator.replica import TeamMap", "ros2_map may not import coordinator"),
+        (
+            "ros2_map/role.py",
+            "from coordinator.replica import TeamMap",
+            "ros2_map may not import coordinator",
+        ),
         (
             "swarm/map/fusion.py",
             "from swarm.protocol.wire import DeltaMessage",
