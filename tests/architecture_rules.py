@@ -14,8 +14,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay")
-ROLES = ("robot_agent", "map_server", "coordinator", "sim2d", "replay")
+PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay", "ros2_map")
+ROLES = ("robot_agent", "map_server", "coordinator", "sim2d", "replay", "ros2_map")
 CORE = (
     "swarm.map",
     "swarm.navigation",

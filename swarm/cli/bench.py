@@ -1,4 +1,4 @@
-"""``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, server)."""
+"""``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, server, ROS 2 map)."""
 
 from __future__ import annotations
 
@@ -185,6 +185,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     slow.add_argument("--connections", type=at_least(1), default=300, help="idle connections (default 300)")
     slow.add_argument("--seconds", type=float, default=20.0, help="attack length (default 20)")
     slow.set_defaults(run=_run_bench_slowloris)
+    ros2 = bsub.add_parser(
+        "ros2-map",
+        help="cost and bytes of the team map's ROS 2 topics (swarm map ros2), office and large map",
+        description="Replay the exploration of the office map and of the office repeated --tiles x "
+        "--tiles times as merged deltas (one per 1 m tile, --rate per simulated second) through "
+        "swarm map ros2's code with its default options, and print per kind of message (whole grid, "
+        "grid update, cloud) how many went out, the wall ms to build, serialise and put each, their "
+        "bytes as a subscriber received them, and the bytes per simulated second (swarm.bench.ros2_map).",
+    )
+    ros2.add_argument(
+        "--config",
+        type=Path,
+        default=_bundled(Path("configs") / "office.yaml"),
+        help="the mission whose floor plan is the map (default configs/office.yaml)",
+    )
+    ros2.add_argument("--tiles", type=at_least(2), default=4, help="large map: office x N x N (default 4)")
+    ros2.add_argument("--rate", type=float, default=20.0, help="merged deltas per simulated s (default 20)")
+    ros2.set_defaults(run=_run_bench_ros2_map)
 
 
 def _run_bench_slowloris(args: argparse.Namespace) -> int:
@@ -206,6 +224,15 @@ def _run_bench_soak(args: argparse.Namespace) -> int:
         print("swarm: error: --agents, --minutes, --period and --voxels must be positive", file=sys.stderr)
         return 2
     soak.run(args.agents, args.minutes, args.period, args.voxels)
+    return 0
+
+
+def _run_bench_ros2_map(args: argparse.Namespace) -> int:
+    from swarm.bench import ros2_map
+
+    if not args.rate > 0:
+        return fail(f"--rate {args.rate:g}: must be > 0")
+    print(ros2_map.format_figures(ros2_map.run(args.config, args.tiles, args.rate)))
     return 0
 
 
