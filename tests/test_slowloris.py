@@ -22,11 +22,6 @@ def test_idle_connections_do_not_keep_sessions_out_over_tcp():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    reason="open: in some runs the honest robot's TLS session, opened just before the attack, gets "
-    "no ack at all (acks=0) while new sessions open in ms; not understood yet",
-    strict=False,
-)
 def test_idle_connections_do_not_keep_sessions_out_over_tls():
     a = attack("tls", CONNECTIONS, attack_s=12.0, limit_s=90.0)
     assert a.held >= CONNECTIONS * 0.9, a

@@ -160,6 +160,10 @@ def attack(transport: str, connections: int = 300, attack_s: float = 15.0, limit
                     gaps.append(time.monotonic() - last_t)
                     out.acks = last_ack
 
+                # a delta put before the server's subscription is known here is lost, and the
+                # server acks the contiguous prefix only: wait for it, as an agent does
+                if not bus.wait_for_subscribers([pub], timeout=limit_s):
+                    raise ConnectionError(f"no map server subscribed to deltas at {endpoint}")
                 robot_thread = threading.Thread(target=robot)
                 robot_thread.start()
                 holder = threading.Thread(target=_hold, args=(port, connections, stop, held))
