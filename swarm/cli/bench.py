@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from swarm.cli import bench_ros2
 from swarm.cli.common import fail
 
 
@@ -160,6 +161,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     soak.add_argument("--voxels", type=int, default=2000, help="voxels per delta, at least (default 2000)")
     soak.set_defaults(run=_run_bench_soak)
+    bench_ros2.register(bsub)
 
 
 def _run_bench_soak(args: argparse.Namespace) -> int:

@@ -243,11 +243,13 @@ def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         kill_coordinator_at_s=args.kill_coordinator_at,
         view=getattr(args, "view", None),
         secure=args.secure,
+        ros2=getattr(args, "ros2", False),
     )
     print(
         f"mission {mission.mission}: robots {', '.join(mission.robot_ids)}, strategy {args.strategy}, "
         f"coordination {coordination}, seed {args.seed}, H_th {mission.threshold_bits():,.0f} bits"
-        f"{', mutual TLS and access control' if args.secure else ''} -> {out}",
+        f"{', mutual TLS and access control' if args.secure else ''}"
+        f"{', frames and commands over ROS 2 (rmw_zenoh)' if options.ros2 else ''} -> {out}",
         flush=True,
     )
     monitor, facts = run_mission(mission, options)
@@ -279,6 +281,7 @@ def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     metrics = compute_metrics(record, monitor.cmap, truth, observed_by, sensor_observable)
     metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
     metrics["stop_reason"] = facts["reason"]
+    metrics["robot_link"] = "ros2" if options.ros2 else "swarm"
     metrics["max_time_s"] = mission.stop.max_time_s if args.max_time is None else float(args.max_time)
     metrics["share_min_bits"] = mission.sharing.share_min_bits
     metrics["max_held_bits"] = mission.sharing.max_held_bits

@@ -121,6 +121,7 @@ def session_config(
     config_file: str | Path | None = None,
     multicast_scouting: bool = False,
     max_message_bytes: int | None = None,
+    timestamping: bool = False,
 ) -> tuple[zenoh.Config, list[str], list[str]]:
     """The config a role opens its session with, and the effective listen/connect endpoints.
 
@@ -128,6 +129,8 @@ def session_config(
     neither, the session connects to ``DEFAULT_ENDPOINT``. A session that listens is a
     router, one that only connects a client. ``max_message_bytes``: the largest message the
     session takes from a link (``swarm.protocol.message_size``; a file's own value wins).
+    ``timestamping``: stamp every sample with the session's clock, whatever its mode (a ROS 2
+    node's latched topics need it: Zenoh's advanced publishers order their cache by it).
     """
     listen = list(listen or [])
     connect = list(connect or [])
@@ -143,6 +146,8 @@ def session_config(
     conf = make_config(listen, connect, multicast_scouting=multicast_scouting, mode=mode, base=base)
     if max_message_bytes is not None:
         bound_received_messages(conf, max_message_bytes)
+    if timestamping:
+        conf.insert_json5("timestamping/enabled", "true")
     return conf, listen, connect
 
 
@@ -154,6 +159,7 @@ def open_session(
     wait_s: float = 30.0,
     config_file: str | Path | None = None,
     max_message_bytes: int | None = None,
+    timestamping: bool = False,
 ) -> zenoh.Session:
     """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default.
 
@@ -165,9 +171,14 @@ def open_session(
     its endpoints are used when none are given here. Raises ``ValueError`` for a bad config
     file, ``zenoh.ZError`` when it cannot listen, and ``ConnectionError`` when no router
     accepts the connection in time (for TLS: a wrong certificate looks the same from this side).
-    ``max_message_bytes`` bounds the messages it receives (``session_config``).
+    ``max_message_bytes`` bounds the messages it receives, ``timestamping`` stamps every sample
+    (``session_config``).
     """
-    options = {"multicast_scouting": multicast_scouting, "max_message_bytes": max_message_bytes}
+    options = {
+        "multicast_scouting": multicast_scouting,
+        "max_message_bytes": max_message_bytes,
+        "timestamping": timestamping,
+    }
     conf, listen, connect = session_config(listen, connect, config_file=config_file, **options)
     if listen:
         return zenoh.open(conf)  # a busy port raises zenoh.ZError (the CLI prints it as one line)

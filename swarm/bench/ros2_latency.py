@@ -1,0 +1,154 @@
+"""``swarm bench ros2 latency``: image stamp to delta sent, our protocol and the ROS 2 path side by side.
+
+Two agents (``swarm agent`` processes) of one mission at 640 x 480: r1 takes ``robot/r1/frame``,
+r2 the ROS 2 topics of a simulated robot (``sim2d.ros2_robots``: images, CameraInfo, tf chain
+map -> odom -> base_link -> camera_link -> optical frame). The benchmark renders views of the
+office once, then sends them alternately to r1 and to r2, each stamped with the wall clock just
+before it is serialised and put, and waits for the agent's delta carrying that stamp
+(``share_min_bits`` 0: every frame's delta goes out at once). The latency is the delta's arrival
+(wall clock, this machine) minus the stamp: the frame's serialisation and transport, the agent's
+decoding (for r2: CDR, pairing, tf lookup, the CameraInfo's calibration), stereo, fusion,
+decision and delta. With ``--raw`` r2's CameraInfo carries a distortion, so its agent rectifies
+each pair too (r1's frames are rectified by the driver, as our protocol asks).
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from sim2d.render import Renderer, camera_pose
+from sim2d.robot_link import WireRobots
+from sim2d.ros2_robots import Ros2Robots
+from swarm.config import load_mission
+from swarm.mission.role_processes import start_role, stop_roles
+from swarm.protocol import bus
+from swarm.protocol.wire import DeltaMessage, Frame, WireError
+
+WARM_UP = 5  # frames of each path not counted (the kernels' first calls)
+
+
+def _mission_file(config: Path, folder: Path, width: int, height: int) -> Path:
+    data = yaml.safe_load(config.read_text())
+    data["floor_plan"] = str((config.parent / data["floor_plan"]).resolve())
+    data["robots"] = data["robots"][:2]
+    data["rig"] = {**data.get("rig", {}), "width": width, "height": height}
+    data["sharing"] = {"share_min_bits": 0.0}
+    path = folder / "bench.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+class _Deltas:
+    """Arrival times (wall clock) of each robot's deltas, by the frame time they carry."""
+
+    def __init__(self) -> None:
+        self.arrivals: dict[str, list[tuple[float, float]]] = {"r1": [], "r2": []}
+        self._cond = threading.Condition()
+
+    def on_delta(self, _key: str, payload: bytes) -> None:
+        now = time.time()
+        try:
+            msg = DeltaMessage.decode(payload)
+        except WireError:
+            return
+        with self._cond:
+            self.arrivals.setdefault(msg.robot, []).append((msg.t, now))
+            self._cond.notify_all()
+
+    def wait(self, robot: str, t: float, timeout: float = 30.0) -> float | None:
+        """Seconds from ``t`` to the arrival of ``robot``'s delta of the frame stamped ``t``."""
+
+        def found() -> float | None:
+            return next((at - t for when, at in self.arrivals[robot] if abs(when - t) < 1e-6), None)
+
+        with self._cond:
+            self._cond.wait_for(lambda: found() is not None, timeout)
+            return found()
+
+
+def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw: bool = False) -> dict:
+    """Measure both paths; returns their latencies (ms) and prints the table."""
+    with tempfile.TemporaryDirectory(prefix="swarm-bench-ros2-") as tmp:
+        folder = Path(tmp)
+        path = _mission_file(config, folder, width, height)
+        mission = load_mission(path)
+        rig = mission.rig_for("r1")
+        spec = mission.robot_spec("r1")
+        renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=0)
+        views = []
+        for yaw in spec.start.yaw + np.linspace(0, 2 * math.pi, 12, endpoint=False):
+            pose = camera_pose(spec.start.x, spec.start.y, yaw, rig.camera_height)
+            views.append((pose, *renderer.stereo_pair(pose, rig.noise_std, np.random.default_rng(0))))
+        endpoint = bus.tcp_endpoint(bus.free_port())
+        session = bus.open_session(listen=[endpoint], timestamping=True)
+        deltas = _Deltas()
+        sub = bus.subscribe(session, bus.key_pattern(mission.mission, "delta", "*"), deltas.on_delta)
+        wire = WireRobots(session, mission.model_copy(update={"robots": mission.robots[:1]}))
+        ros2 = Ros2Robots(session, mission.model_copy(update={"robots": mission.robots[1:]}))
+        if raw:
+            _distort(ros2)
+        common = ["--config", str(path), "--connect", endpoint, "--coordination", "none"]
+        agents = [
+            start_role(["agent", "--id", "r1", *common], folder / "agent-r1.log"),
+            start_role(["agent", "--id", "r2", *common, "--ros2"], folder / "agent-r2.log"),
+        ]
+        latency: dict[str, list[float]] = {"swarm": [], "ros2": []}
+        try:
+            deadline = time.monotonic() + 180
+            while wire.missing() or ros2.missing():
+                if time.monotonic() > deadline or any(a.poll() is not None for a in agents):
+                    raise RuntimeError(f"the agents did not start (see {folder}/agent-*.log)")
+                time.sleep(0.1)
+            time.sleep(3.0)  # they load the team map (none here) and listen
+            for k in range(frames + WARM_UP):
+                pose, left, right = views[k % len(views)]
+                for name, robot, link in (("swarm", "r1", wire), ("ros2", "r2", ros2)):
+                    t = time.time()
+                    frame = Frame(robot, k + 1, t, pose, rig.camera(), "raw8", left=left, right=right)
+                    link.publish({robot: frame}, t)
+                    seconds = deltas.wait(robot, t)
+                    if seconds is None:
+                        raise RuntimeError(
+                            f"{robot}: no delta for frame {k + 1} (see {folder}/agent-{robot}.log)"
+                        )
+                    if k >= WARM_UP:
+                        latency[name].append(seconds * 1e3)
+                    link.take(0.0)  # the command: not waited for
+        finally:
+            stop_roles(agents)
+            sub.undeclare()
+            wire.close()
+            ros2.close()
+            session.close()
+        return _report(latency, width, height, raw)
+
+
+def _distort(ros2: Ros2Robots) -> None:
+    """Make the simulated robot's CameraInfo claim a radial distortion (its agent then remaps)."""
+    for robot in ros2.robots.values():
+        robot.distortion = np.array([-0.28, 0.07, 0.0002, 0.00002, 0.0])
+
+
+def _report(latency: dict[str, list[float]], width: int, height: int, raw: bool) -> dict:
+    out = {}
+    print(f"image stamp to delta sent, {width}x{height}, {len(latency['swarm'])} frames each, alternating:")
+    for name, values in latency.items():
+        p50, p99 = np.percentile(values, [50, 99])
+        out[name] = {"p50_ms": float(p50), "p99_ms": float(p99), "mean_ms": float(np.mean(values))}
+        rectified = ", raw images rectified by the agent)" if raw else ")"
+        what = (
+            f"ROS 2 path (rmw_zenoh topics{rectified}" if name == "ros2" else "our protocol (robot/r1/frame)"
+        )
+        print(f"  {what:<58} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms  mean {np.mean(values):7.1f} ms")
+    added = out["ros2"]["p50_ms"] - out["swarm"]["p50_ms"]
+    print(f"  the ROS 2 path adds {added:+.1f} ms at the median, "
+          f"{out['ros2']['p99_ms'] - out['swarm']['p99_ms']:+.1f} ms at p99")  # fmt: skip
+    out["added_p50_ms"] = added
+    return out
