@@ -44,10 +44,11 @@ from swarm.ros2.node import Ros2Node
 from swarm.streams.frames import RecordedPair, make_frame, rectified_camera
 from swarm.streams.image_messages import camera_info, decode_image
 from swarm.streams.stereo_sync import StereoSync
-from swarm.streams.tf_buffer import NOT_YET, TfBuffer, TfLookupError
+from swarm.streams.tf_buffer import GAP, NO_PATH, NOT_YET, TfBuffer, TfLookupError
 
 log = logging.getLogger("swarm.agent")
 
+WAIT_FOR = (NOT_YET, NO_PATH, GAP)  # lookups a pair waits out (tf_wait_s), as tf2's MessageFilter
 WAITING_PAIRS = 8  # pairs waiting for their transforms at most (the newest kept)
 STAMPS_KEPT = 64  # frame seq -> image stamp, for the commands answering them
 TF_REASONS = {
@@ -264,7 +265,7 @@ class Ros2FrameSource:
                     self.config.fixed_frame, frame, t, tolerance, not expired
                 )
             except TfLookupError as exc:
-                if exc.reason == NOT_YET and not expired:
+                if exc.reason in WAIT_FOR and not expired:  # the transforms may come yet
                     continue
                 del self._waiting[k]
                 self._count(
