@@ -56,6 +56,7 @@ class Ros2Player:
         self.fixed_frame = config.fixed_frame
         self.camera_frame = config.camera_frame or LEFT_FRAME
         self.infos = camera_infos(calib)
+        self.model = "equidistant" if calib.fisheye else "plumb_bob"
         self.size = calib.image_size
         pub = self.node.publisher
         self._images = [pub(config.topic(side), rm.IMAGE, LOCKSTEP_QOS) for side in ("left", "right")]
@@ -92,7 +93,8 @@ class Ros2Player:
         for k, (image, frame_id) in enumerate(((pair.left, self.camera_frame), (pair.right, RIGHT_FRAME))):
             height, width = image.shape[:2]
             encoding = "mono16" if image.dtype == np.uint16 else "mono8"
-            self._infos[k].publish(rm.camera_info(types, stamp, frame_id, (width, height), *self.infos[k]))
+            info = rm.camera_info(types, stamp, frame_id, (width, height), *self.infos[k], self.model)
+            self._infos[k].publish(info)
             self._images[k].publish(rm.image(types, stamp, frame_id, image, encoding))
         return stamp
 

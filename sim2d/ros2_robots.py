@@ -54,6 +54,10 @@ class _Robot:
         config = mission.ros2_for(rid)
         self.rid, self.encoding, self.types = rid, encoding, ctx.types
         rig = mission.rig_for(rid)
+        if rig.mode != "stereo":
+            raise ValueError(
+                f"robot {rid}: a simulated ROS 2 robot publishes stereo pairs; its rig is in {rig.mode} mode"
+            )
         self.head = rig.tilt_range_deg > 0
         self.mount_pitch = math.radians(rig.pitch_deg)
         self.height = rig.camera_height

@@ -28,6 +28,18 @@ def recording():
     return AslRecording(EUROC_MINI)
 
 
+@pytest.fixture(scope="module")
+def bag_recording(tmp_path_factory):
+    """The same pairs in a ROS 2 bag whose calibration is its CameraInfo topics."""
+    from replay.bag import BagRecording
+    from tests.test_replay_bag import _write_euroc_bag
+
+    path = tmp_path_factory.mktemp("bag") / "euroc"
+    _write_euroc_bag(path, 2)
+    return BagRecording(path, "/cam0/image_raw", "/cam1/image_raw", "/cam0/pose",
+                        left_info="/cam0/camera_info", right_info="/cam1/camera_info")  # fmt: skip
+
+
 @pytest.fixture
 def sessions():
     endpoint = bus.tcp_endpoint(bus.free_port())
@@ -53,7 +65,11 @@ def _take(inbox: FrameInbox, timeout=10.0):
     return item
 
 
-def test_euroc_pairs_over_ros2_are_the_frames_of_swarm_replay_asl(sessions, recording):
+@pytest.mark.parametrize("source", ["asl", "bag"])
+def test_euroc_pairs_over_ros2_are_the_frames_of_swarm_replay(sessions, source, request):
+    """An ASL folder (CameraInfo from sensor.yaml) and a bag (from its CameraInfo topics), played as
+    ROS 2 topics: the frames of ``swarm replay asl|bag``."""
+    recording = request.getfixturevalue("recording" if source == "asl" else "bag_recording")
     robot_session, agent_session = sessions
     mission = default_mission(recording)
     link = Ros2Link.open(mission, "r1", agent_session)

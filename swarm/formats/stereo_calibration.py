@@ -87,7 +87,8 @@ class StereoCalibration:
     (Middlebury's ``ndisp``), None when it gives none. ``notes`` are remarks for the user,
     e.g. the fields that were read and ignored. ``cameras`` is each raw camera's (K, D, R, P) as a
     ROS CameraInfo holds them (REP-104), when the calibration rectifies raw images (None: a rig
-    rectified already, whose CameraInfo is its rectified pinhole).
+    rectified already, whose CameraInfo is its rectified pinhole); ``fisheye``: their D is the
+    equidistant model's (else radial-tangential).
     """
 
     fx: float
@@ -103,6 +104,7 @@ class StereoCalibration:
     ndisp: int | None = None
     notes: tuple[str, ...] = ()
     cameras: tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]] | None = None
+    fisheye: bool = False
 
     @property
     def disparity_offset(self) -> float:
@@ -294,6 +296,7 @@ def rectify_stereo(
             tuple(np.asarray(a, dtype=np.float64).copy() for a in camera)
             for camera in ((k1, d1, r1, p1), (k2, d2, r2, p2))
         ),
+        fisheye=fisheye,
     )
 
 
