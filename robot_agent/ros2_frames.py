@@ -167,7 +167,7 @@ class Ros2FrameSource:
     def notes(self) -> str:
         """What was refused so far, by reason, for the progress lines (empty when nothing was)."""
         counts = ", ".join(f"{n:,} {reason}" for reason, n in sorted(self.all_counters().items()) if n)
-        return f"ROS 2 input refused: {counts}" if counts else ""
+        return f"ROS 2 input dropped: {counts}" if counts else ""
 
     def all_counters(self) -> dict[str, int]:
         """``counters``, the pairing's drops and the subscriptions' refusals, by name."""
@@ -249,8 +249,8 @@ class Ros2FrameSource:
             t, stamp, left, right, since = self._waiting[k]
             expired = now - since > self.config.tf_wait_s
             if t <= self._newest_t:
-                self.counters["image stamp not after the last frame's"] += 1
                 del self._waiting[k]
+                self._count("image stamp not after the last frame's", f"pair at {t:.3f} s")
                 continue
             infos = (self._infos["left"], self._infos["right"])
             if None in infos:

@@ -176,7 +176,7 @@ def test_bad_input_is_counted_by_name_and_leaves_the_map_of_the_good_frames(sess
         assert {reason for reason, _, _ in bad} <= set(counters), counters
         assert counters["camera_info not rectifiable"] == 2
         note = agent._dropped_frames_note()
-        assert "ROS 2 input refused:" in note and "1 unsupported image encoding" in note and "tf loop" in note
+        assert "ROS 2 input dropped:" in note and "1 unsupported image encoding" in note and "tf loop" in note
         assert agent.frames_fused == reference.frames_fused == 2
         assert np.array_equal(agent.explorer.map.lam, reference.explorer.map.lam)
         assert np.array_equal(agent.explorer.map.eta, reference.explorer.map.eta)

@@ -3,13 +3,15 @@
 Two agents (``swarm agent`` processes) of one mission at 640 x 480: r1 takes ``robot/r1/frame``,
 r2 the ROS 2 topics of a simulated robot (``sim2d.ros2_robots``: images, CameraInfo, tf chain
 map -> odom -> base_link -> camera_link -> optical frame). The benchmark renders views of the
-office once, then sends them alternately to r1 and to r2, each stamped with the wall clock just
-before it is serialised and put, and waits for the agent's delta carrying that stamp
-(``share_min_bits`` 0: every frame's delta goes out at once). The latency is the delta's arrival
-(wall clock, this machine) minus the stamp: the frame's serialisation and transport, the agent's
-decoding (for r2: CDR, pairing, tf lookup, the CameraInfo's calibration), stereo, fusion,
-decision and delta. With ``--raw`` r2's CameraInfo carries a distortion, so its agent rectifies
-each pair too (r1's frames are rectified by the driver, as our protocol asks).
+office once, then sends them alternately to r1 and to r2 (each first every other time), each
+stamped with the wall clock just before it is serialised and put, and waits for the agent's
+delta carrying that stamp (``share_min_bits`` 0: every frame's delta goes out at once).
+
+The latency is the delta's arrival (wall clock, this machine) minus the stamp: the frame's
+serialisation and transport, the agent's decoding (for r2: CDR, pairing, tf lookup, the
+CameraInfo's calibration), stereo, fusion, decision and delta. With ``--raw`` r2's CameraInfo
+carries a distortion, so its agent rectifies each pair too (r1's frames are rectified by the
+driver, as our protocol asks).
 """
 
 from __future__ import annotations
@@ -109,7 +111,8 @@ def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw
             time.sleep(3.0)  # they load the team map (none here) and listen
             for k in range(frames + WARM_UP):
                 pose, left, right = views[k % len(views)]
-                for name, robot, link in (("swarm", "r1", wire), ("ros2", "r2", ros2)):
+                paths = [("swarm", "r1", wire), ("ros2", "r2", ros2)]
+                for name, robot, link in paths if k % 2 == 0 else paths[::-1]:  # neither always first
                     t = time.time()
                     frame = Frame(robot, k + 1, t, pose, rig.camera(), "raw8", left=left, right=right)
                     link.publish({robot: frame}, t)

@@ -106,8 +106,8 @@ def _run_agent(args: argparse.Namespace) -> int:
             )
             if link is not None:
                 frames, commands = link.frames, link.commands
-                refused = frames.all_counters()
-                print(f"{args.robot_id}: ROS 2: {frames.pairs_made} pairs taken; refused {refused}; "
+                dropped = frames.all_counters()
+                print(f"{args.robot_id}: ROS 2: {frames.pairs_made} pairs taken; dropped {dropped}; "
                       f"commands {dict(commands.counters)}", flush=True)  # fmt: skip
         session.close()
     return fail(f"{args.config}: mission: {mismatch}") if mismatch else 0
