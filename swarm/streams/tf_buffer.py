@@ -6,7 +6,7 @@ newest transform names it); a static transform keeps only its latest value, a dy
 samples of the last ``cache_s`` seconds (tf2 keeps 10 s). A lookup walks from the camera up to the
 fixed frame and takes each transform on the way at the stamp by the rule of
 ``swarm.streams.trajectory`` (interpolated between the two samples around the stamp, or the
-nearest within a tolerance), composing them with ``swarm.streams.tf_tree.Chain``: the same
+nearest within a tolerance), composing them as ``swarm.streams.tf_tree.Chain`` does: the same
 numbers as ``swarm replay bag`` gives for the same messages.
 
 Why a lookup fails is in ``TfLookupError.reason``:
@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import bisect
 import math
-from array import array
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarm.streams.tf_tree import Chain, Edge, TfError, frame_name
-from swarm.streams.trajectory import MAX_GAP_S
+from swarm.streams.poses import quaternion_matrix
+from swarm.streams.tf_tree import TfError, frame_name
+from swarm.streams.trajectory import MAX_GAP_S, PosesAt, Trajectory
 
 CACHE_S = 10.0  # seconds of dynamic samples kept per transform, as tf2's buffer
 MAX_FRAMES = 4096  # child frames kept at most (a robot has dozens); more are refused
@@ -50,31 +50,37 @@ class TfLookupError(TfError):
 
 @dataclass
 class _Link:
-    """The transforms of one child frame: its parent, and its samples sorted by stamp."""
+    """The transforms of one child frame: its parent, and its samples sorted by stamp, each kept
+    as (position (3,), rotation (3, 3)), the rotation made once from its quaternion."""
 
     parent: str
     static: bool
     stamps: list[float] = field(default_factory=list)
-    rows: list[tuple[float, ...]] = field(default_factory=list)  # (stamp, x, y, z, qw, qx, qy, qz)
+    poses: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def add(self, row: tuple[float, ...], cache_s: float) -> None:
+        pose = (np.array(row[1:4], dtype=np.float64), quaternion_matrix(*row[4:]))
         if self.static:
-            self.stamps, self.rows = [row[0]], [row]
+            self.stamps, self.poses = [row[0]], [pose]
             return
         at = bisect.bisect_right(self.stamps, row[0])
         self.stamps.insert(at, row[0])
-        self.rows.insert(at, row)
+        self.poses.insert(at, pose)
         drop = bisect.bisect_left(self.stamps, self.stamps[-1] - cache_s)
         drop = max(drop, len(self.stamps) - MAX_SAMPLES)
         if drop > 0:
-            del self.stamps[:drop], self.rows[:drop]
+            del self.stamps[:drop], self.poses[:drop]
 
-    def around(self, stamp: float) -> list[tuple[float, ...]]:
-        """The samples a lookup at ``stamp`` needs: the two around it, or the one at an end."""
+    def at(self, stamp: float, tolerance: float, gap: float) -> PosesAt:
+        """This transform at ``stamp``, by ``swarm.streams.trajectory``'s rule (as ``tf_tree.Edge.at``)."""
         if self.static:
-            return self.rows
+            return PosesAt.constant(1, *self.poses[-1])
         after = bisect.bisect_left(self.stamps, stamp)
-        return self.rows[max(after - 1, 0) : after + 1]
+        if after < len(self.stamps) and self.stamps[after] == stamp:  # a sample at the stamp itself
+            return PosesAt.constant(1, *self.poses[after])
+        near = slice(max(after - 1, 0), after + 1)  # the two around it, or the one at an end
+        positions, rotations = zip(*self.poses[near], strict=True)
+        return Trajectory(self.stamps[near], positions, rotations).at(np.array([stamp]), tolerance, gap)
 
 
 class TfBuffer:
@@ -141,17 +147,14 @@ class TfBuffer:
                     raise TfLookupError(
                         NOT_YET, f"{link.parent} -> {name}: newest transform {late:.3f} s before the stamp"
                     )
-        edges = []
-        for name, link in reversed(links):
-            rows = link.around(stamp)
-            numbers = array("d", [v for row in rows for v in row])
-            edges.append(Edge(link.parent, name, link.static, numbers))
-        rows, positions, rotations, _ = Chain(world, child, edges).poses_at(
-            np.array([stamp]), tolerance, self.gap
-        )
-        if len(rows):
-            return positions[0], rotations[0]
-        raise self._why_not(links, stamp, tolerance)
+        pose = PosesAt.constant(1, np.zeros(3), np.eye(3))
+        for _, link in reversed(links):  # world_T_child = world_T_a @ a_T_b @ ..., as Chain.poses_at
+            step = link.at(stamp, tolerance, self.gap)
+            if not step.found[0]:
+                raise self._why_not(links, stamp, tolerance)
+            pose.positions = pose.positions + np.einsum("nij,nj->ni", pose.rotations, step.positions)
+            pose.rotations = pose.rotations @ step.rotations
+        return pose.positions[0], pose.rotations[0]
 
     def _why_not(self, links: list[tuple[str, _Link]], stamp: float, tolerance: float) -> TfLookupError:
         for name, link in links:
