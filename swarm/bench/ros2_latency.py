@@ -12,6 +12,12 @@ serialisation and transport, the agent's decoding (for r2: CDR, pairing, tf look
 CameraInfo's calibration), stereo, fusion, decision and delta. With ``--raw`` r2's CameraInfo
 carries a distortion, so its agent rectifies each pair too (r1's frames are rectified by the
 driver, as our protocol asks).
+
+Stereo and fusion take most of that time and vary most from frame to frame on a busy machine,
+and they are the same code on both paths. So first, in this process and without the agents, the
+part that differs is timed alone: stamp to the frame in the agent's hands (our protocol:
+``robot/r1/frame`` put, received and decoded; ROS 2: the images, CameraInfo and tf put, received,
+deserialised, paired, posed from tf and made a frame), through a router session as in a mission.
 """
 
 from __future__ import annotations
@@ -75,8 +81,53 @@ class _Deltas:
             return found()
 
 
+def frame_paths(mission, camera, views, frames: int, raw: bool) -> dict[str, list[float]]:
+    """Stamp to the frame in an agent's hands (ms), both paths alternately, in this process:
+    ``sim2d``'s publishers on one session, the agents' links on another, a router between."""
+    from robot_agent.frame_inbox import FrameInbox
+    from robot_agent.frame_link import WireLink
+    from robot_agent.ros2_link import Ros2Link
+
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    sessions = [bus.open_session(listen=[endpoint], timestamping=True)]
+    sessions += [bus.open_session(connect=[endpoint], timestamping=True) for _ in range(2)]
+    one = mission.model_copy(update={"robots": mission.robots[:1]})
+    wire, ros2 = WireRobots(sessions[1], one), Ros2Robots(sessions[1], one)
+    if raw:
+        _distort(ros2)
+    inboxes = {"swarm": FrameInbox(), "ros2": FrameInbox()}
+    own, link = WireLink(sessions[2], mission.mission, "r1"), Ros2Link.open(mission, "r1", sessions[2])
+    own.start(inboxes["swarm"])
+    link.frames.start(inboxes["ros2"])
+    out: dict[str, list[float]] = {"swarm": [], "ros2": []}
+    try:
+        while wire.missing() or ros2.missing():
+            time.sleep(0.05)
+        time.sleep(0.5)
+        for k in range(frames + WARM_UP):
+            pose, left, right = views[k % len(views)]
+            paths = [("swarm", wire), ("ros2", ros2)]
+            for name, robots in paths if k % 2 == 0 else paths[::-1]:
+                t = time.time()
+                robots.publish({"r1": Frame("r1", k + 1, t, pose, camera, "raw8", left=left, right=right)}, t)
+                item = inboxes[name].take(10.0)
+                frame = Frame.decode(item) if name == "swarm" else item.frame()
+                if frame is None:
+                    raise RuntimeError(f"the ROS 2 frame was not made: {link.frames.all_counters()}")
+                if k >= WARM_UP:
+                    out[name].append((time.time() - t) * 1e3)
+    finally:
+        own.close()
+        link.close()
+        wire.close()
+        ros2.close()
+        for session in sessions[::-1]:
+            session.close()
+    return out
+
+
 def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw: bool = False) -> dict:
-    """Measure both paths; returns their latencies (ms) and prints the table."""
+    """Measure both paths; returns their latencies (ms) and prints the tables."""
     with tempfile.TemporaryDirectory(prefix="swarm-bench-ros2-") as tmp:
         folder = Path(tmp)
         path = _mission_file(config, folder, width, height)
@@ -88,6 +139,10 @@ def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw
         for yaw in spec.start.yaw + np.linspace(0, 2 * math.pi, 12, endpoint=False):
             pose = camera_pose(spec.start.x, spec.start.y, yaw, rig.camera_height)
             views.append((pose, *renderer.stereo_pair(pose, rig.noise_std, np.random.default_rng(0))))
+        in_hands = frame_paths(mission, rig.camera(), views, max(frames, 100), raw)
+        in_hands = _report(
+            in_hands, width, height, raw, "stamp to the frame in the agent's hands (this process)"
+        )
         endpoint = bus.tcp_endpoint(bus.free_port())
         session = bus.open_session(listen=[endpoint], timestamping=True)
         deltas = _Deltas()
@@ -106,7 +161,8 @@ def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw
             deadline = time.monotonic() + 180
             while wire.missing() or ros2.missing():
                 if time.monotonic() > deadline or any(a.poll() is not None for a in agents):
-                    raise RuntimeError(f"the agents did not start (see {folder}/agent-*.log)")
+                    logs = "\n".join((folder / f"agent-{r}.log").read_text()[-1500:] for r in ("r1", "r2"))
+                    raise RuntimeError(f"the agents did not start:\n{logs}")
                 time.sleep(0.1)
             time.sleep(3.0)  # they load the team map (none here) and listen
             for k in range(frames + WARM_UP):
@@ -130,7 +186,10 @@ def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw
             wire.close()
             ros2.close()
             session.close()
-        return _report(latency, width, height, raw)
+        return {
+            "frame_path": path,
+            **_report(latency, width, height, raw, "image stamp to delta sent (agents)"),
+        }
 
 
 def _distort(ros2: Ros2Robots) -> None:
@@ -139,17 +198,17 @@ def _distort(ros2: Ros2Robots) -> None:
         robot.distortion = np.array([-0.28, 0.07, 0.0002, 0.00002, 0.0])
 
 
-def _report(latency: dict[str, list[float]], width: int, height: int, raw: bool) -> dict:
+def _report(latency: dict[str, list[float]], width: int, height: int, raw: bool, what: str) -> dict:
     out = {}
-    print(f"image stamp to delta sent, {width}x{height}, {len(latency['swarm'])} frames each, alternating:")
+    print(f"{what}, {width}x{height}, {len(latency['swarm'])} frames each, alternating:")
     for name, values in latency.items():
         p50, p99 = np.percentile(values, [50, 99])
         out[name] = {"p50_ms": float(p50), "p99_ms": float(p99), "mean_ms": float(np.mean(values))}
         rectified = ", raw images rectified by the agent)" if raw else ")"
-        what = (
+        path = (
             f"ROS 2 path (rmw_zenoh topics{rectified}" if name == "ros2" else "our protocol (robot/r1/frame)"
         )
-        print(f"  {what:<58} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms  mean {np.mean(values):7.1f} ms")
+        print(f"  {path:<58} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms  mean {np.mean(values):7.1f} ms")
     added = out["ros2"]["p50_ms"] - out["swarm"]["p50_ms"]
     print(f"  the ROS 2 path adds {added:+.1f} ms at the median, "
           f"{out['ros2']['p99_ms'] - out['swarm']['p99_ms']:+.1f} ms at p99")  # fmt: skip
