@@ -44,11 +44,13 @@ from swarm.ros2.node import Ros2Node
 from swarm.streams.frames import RecordedPair, make_frame, rectified_camera
 from swarm.streams.image_messages import camera_info, decode_image
 from swarm.streams.stereo_sync import StereoSync
-from swarm.streams.tf_buffer import GAP, NO_PATH, NOT_YET, TfBuffer, TfLookupError
+from swarm.streams.tf_buffer import GAP, LOOP, NO_PATH, NOT_YET, TfBuffer, TfLookupError
 
 log = logging.getLogger("swarm.agent")
 
-WAIT_FOR = (NOT_YET, NO_PATH, GAP)  # lookups a pair waits out (tf_wait_s), as tf2's MessageFilter
+#: lookups a pair waits out (tf_wait_s), as tf2's MessageFilter: the transform that answers it
+#: (or repairs the tree) may be on its way
+WAIT_FOR = (NOT_YET, NO_PATH, GAP, LOOP)
 WAITING_PAIRS = 8  # pairs waiting for their transforms at most (the newest kept)
 STAMPS_KEPT = 64  # frame seq -> image stamp, for the commands answering them
 TF_REASONS = {
@@ -128,6 +130,7 @@ class Ros2FrameSource:
         self._calibration: tuple[tuple, StereoCalibration] | None = None
         self._bits = SignificantBits({}, 0)
         self._log = LogLimiter(log)
+        self._timer: threading.Timer | None = None  # gives up on the waiting pairs after tf_wait_s
         self._node = node
         self.topics = {name: config.topic(name) for name in ("left", "right", "left_info", "right_info")}
         self._subs: list = []
@@ -184,6 +187,10 @@ class Ros2FrameSource:
             return self.stamps.get(seq)
 
     def close(self) -> None:
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+            self._waiting.clear()
         for sub in self._subs:
             sub.close()
         self._subs = []
@@ -215,6 +222,7 @@ class Ros2FrameSource:
                     self.counters["pair superseded while waiting for tf"] += 1
                 self._waiting.append((t, left[0], left[1], right[1], time.monotonic()))
             self._release()
+            self._arm_timer()
 
     def _on_info(self, side: str, msg: Any) -> None:
         with self._lock:
@@ -240,6 +248,19 @@ class Ros2FrameSource:
                 if refused:
                     self._count(REFUSED_TRANSFORMS[refused], f"{tf.header.frame_id} -> {tf.child_frame_id}")
             self._release()
+
+    def _arm_timer(self) -> None:
+        """Look at the waiting pairs again once their wait is over, though no message comes."""
+        if self._waiting and self._timer is None:
+            self._timer = threading.Timer(self.config.tf_wait_s + 0.005, self._on_timer)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _on_timer(self) -> None:
+        with self._lock:
+            self._timer = None
+            self._release()
+            self._arm_timer()
 
     def _release(self) -> None:
         """Hand on the newest waiting pair whose transforms and CameraInfo are there; drop the older

@@ -59,9 +59,10 @@ def _wait(predicate, timeout=10.0):
     return False
 
 
-def _take(inbox: FrameInbox, timeout=10.0):
+def _take(inbox: FrameInbox, timeout=10.0, source=None):
     item = inbox.take(timeout)
-    assert item is not None, "no pair reached the agent's inbox"
+    why = "" if source is None else f": {source.all_counters()}, waiting {source._waiting}, {source._sync.waiting()}"
+    assert item is not None, f"no pair reached the agent's inbox{why}"
     return item
 
 
@@ -169,7 +170,7 @@ def test_bad_input_is_counted_by_name_and_leaves_the_map_of_the_good_frames(sess
         camera = rectified_camera(recording.calibration)
         for pair in pairs[1:]:
             send(pair)
-            assert agent.handle(_take(agent._frames)) is not None
+            assert agent.handle(_take(agent._frames, source=link.frames)) is not None
             handled.append(pair)
             reference.handle(make_frame("r1", len(handled), pair, recording.calibration, camera).encode())
         counters = link.frames.all_counters()
