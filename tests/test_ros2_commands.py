@@ -56,10 +56,10 @@ def test_twist_stamped_answers_carry_the_image_stamp_repeat_and_stop_on_the_watc
     received = [twists.get(timeout=5) for _ in range(12)]  # about 0.6 s at 20 Hz
     assert all(Stamp.of(m.header) == stamp for _, m in received)
     assert all(m.header.frame_id == "base_link" for _, m in received)
-    moving = [m for t, m in received if t - sent < 0.25]
-    stopped = [m for t, m in received if t - sent > 0.45]
-    assert moving and all((m.twist.linear.x, m.twist.angular.z) == (0.3, -0.2) for m in moving)
-    assert stopped and all((m.twist.linear.x, m.twist.angular.z) == (0.0, 0.0) for m in stopped)
+    values = [(m.twist.linear.x, m.twist.angular.z) for _, m in received]
+    zero = values.index((0.0, 0.0))  # the decision, repeated, then the watchdog's zeros only
+    assert zero >= 2 and set(values[:zero]) == {(0.3, -0.2)} and set(values[zero:]) == {(0.0, 0.0)}
+    assert received[zero][0] - sent >= 0.25  # not before the watchdog's 0.3 s (less a little)
     assert sink.counters["sent"] == 1 and sink.counters["repeated"] >= 2 and sink.counters["watchdog"] >= 1
     sink.close()
 
