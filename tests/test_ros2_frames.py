@@ -61,7 +61,7 @@ def _wait(predicate, timeout=10.0):
 
 def _take(inbox: FrameInbox, timeout=10.0, source=None):
     item = inbox.take(timeout)
-    why = "" if source is None else f": {source.all_counters()}, waiting {source._waiting}, {source._sync.waiting()}"
+    why = "" if source is None else f": dropped {source.all_counters()}"
     assert item is not None, f"no pair reached the agent's inbox{why}"
     return item
 
