@@ -15,6 +15,7 @@ from replay.ros2_player import Ros2Player, camera_infos
 from robot_agent.agent import Agent
 from robot_agent.frame_inbox import FrameInbox
 from robot_agent.ros2_link import Ros2Link
+from swarm.config import mission_from_dict
 from swarm.mission.replay_run import default_mission
 from swarm.protocol import bus
 from swarm.ros2 import messages as rm
@@ -185,3 +186,34 @@ def test_bad_input_is_counted_by_name_and_leaves_the_map_of_the_good_frames(sess
         node.close()
         agent.shutdown(ack_wait_s=0)
         reference.shutdown(ack_wait_s=0)
+
+
+def test_a_robots_own_router_other_domain_and_humble(recording):
+    """``ros2.connect``: the agent's link opens a client session of its own to the robot's router;
+    the domain and the distro (Humble: ``TypeHashNotSupported`` in the keys) come from the settings."""
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    robot_router = bus.open_session(listen=[endpoint], timestamping=True)
+    team = bus.open_session(listen=[bus.tcp_endpoint(bus.free_port())])  # the agent's team session
+    data = default_mission(recording).model_dump(mode="json")
+    data["ros2"] = {"connect": [endpoint], "domain_id": 42, "distro": "humble"}
+    mission = mission_from_dict(data)
+    link = Ros2Link.open(mission, "r1", team)
+    inbox = FrameInbox()
+    link.frames.start(inbox)
+    player = Ros2Player(robot_router, mission, "r1", recording.calibration)
+    try:
+        assert link.session is not None and link.session is not team
+        assert str(link.session.info.zid()) != str(team.info.zid())
+        assert player.wait_for_agent(10)
+        pair = next(recording.pairs(0, 1))
+        player.send(pair)
+        assert _take(inbox).frame() is not None
+        key = link.frames._subs[0].entity.key
+        assert key.startswith("42/r1/left/image_raw/sensor_msgs::msg::dds_::Image_/") and key.endswith(
+            "TypeHashNotSupported"
+        )
+    finally:
+        player.close()
+        link.close()
+        team.close()
+        robot_router.close()
