@@ -127,7 +127,7 @@ class TeamMapTopics:
                 raise
             raise ValueError(
                 "the ROS 2 session must timestamp its samples for latched topics: open it with "
-                "swarm.ros2.session.open_ros2_session"
+                "swarm.protocol.bus.open_session(..., timestamping=True)"
             ) from exc
         try:
             self._catch_up(self.snapshot_timeout)

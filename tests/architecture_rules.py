@@ -34,7 +34,7 @@ ALLOWED: dict[str, set[str]] = {
     "swarm.navigation": {"swarm.map"},
     "swarm.formats": {"swarm.map"},
     "swarm.protocol": {"swarm.map", "swarm.formats"},
-    "swarm.config": {"swarm.map", "swarm.formats", "swarm.protocol"},
+    "swarm.config": {"swarm.map", "swarm.formats", "swarm.protocol", "swarm.ros2"},  # ros2: ROS names
     "swarm.streams": {"swarm.map", "swarm.formats", "swarm.protocol"},  # camera streams to frames
     "swarm.ros2": {"swarm.map", "swarm.formats", "swarm.protocol", "swarm.streams"},  # rmw_zenoh's wire
     "swarm.security": {"swarm.protocol"},  # certificates and access rules; used by the tooling

@@ -9,8 +9,8 @@ import numpy as np
 import ros2_map.role as role
 from ros2_map.options import Ros2MapOptions
 from ros2_map.role import TeamMapTopics
+from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, export_map
-from swarm.ros2.session import open_ros2_session
 from tests.ros2_map_oracle import oracle_grid
 from tests.test_server_merge import (
     all_acked,
@@ -29,7 +29,7 @@ def test_dropped_merged_deltas_make_the_role_start_again_from_a_snapshot(tmp_pat
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
     with running_server(mission, tmp_path / "store") as (_server, endpoint), client_session(endpoint) as s:
-        ros = open_ros2_session([endpoint])
+        ros = bus.open_session(connect=[endpoint], timestamping=True)
         options = Ros2MapOptions(period_s=0.1, cloud_period_s=0.1)
         topics = TeamMapTopics(s, mission.mission, options, ros, max_queued_bytes=1)  # takes none
         topics.start()

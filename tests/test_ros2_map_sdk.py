@@ -28,7 +28,6 @@ from swarm.map.fusion import batch_information  # noqa: E402
 from swarm.protocol import bus  # noqa: E402
 from swarm.protocol.map_client import MapClient, export_map  # noqa: E402
 from swarm.protocol.wire import DeltaMessage  # noqa: E402
-from swarm.ros2.session import open_ros2_session  # noqa: E402
 from tests.ros2_map_oracle import apply_update, oracle_cloud, oracle_grid, sort_rows  # noqa: E402
 from tests.test_server_merge import (  # noqa: E402
     EPOCH,
@@ -99,7 +98,7 @@ class _Topics:
     """TeamMapTopics reading ``session`` and publishing on a timestamped session of its own."""
 
     def __init__(self, session, endpoint, mission, options):
-        self.ros = open_ros2_session([endpoint])
+        self.ros = bus.open_session(connect=[endpoint], timestamping=True)
         self.topics = TeamMapTopics(session, mission, options, self.ros)
 
     def __enter__(self) -> TeamMapTopics:

@@ -36,7 +36,6 @@ from swarm.protocol.wire import DeltaMessage, Snapshot
 from swarm.ros2.graph import LATCHED_QOS
 from swarm.ros2.map_messages import register_map_msgs
 from swarm.ros2.node import Ros2Context
-from swarm.ros2.session import open_ros2_session
 
 SEEN_BELOW_M = 1.2
 SIGMA = 0.05
@@ -93,7 +92,7 @@ def replay(name: str, config: Path, tiles: int, rate: float, options: Ros2MapOpt
     lam0, eta0 = prior_information(sensor)
     prior = Snapshot(grid, np.full(grid.size, lam0, np.float32), np.full(grid.size, eta0, np.float32))
     endpoint = bus.tcp_endpoint(bus.free_port())
-    pub_session = open_ros2_session(listen=[endpoint])
+    pub_session = bus.open_session(listen=[endpoint], timestamping=True)
     sub_session = bus.open_session(connect=[endpoint])
     received: dict[str, list[int]] = defaultdict(list)
     kinds = {"OccupancyGrid_": "full", "OccupancyGridUpdate_": "update", "PointCloud2_": "cloud"}

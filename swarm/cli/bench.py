@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from swarm.cli import bench_ros2
 from swarm.cli.common import fail
 
 
@@ -203,6 +204,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ros2.add_argument("--tiles", type=at_least(2), default=4, help="large map: office x N x N (default 4)")
     ros2.add_argument("--rate", type=float, default=20.0, help="merged deltas per simulated s (default 20)")
     ros2.set_defaults(run=_run_bench_ros2_map)
+    bench_ros2.register(bsub)
 
 
 def _run_bench_slowloris(args: argparse.Namespace) -> int:

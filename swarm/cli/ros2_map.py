@@ -169,7 +169,7 @@ def _options(args: argparse.Namespace, camera_height: float | None):
 def _run(args: argparse.Namespace) -> int:
     from ros2_map.role import TeamMapTopics
     from swarm.config import load_mission
-    from swarm.ros2.session import open_ros2_session
+    from swarm.protocol import bus
 
     for endpoint in args.ros_connect or []:
         problem = endpoint_problem(endpoint)
@@ -191,9 +191,13 @@ def _run(args: argparse.Namespace) -> int:
     ros_session = None
     try:  # the ROS side on a session of its own (timestamped: latched topics need it)
         if args.ros_connect or args.ros_zenoh_config:
-            ros_session = open_ros2_session(args.ros_connect, config_file=args.ros_zenoh_config)
+            ros_session = bus.open_session(
+                connect=args.ros_connect, config_file=args.ros_zenoh_config, timestamping=True
+            )
         else:
-            ros_session = open_ros2_session(args.connect, config_file=args.zenoh_config)
+            ros_session = bus.open_session(
+                connect=args.connect, config_file=args.zenoh_config, timestamping=True
+            )
         topics = TeamMapTopics(client.session, client.mission, options, ros_session)
         topics.start()
     except (ConnectionError, ValueError) as exc:

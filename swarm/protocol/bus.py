@@ -125,6 +125,7 @@ def session_config(
     multicast_scouting: bool = False,
     max_message_bytes: int | None = None,
     max_sessions: int = DEFAULT_MAX_SESSIONS,
+    timestamping: bool = False,
 ) -> tuple[zenoh.Config, list[str], list[str]]:
     """The config a role opens its session with, and the effective listen/connect endpoints.
 
@@ -134,6 +135,8 @@ def session_config(
     session takes from a link (``swarm.protocol.message_size``; a file's own value wins).
     Every session gets the team's transport limits (``swarm.protocol.transport_limits``; a
     file's own values win), ``max_sessions`` among them.
+    ``timestamping``: stamp every sample with the session's clock, whatever its mode (a ROS 2
+    node's latched topics need it: Zenoh's advanced publishers order their cache by it).
     """
     listen = list(listen or [])
     connect = list(connect or [])
@@ -151,6 +154,8 @@ def session_config(
     apply_team_limits(conf, max_sessions)
     if max_message_bytes is not None:
         bound_received_messages(conf, max_message_bytes)
+    if timestamping:
+        conf.insert_json5("timestamping/enabled", "true")
     return conf, listen, connect
 
 
@@ -163,6 +168,7 @@ def open_session(
     config_file: str | Path | None = None,
     max_message_bytes: int | None = None,
     max_sessions: int = DEFAULT_MAX_SESSIONS,
+    timestamping: bool = False,
 ) -> zenoh.Session:
     """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default.
 
@@ -175,12 +181,13 @@ def open_session(
     file, ``zenoh.ZError`` when it cannot listen, and ``ConnectionError`` when no router
     accepts the connection in time (for TLS: a wrong certificate looks the same from this side).
     ``max_message_bytes`` bounds the messages it receives, ``max_sessions`` the sessions it
-    keeps as a router (``session_config``).
+    keeps as a router, ``timestamping`` stamps every sample (``session_config``).
     """
     options = {
         "multicast_scouting": multicast_scouting,
         "max_message_bytes": max_message_bytes,
         "max_sessions": max_sessions,
+        "timestamping": timestamping,
     }
     conf, listen, connect = session_config(listen, connect, config_file=config_file, **options)
     if listen:
