@@ -1,0 +1,141 @@
+"""Fusion of one batch straight into blocks of an unbounded lattice (paper eq. 6-14, 24-25).
+
+The same kernels as ``swarm.map.fusion.batch_information`` (``swarm.map.ray_batch``,
+``swarm.map.fusion_kernel``), run over the box of lattice voxels that the batch's rays reach
+(their end points and sensor, one voxel wider for the voxel behind each hit), then the
+box's voxels grouped by block (``BlockDelta.from_box``). Rays, voxel centres and distances
+are computed in the lattice's own voxel units, from its origin, whatever the box: so a
+lattice whose origin is a grid's origin gives, voxel for voxel, bit for bit, the delta the
+dense map gets on that grid (when no ray leaves the grid; with ``bounds`` the grid, always).
+
+With no ``bounds`` there is no box to leave: a ray ends at its point or at the sensor's
+reach, never at a boundary. With ``bounds`` (a grid aligned with the lattice: a mission's
+workspace) rays are cut and skipped at its boundary exactly as the dense map does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarm.map import block_kernels, ray_batch
+from swarm.map import fusion_kernel as kernel
+from swarm.map.block_delta import BlockDelta
+from swarm.map.fusion import (
+    BOUNDARY_MARGIN_FRACTION,
+    BOUNDARY_MARGIN_VOXELS,
+    BatchResult,
+    kept_index,
+    kept_pool,
+)
+from swarm.map.grid import Grid
+from swarm.map.lattice import Lattice, check_box
+from swarm.map.sensor_model import SensorModel
+
+#: A batch's box may hold at most this many voxels (its flat indices are uint32, and the
+#: kernel's brick table and discretize's slot map grow with it: 4 bytes per 512 voxels, and
+#: 4 bytes per voxel). A 5 m sensor at 0.1 m reaches a box of about 1e6 voxels.
+MAX_BOX_VOXELS = 1 << 31
+
+
+@dataclass(frozen=True)
+class BlockBatchResult(BatchResult):
+    """The block delta of one batch and what happened to its rays (as ``BatchResult``)."""
+
+    delta: BlockDelta
+
+
+def reach_box(start: np.ndarray, ends: np.ndarray, bounds: np.ndarray | None = None) -> np.ndarray:
+    """Lattice voxel box (2, 3) int64 (lo inclusive, hi exclusive) holding the voxels of rays from
+    ``start`` (3,) to ``ends`` (M, 3) (voxel units) and the voxels behind their ends, within the
+    voxel box ``bounds`` when given."""
+    box = block_kernels.ray_box(start, ends, float(1 << 62))  # clamped far beyond any block key
+    if bounds is not None:
+        box = np.stack([np.maximum(box[0], bounds[0]), np.minimum(box[1], bounds[1])])
+    return box
+
+
+def block_batch_information(
+    lattice: Lattice,
+    sensor: SensorModel,
+    origin: np.ndarray,
+    points: np.ndarray,
+    bounds: Grid | None = None,
+    hit_precedence: bool | None = None,
+    discretize: bool | None = None,
+    weighted: bool | None = None,
+) -> BlockBatchResult:
+    """Information increments of one batch in blocks: sensor at ``origin`` (3,), points (N, 3), metres.
+
+    The options and counts are those of ``swarm.map.fusion.batch_information``; ``bounds``
+    (an aligned Grid, or None for the unbounded lattice) plays the grid's part. Raises
+    ValueError for a non-finite origin, a ``bounds`` grid off the lattice, or a batch whose
+    box exceeds ``MAX_BOX_VOXELS`` or the lattice's block keys.
+    """
+    hit_precedence = sensor.hit_precedence if hit_precedence is None else hit_precedence
+    discretize = sensor.discretize if discretize is None else discretize
+    weighted = sensor.weighted if weighted is None else weighted
+    origin = np.asarray(origin, dtype=np.float64).reshape(3)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if not np.all(np.isfinite(origin)):
+        raise ValueError(f"sensor origin must be finite, got {origin.tolist()}")
+    frame, e = lattice.lo, lattice.voxel
+    if bounds is None:
+        bounds_box, lo, hi = None, np.full(3, -np.inf), np.full(3, np.inf)
+    else:
+        bounds_box, lo, hi = lattice.box_of_grid(bounds), bounds.lo, bounds.hi
+    ends, d, returned, counts = ray_batch.prepare_rays(
+        origin, points, lo, hi, e, sensor.reach, BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS, frame
+    )
+    start = (origin - frame) / e
+    rays = len(ends)
+    delta, updates = BlockDelta.empty(lattice.block_bits), 0
+    if rays:
+        box = reach_box(start, ends, bounds_box)
+        check_box(box, lattice.block_bits)
+        size = int(np.prod(box[1] - box[0]))
+        if size > MAX_BOX_VOXELS:
+            raise ValueError(
+                f"the batch's rays span {size:,} voxels (at most {MAX_BOX_VOXELS:,}): lower the sensor's "
+                "max range or fuse its rays in smaller batches"
+            )
+        if discretize:
+            slots = kept_index("slots", ray_batch.slot_map_size(tuple(box[1] - box[0])))
+            ends, d, returned, n_rays = ray_batch.discretize_rays(start, e, ends, d, returned, box, slots)
+            weight = n_rays if weighted else np.ones(len(ends))
+        else:
+            weight = np.ones(rays)
+        ends, d, returned, weight = ray_batch.order_by_direction(
+            start, ends, d, returned, weight, ray_batch.DIRECTION_BINS
+        )
+        idx, lam, eta, updates = kernel.fuse_rays(
+            start,
+            ends,
+            d,
+            returned,
+            weight,
+            box,
+            e,
+            frame - origin + 0.5 * e,
+            float(sensor.sigma_min),
+            float(sensor.zeta),
+            float(sensor.tau),
+            bool(hit_precedence),
+            (
+                kept_index("table", kernel.block_table_size(box)),
+                *kept_pool(int(kernel.blocks_bound(start, ends, box))),
+            ),
+        )
+        delta = BlockDelta.from_box(idx, lam, eta, box, lattice.block_bits)
+    return BlockBatchResult(
+        delta=delta,
+        rays=rays,
+        measurements=len(ends),
+        voxel_updates=int(updates),
+        truncated=int(counts[ray_batch.TRUNCATED]),
+        skipped_nonfinite=int(counts[ray_batch.NONFINITE]),
+        skipped_outside=int(counts[ray_batch.OUTSIDE]),
+        skipped_degenerate=int(counts[ray_batch.DEGENERATE]),
+        clipped=int(counts[ray_batch.CLIPPED]),
+    )
