@@ -110,14 +110,9 @@ class BlockDelta:
         """
         box = np.asarray(box, dtype=np.int64)
         shape = box[1] - box[0]
-        size = int(np.prod(shape))
-        if len(idx) and (int(np.min(idx)) < 0 or int(np.max(idx)) >= size):
-            raise ValueError(
-                f"voxel index out of grid: range [{np.min(idx)}, {np.max(idx)}] for {size} voxels"
-            )
         b = int(block_bits)
         check_box(box, b)
-        keys, counts, offsets, lam, eta = kernels.scatter_box(
+        keys, counts, offsets, lam, eta, ok = kernels.scatter_box(
             np.ascontiguousarray(idx),
             np.ascontiguousarray(dlam, dtype=np.float32),
             np.ascontiguousarray(deta, dtype=np.float32),
@@ -125,6 +120,11 @@ class BlockDelta:
             shape,
             b,
         )
+        if not ok:
+            size = int(np.prod(shape))
+            raise ValueError(
+                f"voxel index out of grid: range [{np.min(idx)}, {np.max(idx)}] for {size} voxels"
+            )
         return cls(b, keys.astype(np.int32), counts.astype(np.uint32), offsets, lam, eta)
 
     @classmethod

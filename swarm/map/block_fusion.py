@@ -15,6 +15,7 @@ workspace) rays are cut and skipped at its boundary exactly as the dense map doe
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +45,14 @@ class BlockBatchResult(BatchResult):
     """The block delta of one batch and what happened to its rays (as ``BatchResult``)."""
 
     delta: BlockDelta
+
+
+@functools.lru_cache(maxsize=64)
+def _bounds_box(lattice: Lattice, bounds: Grid) -> np.ndarray:
+    """The lattice voxel box of ``bounds`` (read-only; lattices and grids are frozen, so kept)."""
+    box = lattice.box_of_grid(bounds)
+    box.flags.writeable = False
+    return box
 
 
 def reach_box(start: np.ndarray, ends: np.ndarray, bounds: np.ndarray | None = None) -> np.ndarray:
@@ -84,7 +93,7 @@ def block_batch_information(
     if bounds is None:
         bounds_box, lo, hi = None, np.full(3, -np.inf), np.full(3, np.inf)
     else:
-        bounds_box, lo, hi = lattice.box_of_grid(bounds), bounds.lo, bounds.hi
+        bounds_box, lo, hi = _bounds_box(lattice, bounds), bounds.lo, bounds.hi
     ends, d, returned, counts = ray_batch.prepare_rays(
         origin, points, lo, hi, e, sensor.reach, BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS, frame
     )

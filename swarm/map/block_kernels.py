@@ -8,6 +8,7 @@ with temporaries or sorts:
 - ``ray_box``: the lattice box a batch's rays reach;
 - ``scatter_box``: flat C-order indices over a voxel box (what the fusion kernel returns) to
   entries grouped by block, by a counting sort (no comparison sort);
+- ``find_slots``: the slots of block keys, by binary search of the sorted packed keys;
 - ``global_index``: a block delta's entries to positions in the map's arrays, checked;
 - ``take_touched`` / ``put_touched``: the per-voxel entropy cache's update of touched voxels,
   each voxel once, with per-block sums;
@@ -32,9 +33,22 @@ OK, BAD_OFFSET, OUTSIDE_BOUNDS = 0, 1, 2
 def scatter_box(idx, lam, eta, box_lo, shape, bits):
     """Entries ``idx`` (flat C order over a box of ``shape`` whose first voxel is lattice voxel
     ``box_lo``), with ``lam``, ``eta``, grouped by block: (keys (K, 3) int64 in lexicographic
-    order, counts (K,) int64, offsets (N,) uint16, lam, eta (N,) float32). Within a block the
-    entries keep their input order, so sorted ``idx`` gives sorted offsets."""
+    order, counts (K,) int64, offsets (N,) uint16, lam, eta (N,) float32, ok). Within a block the
+    entries keep their input order, so sorted ``idx`` gives sorted offsets. ``ok`` is False
+    (and the rest empty) when an index lies outside the box."""
     n = idx.shape[0]
+    size = shape[0] * shape[1] * shape[2]
+    for e in range(n):
+        if idx[e] < 0 or idx[e] >= size:
+            empty = np.zeros(0, np.float32)
+            return (
+                np.zeros((0, 3), np.int64),
+                np.zeros(0, np.int64),
+                np.zeros(0, np.uint16),
+                empty,
+                empty,
+                False,
+            )
     nz = np.uint64(shape[2])
     ny = np.uint64(shape[1])
     m = (1 << bits) - 1
@@ -86,7 +100,25 @@ def scatter_box(idx, lam, eta, box_lo, shape, bits):
         out_off[p] = offsets[e]
         out_lam[p] = lam[e]
         out_eta[p] = eta[e]
-    return keys, counts, out_off, out_lam, out_eta
+    return keys, counts, out_off, out_lam, out_eta, True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def find_slots(keys, packed, slot_of, limit):
+    """Slots (K,) int64 of block ``keys`` (K, 3) among the allocated blocks (``packed``: their
+    packed keys, sorted, as ``lattice.pack_keys``; ``slot_of``: the slot of each), -1 for a key not
+    allocated; and False when a key lies outside (-limit, limit)."""
+    n = keys.shape[0]
+    slots = np.full(n, -1, np.int64)
+    for r in range(n):
+        a, b, c = np.int64(keys[r, 0]), np.int64(keys[r, 1]), np.int64(keys[r, 2])
+        if min(a, b, c) <= -limit or max(a, b, c) >= limit:
+            return slots, False
+        key = ((a + limit) << 42) | ((b + limit) << 21) | (c + limit)
+        at = np.searchsorted(packed, key)
+        if at < packed.shape[0] and packed[at] == key:
+            slots[r] = slot_of[at]
+    return slots, True
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -94,22 +126,17 @@ def ray_box(start, ends, limit):
     """Voxel box (2, 3) int64 (lo inclusive, hi exclusive) of the voxels holding ``start`` (3,) and
     ``ends`` (M, 3) (voxel units), one voxel wider on every side (the voxel behind a hit);
     coordinates clamped to +-``limit`` first."""
-    lo = np.empty(3)
-    hi = np.empty(3)
-    for a in range(3):
-        lo[a] = start[a]
-        hi[a] = start[a]
+    lo0, lo1, lo2 = start[0], start[1], start[2]
+    hi0, hi1, hi2 = lo0, lo1, lo2
     for r in range(ends.shape[0]):
-        for a in range(3):
-            v = ends[r, a]
-            if v < lo[a]:
-                lo[a] = v
-            if v > hi[a]:
-                hi[a] = v
+        x, y, z = ends[r, 0], ends[r, 1], ends[r, 2]
+        lo0, hi0 = min(lo0, x), max(hi0, x)
+        lo1, hi1 = min(lo1, y), max(hi1, y)
+        lo2, hi2 = min(lo2, z), max(hi2, z)
     box = np.empty((2, 3), np.int64)
-    for a in range(3):
-        box[0, a] = np.int64(np.floor(min(max(lo[a], -limit), limit))) - 1
-        box[1, a] = np.int64(np.floor(min(max(hi[a], -limit), limit))) + 2
+    for a, (lo, hi) in enumerate(((lo0, hi0), (lo1, hi1), (lo2, hi2))):
+        box[0, a] = np.int64(np.floor(min(max(lo, -limit), limit))) - 1
+        box[1, a] = np.int64(np.floor(min(max(hi, -limit), limit))) + 2
     return box
 
 

@@ -35,7 +35,7 @@ from swarm.map.entropy import expected_coverage, moments
 from swarm.map.entropy_table import default_table
 from swarm.map.gradient import entropy_gradient
 from swarm.map.grid import Grid
-from swarm.map.lattice import Lattice, pack_keys
+from swarm.map.lattice import KEY_LIMIT, Lattice, pack_keys
 from swarm.map.sensor_model import SensorModel
 
 
@@ -158,15 +158,12 @@ class BlockMap:
 
     def _slots(self, keys: np.ndarray, allocate: bool) -> np.ndarray:
         """Slot (K,) int64 of each block key (K, 3); -1 for one not allocated, unless ``allocate``."""
-        packed = pack_keys(keys)
-        pos = np.searchsorted(self._packed, packed)
-        hit = np.zeros(len(packed), bool)
-        inside = pos < len(self._packed)
-        hit[inside] = self._packed[pos[inside]] == packed[inside]
-        slots = np.full(len(packed), -1, np.int64)
-        slots[hit] = self._slot_of_packed[pos[hit]]
+        slots, ok = kernels.find_slots(keys, self._packed, self._slot_of_packed, KEY_LIMIT)
+        if not ok:
+            pack_keys(keys)  # raises, naming the range
+        hit = slots >= 0
         if allocate and not hit.all():
-            new, first, inverse = np.unique(packed[~hit], return_index=True, return_inverse=True)
+            new, first, inverse = np.unique(pack_keys(keys[~hit]), return_index=True, return_inverse=True)
             fresh = self._allocate(np.asarray(keys, dtype=np.int64)[~hit][first])
             slots[~hit] = fresh[inverse]
             at = np.searchsorted(self._packed, new)
@@ -300,6 +297,10 @@ class BlockMap:
     def known_threshold(self) -> np.float32:
         """The float32 lam above which a voxel counts as known (``CoverageMap.known_threshold``)."""
         return self.prior[0] * np.float32(1.0 + 1e-5)
+
+    def known_voxels(self) -> int:
+        """How many voxels hold information beyond the prior (lam above ``known_threshold``)."""
+        return int(np.count_nonzero(self._lam[: self.allocated_voxels] > self.known_threshold()))
 
     def known_mask(self, region: Grid) -> np.ndarray:
         """Voxels of ``region`` with information beyond the prior (nx, ny, nz) bool."""

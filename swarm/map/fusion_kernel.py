@@ -60,9 +60,13 @@ def grid_box(shape: tuple[int, int, int]) -> np.ndarray:
 
 def block_table_size(box: np.ndarray) -> int:
     """Entries of the brick table of ``box`` (2, 3): one per 8 x 8 x 8 lattice brick meeting it."""
-    lo = np.asarray(box[0], dtype=np.int64) >> BRICK_BITS
-    hi = (np.asarray(box[1], dtype=np.int64) - 1) >> BRICK_BITS
-    return int(np.prod(hi - lo + 1))
+    (i0, j0, k0), (i1, j1, k1) = box.tolist()
+    b = BRICK_BITS
+    return (
+        (((i1 - 1) >> b) - (i0 >> b) + 1)
+        * (((j1 - 1) >> b) - (j0 >> b) + 1)
+        * (((k1 - 1) >> b) - (k0 >> b) + 1)
+    )
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

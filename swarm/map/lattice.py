@@ -140,11 +140,10 @@ class Lattice:
 def check_box(box: np.ndarray, block_bits: int) -> None:
     """Raise ValueError when the voxel box (2, 3) (lo inclusive, hi exclusive) reaches blocks
     beyond the lattice's keys, (-KEY_LIMIT, KEY_LIMIT) from the origin."""
-    box = np.asarray(box, dtype=np.int64)
-    if np.any(box[0] >> block_bits <= -KEY_LIMIT) or np.any((box[1] - 1) >> block_bits >= KEY_LIMIT):
+    lo, hi = np.asarray(box).tolist()
+    if min(v >> block_bits for v in lo) <= -KEY_LIMIT or max((v - 1) >> block_bits for v in hi) >= KEY_LIMIT:
         raise ValueError(
-            f"voxels {box[0].tolist()}..{box[1].tolist()} lie beyond the lattice's block keys "
-            f"(+-{KEY_LIMIT} blocks from its origin)"
+            f"voxels {lo}..{hi} lie beyond the lattice's block keys (+-{KEY_LIMIT} blocks from its origin)"
         )
 
 
