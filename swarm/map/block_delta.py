@@ -39,22 +39,22 @@ class BlockDelta:
     deta: np.ndarray
 
     def __post_init__(self) -> None:
-        if not MIN_BLOCK_BITS <= int(self.block_bits) <= MAX_BLOCK_BITS:
+        if not MIN_BLOCK_BITS <= self.block_bits <= MAX_BLOCK_BITS:
             raise ValueError(
                 f"block delta: block_bits {self.block_bits} outside {MIN_BLOCK_BITS}..{MAX_BLOCK_BITS}"
             )
-        keys = np.asarray(self.keys)
-        if keys.ndim != 2 or keys.shape[1] != 3:
-            raise ValueError(f"block delta: keys must be (K, 3), got shape {keys.shape}")
-        if len(self.counts) != len(keys):
-            raise ValueError(f"block delta: {len(keys)} keys but {len(self.counts)} counts")
+        shape = np.shape(self.keys)
+        if len(shape) != 2 or shape[1] != 3:
+            raise ValueError(f"block delta: keys must be (K, 3), got shape {shape}")
+        if len(self.counts) != shape[0]:
+            raise ValueError(f"block delta: {shape[0]} keys but {len(self.counts)} counts")
         n = len(self.offsets)
         if not (n == len(self.dlam) == len(self.deta)):
             raise ValueError(
                 f"block delta arrays differ in length: offsets {n}, dlam {len(self.dlam)}, "
                 f"deta {len(self.deta)}"
             )
-        total = int(np.sum(self.counts, dtype=np.int64))
+        total = int(np.add.reduce(self.counts, dtype=np.int64))
         if total != n:
             raise ValueError(f"block delta: counts add up to {total}, but there are {n} entries")
 
@@ -113,12 +113,7 @@ class BlockDelta:
         b = int(block_bits)
         check_box(box, b)
         keys, counts, offsets, lam, eta, ok = kernels.scatter_box(
-            np.ascontiguousarray(idx),
-            np.ascontiguousarray(dlam, dtype=np.float32),
-            np.ascontiguousarray(deta, dtype=np.float32),
-            box[0],
-            shape,
-            b,
+            idx, np.asarray(dlam, dtype=np.float32), np.asarray(deta, dtype=np.float32), box[0], shape, b
         )
         if not ok:
             size = int(np.prod(shape))

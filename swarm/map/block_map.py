@@ -163,7 +163,11 @@ class BlockMap:
             pack_keys(keys)  # raises, naming the range
         hit = slots >= 0
         if allocate and not hit.all():
-            new, first, inverse = np.unique(pack_keys(keys[~hit]), return_index=True, return_inverse=True)
+            packed = pack_keys(keys[~hit])
+            if np.all(packed[1:] > packed[:-1]):  # sorted and unique, as in a canonical delta
+                new, first, inverse = packed, slice(None), slice(None)
+            else:
+                new, first, inverse = np.unique(packed, return_index=True, return_inverse=True)
             fresh = self._allocate(np.asarray(keys, dtype=np.int64)[~hit][first])
             slots[~hit] = fresh[inverse]
             at = np.searchsorted(self._packed, new)
@@ -383,6 +387,8 @@ def warm_up() -> None:
         cmap = BlockMap(Lattice.of_grid(grid, 1), SensorModel(discretize=discretize, weighted=weighted))
         result = cmap.integrate(np.full(3, 0.5), np.full((1, 3), 2.5))
     cmap.apply_flat(result.delta.to_flat(grid, cmap.lattice), grid, received=True)
+    far = SensorModel(max_range=1e3)  # a reach too long for a cube: the box from the rays' ends
+    BlockMap(cmap.lattice, far).integrate(np.full(3, 0.5), np.full((1, 3), 2.5))
     cmap.entropy_bits(grid)
     cmap.entropy_gradient(grid)
     cmap.beliefs(grid)
