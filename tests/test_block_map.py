@@ -344,9 +344,10 @@ def test_lattices_refuse_bad_geometry_and_grids_off_their_corners():
 
 def test_a_second_process_loads_the_block_kernels_from_numbas_cache():
     stats = second_run_cache_statistics(
-        "from swarm.map import block_kernels as b, block_map\nblock_map.warm_up()",
-        "(b.ray_box, b.scatter_box, b.global_index, b.take_touched, b.put_touched, b.gather, b.region_sums)",
+        "from swarm.map import block_kernels as b, block_map, fusion_kernel as k\nblock_map.warm_up()",
+        "(b.ray_box, b.collect_blocks, b.scatter_box, b.find_slots, b.global_index, b.take_touched,"
+        " b.put_touched, b.gather, b.region_sums, k.traverse_rays)",
     )
-    assert len(stats) == 7
+    assert len(stats) == 10
     for name, (hits, misses) in stats.items():
         assert hits >= 1 and misses == 0, (name, stats)

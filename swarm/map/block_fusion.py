@@ -134,25 +134,23 @@ def block_batch_information(
         ends, d, returned, weight = ray_batch.order_by_direction(
             start, ends, d, returned, weight, ray_batch.DIRECTION_BINS
         )
-        idx, lam, eta, updates = kernel.fuse_rays(
-            start,
-            ends,
-            d,
-            returned,
-            weight,
-            box,
-            e,
-            frame - origin + 0.5 * e,
-            float(sensor.sigma_min),
-            float(sensor.zeta),
-            float(sensor.tau),
-            bool(hit_precedence),
-            (
-                kept_index("table", kernel.block_table_size(box)),
-                *kept_pool(int(kernel.blocks_bound(start, ends, box))),
-            ),
+        buffers = (
+            kept_index("table", kernel.block_table_size(box)),
+            *kept_pool(int(kernel.blocks_bound(start, ends, box))),
         )
-        delta = BlockDelta.from_box(idx, lam, eta, box, lattice.block_bits)
+        model = (float(sensor.sigma_min), float(sensor.zeta), float(sensor.tau), bool(hit_precedence))
+        rays_at = (start, ends, d, returned, weight, box, e, frame - origin + 0.5 * e)
+        if lattice.block_bits >= ray_batch.BRICK_BITS:  # read out block by block
+            n_blocks, updates = kernel.traverse_rays(*rays_at, *model, buffers)
+            keys, per_block, offsets, lam, eta = block_kernels.collect_blocks(
+                *buffers, n_blocks, box, e, rays_at[-1], 2.0 / sensor.tau, lattice.block_bits
+            )
+            delta = BlockDelta(
+                lattice.block_bits, keys.astype(np.int32), per_block.astype(np.uint32), offsets, lam, eta
+            )
+        else:  # blocks smaller than the kernel's bricks: in C order, then sorted into blocks
+            idx, lam, eta, updates = kernel.fuse_rays(*rays_at, *model, buffers)
+            delta = BlockDelta.from_box(idx, lam, eta, box, lattice.block_bits)
     else:
         delta, updates = BlockDelta.empty(lattice.block_bits), 0
     return BlockBatchResult(

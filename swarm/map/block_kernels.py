@@ -6,6 +6,8 @@ the block, ``swarm.map.lattice``). These loops are the per-entry work that numpy
 with temporaries or sorts:
 
 - ``ray_box``: the lattice box a batch's rays reach;
+- ``collect_blocks``: the sums ``fusion_kernel.traverse_rays`` leaves, read out block by block
+  (blocks of 8^3 voxels or more: whole kernel bricks);
 - ``scatter_box``: flat C-order indices over a voxel box (what the fusion kernel returns) to
   entries grouped by block, by a counting sort (no comparison sort);
 - ``find_slots``: the slots of block keys, by binary search of the sorted packed keys;
@@ -23,10 +25,87 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from swarm.map.fusion_kernel import voxel_lam
+from swarm.map.ray_batch import BRICK_BITS
+
 #: What ``take_touched`` writes into a voxel's cached entropy while it is being updated.
 MARK = np.float32(-1.0)
 #: ``global_index`` statuses.
 OK, BAD_OFFSET, OUTSIDE_BOUNDS = 0, 1, 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def collect_blocks(table, gains, sums, n_blocks, box, voxel, centre_offset, two_over_tau, bits):
+    """The voxels ``fusion_kernel.traverse_rays`` touched, grouped by block of 2^bits (bits >= 3):
+    (keys (K, 3) int64 in lexicographic order, counts (K,) int64, offsets (N,) uint16 in C order
+    within each block, lam, eta (N,) float32), each voxel's lam as ``fuse_rays`` gives it.
+    Restores the table and the pool as ``fuse_rays`` does."""
+    bb = BRICK_BITS
+    bm = (1 << bb) - 1
+    m = (1 << bits) - 1
+    per = 1 << (bits - bb)  # bricks along a block's edge
+    b0 = box[0] >> bb  # the table's first brick
+    nb1 = ((box[1, 1] - 1) >> bb) - b0[1] + 1
+    nb2 = ((box[1, 2] - 1) >> bb) - b0[2] + 1
+    c0 = box[0] >> bits  # the first block meeting the box, and how many along each axis
+    nc1 = ((box[1, 1] - 1) >> bits) - c0[1] + 1
+    nc2 = ((box[1, 2] - 1) >> bits) - c0[2] + 1
+    nc0 = ((box[1, 0] - 1) >> bits) - c0[0] + 1
+    marked = np.zeros(nc0 * nc1 * nc2, np.bool_)
+    for t in range(table.shape[0]):
+        if table[t] >= 0:
+            bi, bj, bk = b0[0] + t // (nb1 * nb2), b0[1] + (t // nb2) % nb1, b0[2] + t % nb2
+            marked[
+                (((bi >> (bits - bb)) - c0[0]) * nc1 + (bj >> (bits - bb)) - c0[1]) * nc2
+                + (bk >> (bits - bb))
+                - c0[2]
+            ] = True
+    blocks = 0
+    for c in range(marked.shape[0]):
+        blocks += marked[c]
+    keys = np.empty((blocks, 3), np.int64)
+    counts = np.empty(blocks, np.int64)
+    cap = n_blocks << (3 * bb)
+    offsets = np.empty(cap, np.uint16)
+    lam = np.empty(cap, np.float32)
+    eta = np.empty(cap, np.float32)
+    n = 0
+    q_key = 0
+    for c in range(marked.shape[0]):
+        if not marked[c]:
+            continue
+        ci, cj, ck = c0[0] + c // (nc1 * nc2), c0[1] + (c // nc2) % nc1, c0[2] + c % nc2
+        first = n
+        for i in range(max(box[0, 0], ci << bits), min(box[1, 0], (ci + 1) << bits)):
+            for j in range(max(box[0, 1], cj << bits), min(box[1, 1], (cj + 1) << bits)):
+                row = (((i >> bb) - b0[0]) * nb1 + (j >> bb) - b0[1]) * nb2 - b0[2]
+                for kb in range(ck * per, (ck + 1) * per):  # the block's bricks along k
+                    if kb < b0[2] or kb >= b0[2] + nb2:
+                        continue
+                    pool = table[row + kb]
+                    if pool < 0:
+                        continue
+                    base = (pool << (3 * bb)) | ((i & bm) << (2 * bb)) | ((j & bm) << bb)
+                    for k in range(max(box[0, 2], kb << bb), min(box[1, 2], (kb + 1) << bb)):
+                        q = base | (k & bm)
+                        g = gains[q]
+                        other = sums[q, 0]
+                        if g == 0.0 and other == 0.0:
+                            continue
+                        offsets[n] = ((i & m) << (2 * bits)) | ((j & m) << bits) | (k & m)
+                        lam[n] = voxel_lam(g, other, i, j, k, voxel, centre_offset, two_over_tau)
+                        eta[n] = sums[q, 1]
+                        n += 1
+                        gains[q] = 0.0
+                        sums[q, 0] = 0.0
+                        sums[q, 1] = 0.0
+        if n > first:
+            keys[q_key, 0], keys[q_key, 1], keys[q_key, 2] = ci, cj, ck
+            counts[q_key] = n - first
+            q_key += 1
+    for t in range(table.shape[0]):
+        table[t] = -1
+    return keys[:q_key], counts[:q_key], offsets[:n].copy(), lam[:n].copy(), eta[:n].copy()
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

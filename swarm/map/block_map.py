@@ -383,9 +383,12 @@ def warm_up() -> None:
     ``swarm.map.fusion.warm_up`` does for the dense map: fusion under each information model,
     deltas in and out of blocks, entropies and gradients of a region."""
     grid = Grid((0.0, 0.0, 0.0), 1.0, (4, 4, 4))
-    for discretize, weighted in ((False, False), (True, False), (True, True)):
-        cmap = BlockMap(Lattice.of_grid(grid, 1), SensorModel(discretize=discretize, weighted=weighted))
-        result = cmap.integrate(np.full(3, 0.5), np.full((1, 3), 2.5))
+    for bits in (1, 4):  # blocks smaller than the kernel's bricks, and not
+        for discretize, weighted in ((False, False), (True, False), (True, True)):
+            cmap = BlockMap(
+                Lattice.of_grid(grid, bits), SensorModel(discretize=discretize, weighted=weighted)
+            )
+            result = cmap.integrate(np.full(3, 0.5), np.full((1, 3), 2.5))
     cmap.apply_flat(result.delta.to_flat(grid, cmap.lattice), grid, received=True)
     far = SensorModel(max_range=1e3)  # a reach too long for a cube: the box from the rays' ends
     BlockMap(cmap.lattice, far).integrate(np.full(3, 0.5), np.full((1, 3), 2.5))

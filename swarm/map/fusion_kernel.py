@@ -1,22 +1,21 @@
 """Compiled fusion of one batch (Numba): one ray at a time, straight into per-voxel sums.
 
-``fuse_rays`` is the kernel behind ``swarm.map.fusion.batch_information`` (after
-``swarm.map.ray_batch`` has prepared the rays): exact Amanatides-Woo traversal of each ray
+``fuse_rays`` (``traverse_rays``, then the sums read out) is the kernel behind
+``swarm.map.fusion.batch_information`` (after ``swarm.map.ray_batch`` has prepared the rays),
+and ``traverse_rays`` that of the block map: exact Amanatides-Woo traversal of each ray
 (the semantics of ``swarm.map.traversal``, whose numpy implementation the tests use as the
 oracle), the sensor model of eq. 14 per voxel, and the sums of lam and eta per voxel, with
 hit precedence.
 
-- The voxels are a box of a lattice: voxel indices ``box[0]`` (inclusive) to ``box[1]``
-  (exclusive), a grid's 0 to its shape (``grid_box``) or, for a block-sparse map, the part of
-  its unbounded lattice a batch reaches; rays and voxel centres are computed from the
-  lattice's indices, so a box gives the same numbers as any other box holding its rays.
-- Per-voxel sums live in a pool of blocks, one block of 8 x 8 x 8 voxels per brick of the
-  lattice (indices >> 3) that the batch touches, found through a small table of the bricks
-  meeting the box (``block_table_size`` entries, int32, -1 = no block). A voxel's entry is its
-  block's base plus its place in the brick: a ray looks a block up once per brick it enters,
-  not once per voxel, and the voxels it crosses next sit in the same block.
-  The table is restored to -1 and the pool to zeros before returning, so the same scratch
-  space serves every batch. Nothing allocates per (ray, voxel).
+- The voxels are a box of a lattice, indices ``box[0]`` to ``box[1]`` (exclusive): a grid's 0
+  to its shape (``grid_box``), or the part of a block-sparse map's lattice a batch reaches.
+  Rays and centres are computed from the lattice's indices: any box holding the rays gives
+  the same numbers.
+- Per-voxel sums live in a pool of blocks, one of 8 x 8 x 8 voxels per lattice brick
+  (indices >> 3) the batch touches, found through a table of the bricks meeting the box
+  (``block_table_size`` int32 entries, -1 = none). A ray looks a block up once per brick it
+  enters. The read-out restores table (-1) and pool (zeros), so the same scratch space
+  serves every batch. Nothing allocates per (ray, voxel).
 - In front of a ray's end eq. 14's lam is the ray's gain exp(2 (d - e/2) / tau) / sigma_s^2
   times the voxel's damping exp(-2 r / tau), r the distance from the sensor to the voxel's
   centre. The voxels surely in front (every point nearer than d - e/2 minus the voxel's
@@ -25,8 +24,8 @@ hit precedence.
   in full into two other sums. An update in front costs no square root, no exp and no
   distance.
 - A voxel holding a return of the batch (hit precedence) is marked by a negative gain sum.
-- The output is written in C order by walking the table's blocks row by row, so the pool
-  is read once, in order.
+- ``fuse_rays`` reads out in C order, walking the table's blocks row by row (the pool is read
+  once, in order); ``block_kernels.collect_blocks`` reads out block by block.
 - Only the axis that steps gets its next plane parameter (one division per step).
 
 Compiled with ``cache=True``: a second process loads the machine code from Numba's cache.
@@ -151,6 +150,22 @@ def _mean(diff, inv_voxel):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def fuse_rays(
+    start, ends, d, returned, weight, box, voxel, centre_offset, sigma_min, zeta, tau, precedence, buffers
+):
+    """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
+
+    ``traverse_rays`` (the arguments) then the sums read out in C order of ``box``: ``idx`` the
+    voxels' flat indices within ``box``.
+    """
+    n_blocks, updates = traverse_rays(
+        start, ends, d, returned, weight, box, voxel, centre_offset, sigma_min, zeta, tau, precedence, buffers
+    )
+    table, gains, sums = buffers
+    return _collect(table, gains, sums, n_blocks, box, voxel, centre_offset, 2.0 / tau) + (updates,)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def traverse_rays(
     start,
     ends,
     d,
@@ -165,7 +180,8 @@ def fuse_rays(
     precedence,
     buffers,
 ):
-    """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
+    """Sum eq. 14's information over every ray's voxels into the scratch ``buffers``: (blocks used,
+    updates). ``fuse_rays`` or ``block_kernels.collect_blocks`` read the sums out.
 
     ``start`` (3,) and ``ends`` (M, 3) in voxel units of the lattice (inside ``box``, (2, 3)
     int64: voxel indices lo inclusive, hi exclusive; a grid's ``grid_box``), ``d`` (M,) the model's
@@ -175,10 +191,10 @@ def fuse_rays(
     of rays a weighted discretize measurement stands for), bounded by ``LAM_MAX``. ``centre_offset``
     (3,) = lattice origin - sensor + voxel / 2 (metres). With ``precedence`` a voxel holding a
     return of the batch gets no update from the batch's other rays except as their
-    behind voxel, which is dropped outside ``box``. Returns the voxels' flat C-order indices
-    within ``box``. ``buffers`` = (table int32 (``block_table_size``, all -1), gains float64
-    (n), sums float64 (n, 2), all zero) with n at least 512 x ``blocks_bound``: scratch
-    space kept between batches by the caller, restored before returning.
+    behind voxel, which is dropped outside ``box``. ``buffers`` = (table int32
+    (``block_table_size``, all -1), gains float64 (n), sums float64 (n, 2), all zero) with n at
+    least 512 x ``blocks_bound``: scratch space kept between batches by the caller, restored
+    by the read-out.
     """
     m = ends.shape[0]
     bb = BRICK_BITS
@@ -318,7 +334,17 @@ def fuse_rays(
         sums[q, 0] += lam
         sums[q, 1] += _mean(diff, inv_voxel) * lam
         updates += 1
-    return _collect(table, gains, sums, n_blocks, box, voxel, centre_offset, two_over_tau) + (updates,)
+    return n_blocks, updates
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def voxel_lam(g, other, i, j, k, voxel, centre_offset, two_over_tau):
+    """A touched voxel's lam from its sums: the gain sum ``g`` times its damping exp(-2 r / tau)
+    (none when ``g`` <= 0), plus ``other``."""
+    total = other
+    if g > 0.0:
+        total += g * math.exp(-two_over_tau * np.float64(_centre_distance(i, j, k, voxel, centre_offset)))
+    return total
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -367,12 +393,8 @@ def _collect(table, gains, sums, n_blocks, box, voxel, centre_offset, two_over_t
                         if g == 0.0 and other == 0.0:
                             continue
                         # Every touched voxel has a positive sum (a marked one, its own return's).
-                        total = other
-                        if g > 0.0:
-                            r32 = _centre_distance(i, j, k, voxel, centre_offset)
-                            total += g * math.exp(-two_over_tau * np.float64(r32))
                         idx[n] = ((i - lo_i) * ny + (j - lo_j)) * nz + (k - lo_k)
-                        lam[n] = total
+                        lam[n] = voxel_lam(g, other, i, j, k, voxel, centre_offset, two_over_tau)
                         eta[n] = sums[q, 1]
                         n += 1
                         gains[q] = 0.0
