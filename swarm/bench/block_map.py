@@ -52,8 +52,10 @@ class StreamFigures:
     cpu_seconds: dict[str, float]
     bounded_difference: float  # largest relative difference, bounded block map vs dense
     unbounded_difference: float  # unbounded block map vs a dense grid holding every ray
-    blocks: int
+    blocks: int  # unbounded block map
     sparse_bytes: int
+    bounded_blocks: int
+    bounded_bytes: int
 
 
 def holding_grid(frames: list, sensor: SensorModel, voxel: float) -> Grid:
@@ -139,6 +141,8 @@ def compare(
         relative_difference(unbounded.to_dense(holding), reference),
         unbounded.n_blocks,
         unbounded.nbytes(),
+        bounded.n_blocks,
+        bounded.nbytes(),
     )
 
 
@@ -221,7 +225,7 @@ def format_streams(figures: list[StreamFigures], repeat: int) -> str:
     rows = [
         "| stream | model | rays | grid voxels | max rel. diff bounded / unbounded | dense s | "
         "its grid's allocation s | bounded s | unbounded s | bounded / dense | dense +H s | bounded +H s "
-        "| bounded / dense +H | dense MB | block map MB (blocks) |",
+        "| bounded / dense +H | dense MB | block map MB bounded / unbounded (blocks) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for f in figures:
@@ -234,7 +238,8 @@ def format_streams(figures: list[StreamFigures], repeat: int) -> str:
             f"{w['bounded'] / w['dense']:.3f} ({c['bounded'] / c['dense']:.3f}) | {w['dense +H']:.3f} | "
             f"{w['bounded +H']:.3f} | {w['bounded +H'] / w['dense +H']:.3f} "
             f"({c['bounded +H'] / c['dense +H']:.3f}) | "
-            f"{f.voxels * DENSE_BYTES_PER_VOXEL / MB:.1f} | {f.sparse_bytes / MB:.1f} ({f.blocks:,}) |"
+            f"{f.voxels * DENSE_BYTES_PER_VOXEL / MB:.1f} | {f.bounded_bytes / MB:.1f} / "
+            f"{f.sparse_bytes / MB:.1f} ({f.bounded_blocks:,} / {f.blocks:,}) |"
         )
     rows.append(
         f"\nTimes: the whole stream, best of {repeat} rounds after an untimed one, wall s (CPU s); "
@@ -245,7 +250,8 @@ def format_streams(figures: list[StreamFigures], repeat: int) -> str:
         "bounds. +H: with the per-voxel entropy cache kept up to date. Max rel. diff: over lam and "
         "eta of every voxel, bounded against the dense map on the grid, unbounded against a dense "
         "grid holding every ray. Memory: 12 bytes a voxel (lam, eta, entropy) for the dense grid; "
-        "the unbounded block map's allocated blocks (16^3 voxels) with their entropy cache."
+        "the block maps' allocated blocks (16^3 voxels) with their entropy cache; unbounded, the "
+        "blocks beyond the grid that rays reach (below the floor: the voxels behind its hits) count too."
     )
     return "\n".join(rows)
 
