@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from map_server.ledger import MAX_EPOCHS
 from map_server.limits import SLACK_FRAMES
 from map_server.query_gate import MAX_QUERIES, MAX_QUERIES_PER_REQUESTER, QUERY_WORKERS
+from map_server.store import LOG_RESERVE_BYTES
 from swarm.config import Mission
 from swarm.map.grid import Grid
 from swarm.protocol.message_size import PATTERN_ROBOTS, frame_bytes, message_limit
@@ -23,8 +24,9 @@ class ServerOptions:
     """Tuning of the server: compaction thresholds, group-commit size, progress interval, and
     the limits of docs/protocol.md ("Limits"): payload size (None: derived from the grid),
     inbox per robot, which robots may send (None: the mission's), the information bound, and
-    the whole-map queries taken on at once (map_server.query_gate), and the largest message its
-    Zenoh session takes from a link (None: :func:`message_limit_for`)."""
+    the whole-map queries taken on at once (map_server.query_gate), the largest message its
+    Zenoh session takes from a link (None: :func:`message_limit_for`), and the room a
+    compaction leaves for the log."""
 
     compact_bytes: int = 256 << 20
     compact_records: int = 20_000
@@ -45,6 +47,8 @@ class ServerOptions:
     max_queries_per_requester: int = MAX_QUERIES_PER_REQUESTER
     query_workers: int = QUERY_WORKERS
     max_message_bytes: int | None = None
+    #: free bytes a compaction leaves for the log (it is put off otherwise; map_server.store)
+    log_reserve_bytes: int = LOG_RESERVE_BYTES
 
 
 def max_payload_for(grid: Grid) -> int:

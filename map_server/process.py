@@ -4,6 +4,7 @@ session until SIGTERM/SIGINT; SIGHUP quarantines the robots listed in ``<store>/
 from __future__ import annotations
 
 import logging
+import resource
 import signal
 import threading
 from pathlib import Path
@@ -14,6 +15,7 @@ from map_server.options import ServerOptions, message_limit_for
 from map_server.server import MapServer
 from swarm.config import Mission
 from swarm.protocol import bus
+from swarm.protocol.transport_limits import max_sessions_for
 
 log = logging.getLogger("swarm.server")
 
@@ -32,6 +34,16 @@ def quarantine_list(path: Path) -> list[str]:
     return [r for r in (line.split("#", 1)[0].strip() for line in lines) if r]
 
 
+def raise_open_files_limit() -> int:
+    """Raise this process's soft limit of open files to its hard limit (every idle connection a
+    stranger holds open costs the router one; docs/security.md, "Transport limits"); returns it."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and soft < hard:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+        return hard
+    return soft
+
+
 def server_session(
     server: MapServer,
     mission: Mission,
@@ -42,8 +54,13 @@ def server_session(
     """The server's Zenoh session (the mission's router), which takes no message over
     :func:`~map_server.options.message_limit_for` from a link (docs/protocol.md, "Message sizes")."""
     limit = message_limit_for(mission, server.options, server.max_payload)
+    sessions = max_sessions_for(len(mission.robot_ids))
     session = bus.open_session(
-        listen=listen, connect=connect or [], config_file=zenoh_config, max_message_bytes=limit
+        listen=listen,
+        connect=connect or [],
+        config_file=zenoh_config,
+        max_message_bytes=limit,
+        max_sessions=sessions,
     )
     log.info(
         "Zenoh drops a received message over %s bytes (transport/link/rx/max_message_size; "
@@ -70,17 +87,18 @@ def serve(
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: reread.set())
     try:
+        raise_open_files_limit()
         server = MapServer(mission, store_dir, mission_name, options)
         try:
             session = server_session(server, mission, listen, connect or [], zenoh_config)
         except BaseException:
-            server.store.close()
+            server.store.discard_new()  # a store this start created goes again
             raise
         try:
             server.start(session)
             _conf, endpoints, _ = bus.session_config(listen, connect or [], config_file=zenoh_config)
             source = "" if listen else f" (from {bus.config_path(zenoh_config)})"
-            log.info("listening on %s%s", ", ".join(endpoints), source)
+            log.info("listening on %s%s", ", ".join(e.split("#", 1)[0] for e in endpoints), source)
             while not stop.wait(0.5):
                 if reread.is_set():
                     reread.clear()

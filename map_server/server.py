@@ -21,6 +21,7 @@ from pathlib import Path
 import zenoh
 
 from map_server.contributions import Contributions
+from map_server.disk_pause import DiskPause
 from map_server.inbox import Inbox
 from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
 from map_server.limits import mission_bounds
@@ -28,6 +29,7 @@ from map_server.options import ServerOptions, max_payload_for
 from map_server.query_gate import QueryGate
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
+from map_server.store_files import OS_FILES, StoreFiles
 from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
@@ -48,15 +50,20 @@ class MapServer:
         store_dir: str | Path,
         mission_name: str | None = None,
         options: ServerOptions | None = None,
+        files: StoreFiles = OS_FILES,
     ) -> None:
-        """Open the store and recover the map from it (snapshot, then the log); no Zenoh yet."""
+        """Open the store and recover the map from it (snapshot, then the log); no Zenoh yet.
+        ``files``: the store's file layer (map_server.store_files; a recording one in tests)."""
         self.name = mission_name or mission.mission
         self.options = options or ServerOptions()
         self.session: zenoh.Session | None = None
         grid, sensor = mission.workspace.grid(), mission.sensor.model()
         self.store, recovered = Store.open(
-            store_dir, StoreIdentity(self.name, grid, sensor), fsync=self.options.fsync
+            store_dir, StoreIdentity(self.name, grid, sensor), self.options.fsync, files
         )
+        self.store.log_reserve_bytes = self.options.log_reserve_bytes
+        #: acks paused while the store cannot write, resumed when it can (map_server.disk_pause)
+        self._disk = DiskPause(log)
         ledger = Ledger.from_json(recovered.ledger_json)
         ledger.max_epochs = self.options.max_epochs
         ledger.restore_compaction(recovered.counters.get("ledger", {}))
@@ -247,8 +254,9 @@ class MapServer:
 
     def _work(self) -> None:
         while True:
+            self._disk.wait_for_retry(self._stopping)
             batch = self._inbox.take(self.options.max_batch, timeout=0.1)
-            if self._snapshot_due.is_set():
+            if self._snapshot_due.is_set() and self._disk.compaction_due():
                 self._compact()
             if not batch:
                 if self._stopping.is_set():
@@ -297,15 +305,12 @@ class MapServer:
             self.store.append([payload for _, payload in admitted])
         except (OSError, StoreError) as exc:
             self.wal_errors += 1
-            log.error(
-                "write-ahead log append failed, %d deltas not applied (their senders will resend): %s",
-                len(admitted),
-                exc,
-            )
+            self._disk.failed(exc, len(admitted))  # "disk full: acks paused", then a line per 10 s
             with self._lock:
                 for msg, _ in admitted:
                     self.team.release(msg)
             return 0
+        self._disk.succeeded()
         applied = []
         for msg, payload in admitted:
             try:
@@ -322,29 +327,30 @@ class MapServer:
                 self._merged_pub.put(payload)
             except Exception:  # noqa: BLE001 (agents also start from the snapshot; keep merging)
                 log.exception("republishing a merged delta failed")
-        if self.store.should_compact(self.options.compact_bytes, self.options.compact_records):
+        if self.store.should_compact(self.options.compact_bytes, self.options.compact_records) and (
+            self._disk.compaction_due()
+        ):
             self._compact()
         return len(applied)
 
     def _compact(self) -> None:
         """Write the snapshot and start the next log: called by the worker, or by :meth:`stop`
         once the worker has ended, so only a quarantine can change the map meanwhile."""
+        due = self._snapshot_due.is_set()
         self._snapshot_due.clear()
         t0 = time.perf_counter()
         team = self.team
         with self._rebuild_lock:  # not the query lock: acks and stats answer during the write
-            self.store.compact(
-                team.grid,
-                team.cmap.lam,
-                team.cmap.eta,
-                team.ledger.to_json(),
-                {
-                    "updates": dict(team.updates),
-                    "ledger": team.ledger.compaction_json(),
-                    "quarantined": sorted(team.quarantined),
-                },
-                team.contributions.to_arrays(),
-            )
+            counters = {"updates": dict(team.updates), "ledger": team.ledger.compaction_json()}
+            counters["quarantined"] = sorted(team.quarantined)
+            try:
+                lam, eta, arrays = team.cmap.lam, team.cmap.eta, team.contributions.to_arrays()
+                self.store.compact(team.grid, lam, eta, team.ledger.to_json(), counters, arrays)
+            except OSError as exc:  # disk full: the old snapshot and log stay in force
+                if due:
+                    self._snapshot_due.set()
+                self._disk.compaction_failed(exc)
+                return
         log.info(
             "compacted the store: snapshot of %d deltas in %.0f ms, log generation %d",
             len(team.ledger),
@@ -379,6 +385,8 @@ class MapServer:
             "wal_bytes": self.store.wal_bytes,
             "wal_generation": self.store.generation,
             "snapshots_written": self.store.snapshots_written,
+            "acks_paused": self._disk.paused,
+            "store_errors": self._disk.errors,
             "queued": len(self._inbox),
             "inbox": self._inbox.stats(),
             "queries": self._queries.stats(),

@@ -1,31 +1,32 @@
 """The map server's store: a snapshot plus a write-ahead log of accepted delta payloads.
 
-Layout of ``--store DIR`` (see docs/protocol.md):
+Layout of ``--store DIR`` (see docs/protocol.md, "Store layout"):
 
 - ``store.json``: what the store belongs to (format, mission, grid, sensor model); written
   once when the store is created, checked on every start.
+- ``store.lock``: held (``flock``) by the running server, naming its pid and host
+  (:class:`map_server.store_files.StoreLock`).
 - ``snapshot.npz``: ``lam``, ``eta`` (float32, flat, prior included), ``ledger`` (applied
   delta ids, JSON), ``counters`` (JSON), ``grid`` (JSON) and ``wal`` (the generation of the
-  log that follows it). Written atomically: temporary file, fsync, ``os.replace``, fsync of
-  the folder.
+  log that follows it). Written atomically: temporary file, fsync, rename, fsync of the folder.
 - ``wal-<generation>.log``: an 8-byte magic ``SWARMWAL``, a uint32 version, then one record
   per accepted delta: uint32 length, uint32 CRC32 of the payload, the raw payload (all
   little-endian). :meth:`Store.append` fsyncs before it returns, so a delta counts as
   durable (and is acked) only once its record is on disk.
 
 Recovery loads the snapshot and reads the log of its generation; a torn or corrupt tail
-(after a crash or SIGKILL mid-write) is detected by length and CRC, reported and cut off,
-so the good prefix survives. Compaction writes a new snapshot and starts the next log.
+(after a crash or power cut mid-write) is detected by length and CRC, reported and cut off,
+so the good prefix survives. Compaction writes a new snapshot and starts the next log; it
+waits while the disk could not hold the snapshot and still leave ``log_reserve_bytes`` for
+the log, so a snapshot never takes the room the log needs. Every change on disk goes through
+one small layer, :class:`map_server.store_files.StoreFiles`.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import os
 import re
-import struct
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,24 +34,24 @@ from pathlib import Path
 import numpy as np
 
 from map_server.ledger import describe_grid
+from map_server.store_files import LOCK_FILE, NO_SPACE, OS_FILES, StoreFiles, StoreInUse, StoreLock
+from map_server.wal_file import FORMAT, WAL_HEADER, StoreError, encode_records, read_wal
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 
 log = logging.getLogger("swarm.server.store")
 
-FORMAT = 1
-WAL_MAGIC = b"SWARMWAL"
-WAL_HEADER = WAL_MAGIC + struct.pack("<I", FORMAT)
-RECORD_HEADER = struct.Struct("<II")  # length, crc32
-#: A record longer than this is taken as corruption, not as a delta.
-MAX_RECORD_BYTES = 1 << 30
 IDENTITY_FILE = "store.json"
 SNAPSHOT_FILE = "snapshot.npz"
+#: Free bytes a compaction leaves for the log at least (it waits for room otherwise).
+LOG_RESERVE_BYTES = 64 << 20
 _WAL_NAME = re.compile(r"^wal-(\d+)\.log$")
+#: What a folder may hold and still be taken as a new store (a start killed while it created one).
+_NEW_STORE_LEFTOVERS = {IDENTITY_FILE + ".tmp", LOCK_FILE}
 
 
-class StoreError(RuntimeError):
-    """A store that cannot be used; the text names the folder and the problem."""
+class NoRoom(OSError):
+    """A compaction put off: the disk could not hold the snapshot and the log's reserve."""
 
 
 @dataclass(frozen=True)
@@ -97,133 +98,89 @@ class Recovered:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
-
-
-def read_wal(path: Path, truncate: bool = True) -> tuple[list[bytes], int]:
-    """The intact records of a WAL file and the number of bytes after them (torn or corrupt),
-    which are cut off the file when ``truncate``. Raises StoreError for a file that is not a WAL."""
-    data = path.read_bytes()
-    if len(data) < len(WAL_HEADER):
-        if data and not WAL_HEADER.startswith(data):
-            raise StoreError(f"{path}: not a swarm write-ahead log (bad header)")
-        good = 0  # a torn header: the file holds no record
-        payloads: list[bytes] = []
-    else:
-        if data[: len(WAL_MAGIC)] != WAL_MAGIC:
-            raise StoreError(f"{path}: not a swarm write-ahead log (bad magic)")
-        (version,) = struct.unpack_from("<I", data, len(WAL_MAGIC))
-        if version != FORMAT:
-            raise StoreError(f"{path}: write-ahead log format {version}, this server reads {FORMAT}")
-        payloads, good = _records(data)
-    torn = len(data) - good
-    if torn and truncate:
-        with open(path, "r+b") as f:
-            f.truncate(good)
-            f.flush()
-            os.fsync(f.fileno())
-    return payloads, torn
-
-
-def _records(data: bytes) -> tuple[list[bytes], int]:
-    """Records of a WAL image after its header; the offset where the intact ones end."""
-    payloads = []
-    pos = len(WAL_HEADER)
-    while pos + RECORD_HEADER.size <= len(data):
-        length, crc = RECORD_HEADER.unpack_from(data, pos)
-        start = pos + RECORD_HEADER.size
-        if length > MAX_RECORD_BYTES or start + length > len(data):
-            break
-        payload = data[start : start + length]
-        if zlib.crc32(payload) != crc:
-            break
-        payloads.append(payload)
-        pos = start + length
-    return payloads, pos
-
-
-def encode_records(payloads: Sequence[bytes]) -> bytes:
-    """WAL records (length, CRC32, payload) of ``payloads``."""
-    parts = []
-    for p in payloads:
-        parts.append(RECORD_HEADER.pack(len(p), zlib.crc32(p)))
-        parts.append(p)
-    return b"".join(parts)
-
-
 class Store:
     """A snapshot and a write-ahead log in one folder; use :meth:`open`."""
 
-    def __init__(self, path: Path, identity: StoreIdentity, generation: int, fsync: bool = True) -> None:
+    def __init__(
+        self,
+        path: Path,
+        identity: StoreIdentity,
+        generation: int,
+        fsync: bool = True,
+        files: StoreFiles = OS_FILES,
+    ) -> None:
         self.path = path
         self.identity = identity
         self.generation = generation
         self.fsync = fsync
+        self.files = files
+        self.log_reserve_bytes = LOG_RESERVE_BYTES
         self.wal_records = 0
         self.wal_bytes = 0
         self.snapshots_written = 0
+        #: True when this open created the store (a failed start removes it again: discard_new)
+        self.created = False
+        self._made_folder = False
         self._wal: int | None = None  # file descriptor of the open log
+        self._good_size = len(WAL_HEADER)  # where the log's intact records end
+        self._closed = False
+        self._lock: StoreLock | None = None
 
     # -- opening and recovery ------------------------------------------------------------
     @classmethod
-    def open(cls, path: str | Path, identity: StoreIdentity, fsync: bool = True) -> tuple[Store, Recovered]:
-        """Open (or create) the store at ``path`` for ``identity`` and recover what it holds.
+    def open(
+        cls, path: str | Path, identity: StoreIdentity, fsync: bool = True, files: StoreFiles = OS_FILES
+    ) -> tuple[Store, Recovered]:
+        """Open (or create) the store at ``path`` for ``identity``, lock it and recover what it holds.
 
-        Raises StoreError when the folder belongs to another mission or grid, or is not a store.
+        Raises StoreError when the folder belongs to another mission or grid, is not a store,
+        or is in use by another server (the message names that server's pid and host).
         """
         path = Path(path)
+        store = cls(path, identity, 1, fsync, files)
+        try:
+            recovered = store._open()
+        except Exception:
+            store.discard_new()
+            raise
+        except BaseException:  # interrupted: keep the files as a killed process would
+            store.close()
+            raise
+        return store, recovered
+
+    def _open(self) -> Recovered:
+        path, files = self.path, self.files
         ident_path = path / IDENTITY_FILE
-        if ident_path.exists():
-            try:
-                data = json.loads(ident_path.read_text())
-            except (OSError, ValueError) as exc:
-                raise StoreError(f"{ident_path}: unreadable store identity: {exc}") from exc
-            if not isinstance(data, dict) or data.get("format") != FORMAT:
-                raise StoreError(f"{ident_path}: not a format-{FORMAT} swarm map store")
-            if not identity.matches(data):
-                raise StoreError(
-                    f"{path}: this store was written for {_describe_json(data)}; the server runs "
-                    f"{identity.describe()}. Use another --store folder, or remove {path} to start afresh"
-                )
-        else:
-            # a start killed before store.json replaced its temporary file leaves only that file
-            leftover = IDENTITY_FILE + ".tmp"
-            if path.exists() and any(p.name != leftover for p in path.iterdir()):
+        if not ident_path.exists():
+            if path.exists() and any(p.name not in _NEW_STORE_LEFTOVERS for p in path.iterdir()):
                 raise StoreError(f"{path}: folder is not empty and has no {IDENTITY_FILE}: not a map store")
-            path.mkdir(parents=True, exist_ok=True)
-            _write_atomic(ident_path, json.dumps(identity.to_json(), indent=1).encode())
+            self._made_folder = not path.exists()
+            files.make_dir(path)
+        self._take_lock()
+        if ident_path.exists():
+            self._check_identity(ident_path)
+        else:
+            self.created = True
+            tmp = path / (IDENTITY_FILE + ".tmp")
+            text = json.dumps(self.identity.to_json(), indent=1).encode()
+            files.write_file(tmp, lambda f: f.write(text))
+            files.replace(tmp, ident_path)
+            files.fsync_dir(path)
         for tmp in path.glob("*.tmp"):
-            tmp.unlink()
+            files.unlink(tmp)
 
         recovered = Recovered()
-        generation = 1
         snap_path = path / SNAPSHOT_FILE
         if snap_path.exists():
-            generation = cls._load_snapshot(snap_path, identity, recovered)
-        store = cls(path, identity, generation, fsync)
-        for gen, wal in store._wal_files():
-            if gen < generation:
-                wal.unlink()  # compacted into the snapshot already
-            elif gen > generation:
-                raise StoreError(f"{wal}: a log newer than {snap_path} (generation {generation})")
-        wal_path = store._wal_path(generation)
+            self.generation = self._load_snapshot(snap_path, self.identity, recovered)
+        for gen, wal in self._wal_files():
+            if gen < self.generation:
+                files.unlink(wal)  # compacted into the snapshot already
+            elif gen > self.generation:
+                raise StoreError(f"{wal}: a log newer than {snap_path} (generation {self.generation})")
+        wal_path = self._wal_path(self.generation)
         if wal_path.exists():
-            payloads, torn = read_wal(wal_path)
+            payloads, torn = read_wal(wal_path, files=files)
             recovered.wal_payloads = payloads
             recovered.torn_bytes = torn
             if torn:
@@ -233,10 +190,31 @@ class Store:
                     torn,
                     len(payloads),
                 )
-            store.wal_records = len(payloads)
-            store.wal_bytes = wal_path.stat().st_size - len(WAL_HEADER)
-        store._open_wal()
-        return store, recovered
+            self.wal_records = len(payloads)
+            self._good_size = max(wal_path.stat().st_size, len(WAL_HEADER))
+            self.wal_bytes = self._good_size - len(WAL_HEADER)
+        self._open_wal()
+        return recovered
+
+    def _take_lock(self) -> None:
+        try:
+            self._lock = StoreLock(self.path)
+        except StoreInUse as exc:
+            raise StoreError(str(exc)) from None
+
+    def _check_identity(self, ident_path: Path) -> None:
+        try:
+            data = json.loads(ident_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise StoreError(f"{ident_path}: unreadable store identity: {exc}") from exc
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise StoreError(f"{ident_path}: not a format-{FORMAT} swarm map store")
+        if not self.identity.matches(data):
+            raise StoreError(
+                f"{self.path}: this store was written for {_describe_json(data)}; the server runs "
+                f"{self.identity.describe()}. Use another --store folder, or remove {self.path} to start "
+                "afresh"
+            )
 
     @staticmethod
     def _load_snapshot(snap_path: Path, identity: StoreIdentity, out: Recovered) -> int:
@@ -269,43 +247,56 @@ class Store:
         return sorted(found)
 
     def _open_wal(self) -> None:
+        """Open the log of this generation for appending, first writing its header (and
+        syncing the folder) when it has none, and cutting it back to its intact records."""
         wal_path = self._wal_path(self.generation)
-        fresh = not wal_path.exists() or wal_path.stat().st_size == 0
-        if fresh:
-            with open(wal_path, "wb") as f:
-                f.write(WAL_HEADER)
-                f.flush()
-                os.fsync(f.fileno())
-            _fsync_dir(self.path)
-        self._wal = os.open(wal_path, os.O_WRONLY | os.O_APPEND)
+        if not wal_path.exists() or wal_path.stat().st_size < len(WAL_HEADER):
+            self.files.write_file(wal_path, lambda f: f.write(WAL_HEADER))
+            self.files.fsync_dir(self.path)
+        fd = self.files.open_append(wal_path)
+        try:
+            if self.files.size(fd) != self._good_size:  # a failed append could not cut itself off
+                self.files.truncate(fd, self._good_size)
+        except BaseException:
+            self.files.close(fd)
+            raise
+        self._wal = fd
 
     # -- writing -------------------------------------------------------------------------
     def append(self, payloads: Sequence[bytes]) -> None:
         """Append one record per payload and fsync: on return they are durable.
 
         On an OSError (disk full, I/O error) the log is cut back to where it was, so a partial
-        record never hides the records written after it, and the error is raised; if even
-        that fails the store closes and every later append raises StoreError.
+        record never hides the records written after it, and the error is raised; if even the
+        cut fails, the next append opens the log again and cuts it first (raising OSError
+        while it cannot). Raises StoreError once the store is closed.
         """
-        if self._wal is None:
+        if self._closed:
             raise StoreError(f"{self.path}: store is closed")
-        data = memoryview(encode_records(payloads))
-        start = os.lseek(self._wal, 0, os.SEEK_END)
+        if self._wal is None:
+            self._open_wal()
+        data = encode_records(payloads)
         try:
-            written = 0
-            while written < len(data):
-                written += os.write(self._wal, data[written:])
+            self.files.append(self._wal, data)
             if self.fsync:
-                os.fsync(self._wal)
+                self.files.fsync(self._wal)
         except OSError:
             try:
-                os.ftruncate(self._wal, start)
-                os.fsync(self._wal)
+                self.files.truncate(self._wal, self._good_size)
             except OSError:
-                self.close()
+                self._drop_wal()
             raise
+        self._good_size += len(data)
         self.wal_records += len(payloads)
         self.wal_bytes += len(data)
+
+    def _drop_wal(self) -> None:
+        if self._wal is not None:
+            try:
+                self.files.close(self._wal)
+            except OSError:
+                pass
+            self._wal = None
 
     def should_compact(self, max_bytes: int, max_records: int) -> bool:
         return self.wal_records > 0 and (self.wal_bytes >= max_bytes or self.wal_records >= max_records)
@@ -320,37 +311,82 @@ class Store:
         arrays: dict[str, np.ndarray] | None = None,
     ) -> None:
         """Write the snapshot atomically (with ``arrays`` beside the map), then start the next
-        log and delete the old one."""
+        log and delete the old one.
+
+        Raises :class:`NoRoom` (writing nothing) when the disk could not hold the snapshot and
+        still leave ``log_reserve_bytes``; any other OSError after removing the half-written
+        snapshot. Either way the old snapshot and log stay in force and appends go on.
+        """
         nxt = self.generation + 1
+        arrays = {"lam": lam, "eta": eta, **(arrays or {})}
+        fields = {"grid": json.dumps(grid.to_dict()), "ledger": ledger_json, "counters": json.dumps(counters)}
+        needed = sum(4 * a.size for a in arrays.values()) + sum(map(len, fields.values())) + (64 << 10)
+        free = self.files.free_bytes(self.path)
+        if free < needed + self.log_reserve_bytes:
+            raise NoRoom(
+                f"{self.path}: {free / 2**20:.1f} MB free; a snapshot needs {needed / 2**20:.1f} MB and "
+                f"{self.log_reserve_bytes / 2**20:.1f} MB stay for the log"
+            )
         tmp = self.path / (SNAPSHOT_FILE + ".tmp")
-        with open(tmp, "wb") as f:
+
+        def fill(f) -> None:
             np.savez(
                 f,
-                lam=np.ascontiguousarray(lam, np.float32),
-                eta=np.ascontiguousarray(eta, np.float32),
-                grid=np.array(json.dumps(grid.to_dict())),
-                ledger=np.array(ledger_json),
-                counters=np.array(json.dumps(counters)),
+                **{name: np.ascontiguousarray(a, np.float32) for name, a in arrays.items()},
+                **{name: np.array(text) for name, text in fields.items()},
                 wal=np.int64(nxt),
-                **{name: np.ascontiguousarray(a, np.float32) for name, a in (arrays or {}).items()},
             )
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.path / SNAPSHOT_FILE)
-        _fsync_dir(self.path)
+
+        try:
+            self.files.write_file(tmp, fill)
+        except Exception:
+            self.files.unlink(tmp)  # a half-written snapshot must not take the log's room
+            raise
+        self.files.replace(tmp, self.path / SNAPSHOT_FILE)
+        self.files.fsync_dir(self.path)
+        # the snapshot names generation nxt: from here on, records go to its log only
         old = self._wal_path(self.generation)
-        self.close()
+        self._drop_wal()
         self.generation = nxt
-        self._open_wal()
-        old.unlink(missing_ok=True)
+        self._good_size = len(WAL_HEADER)
         self.wal_records = 0
         self.wal_bytes = 0
         self.snapshots_written += 1
+        try:
+            self._open_wal()
+            self.files.unlink(old)
+        except OSError as exc:  # the next append creates the log; the next start deletes the old one
+            log.warning("%s: after the snapshot: %s", self.path, exc)
 
     def close(self) -> None:
-        if self._wal is not None:
-            os.close(self._wal)
-            self._wal = None
+        """Close the log and release the lock; appends raise StoreError after this."""
+        self._drop_wal()
+        self._closed = True
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def discard_new(self) -> None:
+        """Close, and when this open created the store and nothing was logged in it, delete
+        it again (the folder too, if this open made it): a start that fails leaves nothing."""
+        self.close()
+        if not self.created or self.wal_records or self.snapshots_written:
+            return
+        for name in (IDENTITY_FILE, IDENTITY_FILE + ".tmp", self._wal_path(1).name, LOCK_FILE):
+            try:
+                (self.path / name).unlink(missing_ok=True)
+            except OSError:
+                return
+        if self._made_folder:
+            try:
+                self.path.rmdir()
+            except OSError:
+                pass
+
+
+def is_no_space(exc: BaseException) -> bool:
+    """Whether ``exc`` says the disk (or the quota) is full."""
+    return isinstance(exc, NoRoom) or (isinstance(exc, OSError) and exc.errno in NO_SPACE)
 
 
 def _describe_json(data: dict) -> str:

@@ -28,6 +28,7 @@ import zenoh
 
 from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
+from robot_agent.frame_link import FrameLink, PendingFrame, WireLink
 from robot_agent.sharing import DeltaOutbox
 from robot_agent.teammate_statuses import TeammateStatuses
 from swarm.config import Mission
@@ -70,6 +71,7 @@ class Agent:
         strategy: str = "entropy",
         seed: int = 0,
         coordination: bool = True,
+        link: FrameLink | None = None,
     ) -> None:
         if robot_id not in mission.robot_ids:
             raise ValueError(f"robot {robot_id!r} is not in the mission (robots: {mission.robot_ids})")
@@ -86,14 +88,13 @@ class Agent:
             max_held_bits=math.inf if sharing.max_held_bits is None else sharing.max_held_bits,
         )
         name = mission.mission
-        self._cmd_pub = bus.reliable_publisher(session, bus.key(name, "robot", robot_id, "cmd"))
+        #: where frames come from and commands go: robot/<rid>/frame and cmd, or a robot's ROS 2 topics
+        self.link = link or WireLink(session, name, robot_id)
         self._delta_pub = bus.reliable_publisher(session, bus.key(name, "delta", robot_id))
         self._status_pub = session.declare_publisher(bus.key(name, "robot", robot_id, "status"))
         self._acks_key = bus.key(name, "map", "acks")
         self._frames = FrameInbox()  # the newest frame: older waiting ones are dropped, counted
-        self._frame_sub = bus.subscribe(
-            session, bus.key(name, "robot", robot_id, "frame"), lambda _k, p: self._frames.put(p)
-        )
+        self.link.frames.start(self._frames)
         self.applied = AppliedDeltas()
         self.merged_counts: Counter[str] = Counter()
         self._merged: queue.Queue = queue.Queue()
@@ -117,7 +118,7 @@ class Agent:
         self.last_t = 0.0
         self.acked = 0  # the map server's last contiguous acked seq of this run's deltas
         self.progress_every_s = PROGRESS_EVERY_S
-        self._frame_key = bus.key(name, "robot", robot_id, "frame")
+        self._frame_key = self.link.describe()
         self._last_sent: dict[int, float] = {}
         self._stop = threading.Event()
         self._acker = threading.Thread(target=self._poll_acks, daemon=True)
@@ -189,9 +190,11 @@ class Agent:
             notes.append(f"{self._frames.superseded:,} older frames dropped: {faster}")
         if self.rejected_frames:
             notes.append(f"{self.rejected_frames:,} frames refused (see the warnings above)")
+        if refused := self.link.frames.notes():
+            notes.append(refused)
         return f" ({'; '.join(notes)})" if notes else ""
 
-    def handle(self, payload: bytes) -> Cmd | None:
+    def handle(self, payload: bytes | PendingFrame) -> Cmd | None:
         """Fuse one frame, answer with a command, then share what is worth it.
 
         The command goes out as soon as the decision is made: the simulator (or a robot's
@@ -199,17 +202,9 @@ class Agent:
         delta and applying the team's merged deltas that arrived meanwhile, comes after it
         and overlaps the next physics step instead of delaying it.
         """
-        try:
-            frame = Frame.decode(payload)
-        except WireError as exc:
-            self.rejected_frames += 1
-            self._peer_log.warning("frame", "%s: rejected frame: %s", self.robot_id, exc)
-            return None
-        if frame.robot != self.robot_id:
-            self.rejected_frames += 1
-            self._peer_log.warning(
-                "frame_robot", "%s: rejected frame addressed to %s", self.robot_id, short(frame.robot, 40)
-            )
+        # a link's pending frame makes itself (None: it could not, and the link counted why)
+        frame = payload.frame() if hasattr(payload, "frame") else self._decode(payload)
+        if frame is None:
             return None
         self.last_t = frame.t
         self._pose = frame.pose
@@ -221,7 +216,8 @@ class Agent:
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
         decision = self.explorer.decide(x, y, frame.pose.ypr[0], frame.t)
         cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega, decision.tilt)
-        self._cmd_pub.put(cmd.encode())
+        target = self.explorer.target
+        self.link.commands.send(cmd, decision, None if target is None else target.gaze_yaw)
         self._share(flush=decision.state == "done")
         self.apply_merged()
         # every STATUS_EVERY frames, and at once when the robot takes up a new target
@@ -239,6 +235,22 @@ class Agent:
             )
             self._status_pub.put(status.encode())
         return cmd
+
+    def _decode(self, payload: bytes) -> Frame | None:
+        """A robot/<rid>/frame payload's frame; None when refused (counted, logged)."""
+        try:
+            frame = Frame.decode(payload)
+        except WireError as exc:
+            self.rejected_frames += 1
+            self._peer_log.warning("frame", "%s: rejected frame: %s", self.robot_id, exc)
+            return None
+        if frame.robot != self.robot_id:
+            self.rejected_frames += 1
+            self._peer_log.warning(
+                "frame_robot", "%s: rejected frame addressed to %s", self.robot_id, short(frame.robot, 40)
+            )
+            return None
+        return frame
 
     def _share(self, flush: bool = False) -> None:
         taken = self.outbox.take(self.explorer.map.lam, self.explorer.map.eta, flush=flush)
@@ -416,6 +428,6 @@ class Agent:
             len(self.outbox.unacked),
             self._dropped_frames_note(),
         )
-        self._frame_sub.undeclare()
+        self.link.close()
         self._merged_sub.undeclare()
         self.statuses.undeclare()

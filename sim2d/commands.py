@@ -145,6 +145,18 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
         help="image encoding in the frames: raw8 (default, fastest on loopback) or png (smaller)",
     )
     parser.add_argument(
+        "--ros2",
+        action="store_true",
+        help="each robot as a ROS 2 robot over rmw_zenoh: images, CameraInfo, tf and /clock out, "
+        "TwistStamped cmd_vel in, in the namespaces of the mission's ros2 section (docs/ros2.md)",
+    )
+    parser.add_argument(
+        "--ros2-encoding",
+        choices=["mono8", "bgr8", "rgb8"],
+        default="mono8",
+        help="the ROS 2 images' encoding (default mono8; bgr8/rgb8 repeat the gray in 3 channels)",
+    )
+    parser.add_argument(
         "--max-ticks", type=int, help="stop after this many frames (default: the mission's time)"
     )
     parser.add_argument(
@@ -182,11 +194,23 @@ def run_sim(args: argparse.Namespace) -> int:
         "mission %r: %s", mission.mission, bus.describe_connection(args.listen, args.connect)
     )
     try:
-        session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
+        session = bus.open_session(
+            args.listen, args.connect, config_file=args.zenoh_config, timestamping=args.ros2
+        )
     except (ValueError, ConnectionError) as e:  # a bad --zenoh-config file; no router in time
         print(f"swarm: error: {e}", file=sys.stderr)
         return 2
-    sim = Simulator(mission, session, encoding=args.encoding)
+    link = None
+    if args.ros2:
+        from sim2d.ros2_robots import Ros2Robots
+
+        try:
+            link = Ros2Robots(session, mission, args.ros2_encoding)
+        except (ConfigError, ValueError) as e:
+            session.close()
+            print(f"swarm: error: {e}", file=sys.stderr)
+            return 2
+    sim = Simulator(mission, session, encoding=args.encoding, link=link)
     sim.progress_every_s = args.progress_every
     import signal
 

@@ -2,10 +2,11 @@
 
 Each tick the simulator publishes one frame per robot on ``robot/<rid>/frame`` (seq 1, 2,
 3, ... shared by all robots), then waits until every live agent has answered with a
-``robot/<rid>/cmd`` carrying the same seq. Only then does it apply the commands, advance
-the world by ``sim.frame_period_s`` (in ``sim.dt`` physics steps) and publish the true
-poses on ``sim/truth``. So runs are reproducible and as fast as the agents allow. A
-command's optional ``tilt`` points the robot's camera head (clamped to the rig's
+``robot/<rid>/cmd`` carrying the same seq (or, with ``sim2d.ros2_robots``, each robot's ROS 2
+images, CameraInfo and tf, answered by a velocity command stamped with the images' stamp).
+Only then does it apply the commands, advance the world by ``sim.frame_period_s`` (in ``sim.dt``
+physics steps) and publish the true poses on ``sim/truth``. So runs are reproducible and as fast
+as the agents allow. A command's optional ``tilt`` points the robot's camera head (clamped to the rig's
 ``tilt_range_deg``; a fixed rig stays level) from the next frame on.
 
 An agent that has not answered within ``sim.agent_timeout_s`` (wall clock) is declared
@@ -18,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import math
-import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -27,11 +27,12 @@ import numpy as np
 import zenoh
 
 from sim2d.render import Renderer, camera_pose
+from sim2d.robot_link import RobotLink, WireRobots
 from sim2d.world import World
 from swarm.config import Mission, RigConfig
 from swarm.formats.floor_plan import FloorPlan
 from swarm.protocol import bus
-from swarm.protocol.wire import Cmd, Frame, TruthPoses, WireError
+from swarm.protocol.wire import Frame, TruthPoses
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,7 @@ class Simulator:
         *,
         encoding: str = "raw8",
         plan: FloorPlan | None = None,
+        link: RobotLink | None = None,
     ):
         self.mission = mission
         self.session = session
@@ -77,7 +79,6 @@ class Simulator:
             self.world.add_robot(spec.id, spec.start.x, spec.start.y, spec.start.yaw)
         self.seq = 0
         self.dead: set[str] = set()
-        self.rejected = 0
         self._renderers: dict[str, Renderer] = {}
         self._tilt: dict[str, float] = {}  # robot -> camera head tilt (rad) from commands
         self._rngs = {
@@ -85,20 +86,20 @@ class Simulator:
         }
         self._stop = threading.Event()
         self.progress_every_s = 10.0  # seconds between progress lines of run()
-        name = mission.mission
-        self._frame_pubs = {
-            rid: bus.reliable_publisher(session, bus.key(name, "robot", rid, "frame"))
-            for rid in self.robot_ids
-        }
-        self._truth_pub = bus.reliable_publisher(session, bus.key(name, "sim", "truth"))
-        self._cmd_sub, self._inbox = bus.subscribe_queue(session, bus.key_pattern(name, "robot", "*", "cmd"))
-        self._cmd_prefix = bus.key(name, "robot") + "/"
+        #: frames out, commands in: our protocol, or each robot's ROS 2 topics
+        self.link = link if link is not None else WireRobots(session, mission)
+        self._truth_pub = bus.reliable_publisher(session, bus.key(mission.mission, "sim", "truth"))
 
     # -- state ----------------------------------------------------------------------------
     @property
     def time(self) -> float:
         """Simulated time (s)."""
         return self.world.time
+
+    @property
+    def rejected(self) -> int:
+        """Commands refused (malformed, of another robot, ahead of the frame)."""
+        return self.link.rejected
 
     @property
     def live(self) -> list[str]:
@@ -146,14 +147,15 @@ class Simulator:
         """Wait until every robot's frame key has a subscriber; return those still missing."""
         timeout = self.mission.sim.agent_timeout_s if timeout is None else timeout
         deadline = time.monotonic() + timeout
+        report = time.monotonic() + self.progress_every_s
         while True:
-            waited = min(self.progress_every_s, deadline - time.monotonic())
-            if bus.wait_for_subscribers(self._frame_pubs.values(), max(waited, 0.0)):
-                return []
-            missing = [rid for rid, pub in self._frame_pubs.items() if not bus.has_subscribers(pub)]
-            if time.monotonic() >= deadline or self._stop.is_set():
+            missing = self.link.missing()
+            if not missing or time.monotonic() >= deadline or self._stop.is_set():
                 return missing
-            log.info("still waiting for the agents of %s", ", ".join(missing))
+            if time.monotonic() >= report:
+                log.info("still waiting for the agents of %s", ", ".join(missing))
+                report = time.monotonic() + self.progress_every_s
+            time.sleep(0.02)
 
     def tick(self) -> bool:
         """Publish frames, wait for every live agent's command, advance one frame period.
@@ -163,8 +165,7 @@ class Simulator:
         if self.finished():
             return False
         self.seq += 1
-        for rid in self.robot_ids:
-            self._frame_pubs[rid].put(self.make_frame(rid).encode())
+        self.link.publish({rid: self.make_frame(rid) for rid in self.robot_ids}, self.time)
         waiting = set(self.live)
         self._collect(waiting)
         for rid in sorted(waiting):
@@ -191,11 +192,7 @@ class Simulator:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
-            try:
-                key_expr, payload = self._inbox.get(timeout=min(remaining, 0.1))
-            except queue.Empty:
-                continue
-            cmd = self._accept(key_expr, payload)
+            cmd = self.link.take(timeout=min(remaining, 0.1))
             if cmd is None:
                 continue
             if cmd.robot in self.dead and cmd.seq >= self.seq - 1:
@@ -208,26 +205,6 @@ class Simulator:
                     self._tilt[cmd.robot] = min(max(cmd.tilt, -limit), limit)
                 waiting.discard(cmd.robot)
 
-    def _accept(self, key_expr: str, payload: bytes) -> Cmd | None:
-        """Decode a command and check it against its key; count and log rejects."""
-        try:
-            cmd = Cmd.decode(payload)
-        except WireError as e:
-            self._reject(f"{key_expr}: {e}")
-            return None
-        rid = key_expr.removeprefix(self._cmd_prefix).removesuffix("/cmd")
-        if rid != cmd.robot or rid not in self._frame_pubs:
-            self._reject(f"{key_expr}: command for robot {cmd.robot!r} on this key")
-            return None
-        if cmd.seq > self.seq:
-            self._reject(f"{key_expr}: seq {cmd.seq} is ahead of frame {self.seq}")
-            return None
-        return cmd
-
-    def _reject(self, reason: str) -> None:
-        self.rejected += 1
-        log.warning("rejected command: %s", reason)
-
     def run(self, max_ticks: int | None = None, startup_timeout: float | None = None) -> SimSummary:
         """Wait for the agents, then tick until the run is over or ``max_ticks`` ticks."""
         start = time.monotonic()
@@ -235,7 +212,7 @@ class Simulator:
         log.info(
             "waiting up to %g s for an agent on each of %s (robots %s)",
             wait,
-            bus.key(self.mission.mission, "robot", "<id>", "frame"),
+            self.link.where,
             ", ".join(self.robot_ids),
         )
         missing = self.wait_for_agents(startup_timeout)
@@ -280,7 +257,6 @@ class Simulator:
         )
 
     def close(self) -> None:
-        """Undeclare the simulator's publishers and subscriber (the session stays open)."""
-        self._cmd_sub.undeclare()
-        for pub in [*self._frame_pubs.values(), self._truth_pub]:
-            pub.undeclare()
+        """Undeclare the simulator's publishers and subscribers (the session stays open)."""
+        self.link.close()
+        self._truth_pub.undeclare()

@@ -14,8 +14,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay")
-ROLES = ("robot_agent", "map_server", "coordinator", "sim2d", "replay")
+PACKAGES = ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay", "ros2_map")
+ROLES = ("robot_agent", "map_server", "coordinator", "sim2d", "replay", "ros2_map")
 CORE = (
     "swarm.map",
     "swarm.navigation",
@@ -34,7 +34,7 @@ ALLOWED: dict[str, set[str]] = {
     "swarm.navigation": {"swarm.map"},
     "swarm.formats": {"swarm.map"},
     "swarm.protocol": {"swarm.map", "swarm.formats"},
-    "swarm.config": {"swarm.map", "swarm.formats", "swarm.protocol"},
+    "swarm.config": {"swarm.map", "swarm.formats", "swarm.protocol", "swarm.ros2"},  # ros2: ROS names
     "swarm.streams": {"swarm.map", "swarm.formats", "swarm.protocol"},  # camera streams to frames
     "swarm.ros2": {"swarm.map", "swarm.formats", "swarm.protocol", "swarm.streams"},  # rmw_zenoh's wire
     "swarm.security": {"swarm.protocol"},  # certificates and access rules; used by the tooling

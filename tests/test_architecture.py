@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.architecture_rules import cycles, module_imports, violations
+from tests.architecture_rules import PACKAGES, cycles, module_imports, violations
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -18,14 +18,14 @@ def test_the_house_keeps_its_import_rules():
 
 def test_every_package_is_seen():
     groups = {m.split(".")[0] for m in module_imports(ROOT)}
-    assert groups == {"swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay"}
+    assert groups == {"swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay", "ros2_map"}
     assert "swarm.map.fusion" in module_imports(ROOT)
 
 
 @pytest.fixture
 def tree(tmp_path: Path) -> Path:
     """A copy of the project's packages to break on purpose."""
-    for package in ("swarm", "robot_agent", "map_server", "coordinator", "sim2d", "replay"):
+    for package in PACKAGES:
         shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("__pycache__"))
     return tmp_path
 
@@ -39,6 +39,11 @@ def tree(tmp_path: Path) -> Path:
             "robot_agent may not import coordinator",
         ),
         ("map_server/server.py", "import sim2d.render", "map_server may not import sim2d"),
+        (
+            "ros2_map/role.py",
+            "from coordinator.replica import TeamMap",
+            "ros2_map may not import coordinator",
+        ),
         (
             "swarm/map/fusion.py",
             "from swarm.protocol.wire import DeltaMessage",

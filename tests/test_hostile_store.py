@@ -5,7 +5,6 @@ delta acked before the crash in its map, applied once."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ import pytest
 
 import map_server.store as store_module
 from map_server.server import MapServer
+from map_server.store_files import StoreFiles
 from tests.test_server_hostile import oracle
 from tests.test_server_merge import EPOCH, encode_all, robot_batches, small_mission
 
@@ -52,10 +52,10 @@ def half_written_savez(f, **arrays):
 
 CRASHES = {
     "snapshot half written": lambda mp: mp.setattr(store_module.np, "savez", half_written_savez),
-    "before the snapshot replaces the old": lambda mp: crash_at(mp, store_module.os, "replace"),
-    "before the folder is synced": lambda mp: crash_at(mp, store_module, "_fsync_dir"),
+    "before the snapshot replaces the old": lambda mp: crash_at(mp, StoreFiles, "replace"),
+    "before the folder is synced": lambda mp: crash_at(mp, StoreFiles, "fsync_dir"),
     "before the next log exists": lambda mp: crash_at(mp, store_module.Store, "_open_wal"),
-    "before the old log is deleted": lambda mp: crash_at(mp, store_module.Path, "unlink"),
+    "before the old log is deleted": lambda mp: crash_at(mp, StoreFiles, "unlink"),
 }
 
 
@@ -73,8 +73,7 @@ def test_a_server_killed_mid_compaction_restarts_with_every_acked_delta(tmp_path
         CRASHES[crash](mp)
         with pytest.raises(Killed):
             server._compact()
-    if server.store._wal is not None:
-        os.close(server.store._wal)  # what the kernel does for a killed process
+    server.store.close()  # what the kernel does for a killed process: its files and lock go
 
     again = MapServer(mission, tmp_path / "store")
     expected = oracle(mission, [p for _, _, p in sent])
@@ -87,6 +86,7 @@ def test_a_server_killed_mid_compaction_restarts_with_every_acked_delta(tmp_path
     assert sorted(p.name for p in (tmp_path / "store").iterdir()) == [
         "snapshot.npz",
         "store.json",
+        "store.lock",
         f"wal-{again.store.generation:06d}.log",
     ]
 
@@ -96,10 +96,10 @@ def test_a_server_killed_while_it_creates_its_store_starts_again(tmp_path: Path,
     store.json.tmp and every later start refused it as 'not a map store'."""
     mission = small_mission()
     with monkeypatch.context() as mp:
-        crash_at(mp, store_module.os, "replace")
+        crash_at(mp, StoreFiles, "replace")
         with pytest.raises(Killed):
             MapServer(mission, tmp_path / "store")
-    assert [p.name for p in (tmp_path / "store").iterdir()] == ["store.json.tmp"]
+    assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["store.json.tmp", "store.lock"]
     server = MapServer(mission, tmp_path / "store")
     server.store.close()
     assert (tmp_path / "store" / "store.json").exists()

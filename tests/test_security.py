@@ -97,7 +97,8 @@ def test_every_identity_has_a_certificate_of_the_mission_ca_and_a_config(team):
         assert tls["enable_mtls"] is True and Path(tls["connect_certificate"]).is_file()
         acl = json.loads(conf.get_json("access_control"))
         if name == "server":
-            assert listen == ["tls/0.0.0.0:7447"] and acl["enabled"] and acl["default_permission"] == "deny"
+            assert listen == ["tls/0.0.0.0:7447#tls_handshake_timeout_ms=60000"]
+            assert acl["enabled"] and acl["default_permission"] == "deny"
         else:
             assert connect == ["tls/127.0.0.1:7447"] and not listen and not acl["enabled"]
 

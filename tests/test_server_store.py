@@ -12,16 +12,9 @@ import pytest
 from map_server.ledger import validate_delta
 from map_server.options import ServerOptions
 from map_server.server import MapServer
-from map_server.store import (
-    RECORD_HEADER,
-    WAL_HEADER,
-    Store,
-    StoreError,
-    StoreIdentity,
-    encode_records,
-    read_wal,
-)
+from map_server.store import Store, StoreError, StoreIdentity
 from map_server.team_map import TeamMap
+from map_server.wal_file import RECORD_HEADER, WAL_HEADER, encode_records, read_wal
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from tests.test_server_merge import (
@@ -83,7 +76,7 @@ def test_a_failed_append_leaves_no_partial_record(tmp_path: Path, monkeypatch):
         real_write(fd, bytes(data[:5]))
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("map_server.store.os.write", disk_full)
+    monkeypatch.setattr("map_server.store_files.os.write", disk_full)
     with pytest.raises(OSError, match="No space"):
         store.append([b"lost"])
     monkeypatch.undo()
@@ -140,7 +133,7 @@ def test_compaction_starts_a_new_log_and_recovery_replays_only_what_follows(tmp_
     store.append([b"later"])
     store.close()
     names = sorted(p.name for p in (tmp_path / "s").iterdir())
-    assert names == ["snapshot.npz", "store.json", "wal-000002.log"]
+    assert names == ["snapshot.npz", "store.json", "store.lock", "wal-000002.log"]
     store, rec = Store.open(tmp_path / "s", IDENTITY)
     store.close()
     np.testing.assert_array_equal(rec.lam, lam)

@@ -1,4 +1,5 @@
-"""``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, server, sparse map)."""
+"""``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, server, ROS 2 map,
+sparse map)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from swarm.cli import bench_ros2
 from swarm.cli.common import fail
 
 
@@ -194,6 +196,62 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     soak.add_argument("--voxels", type=int, default=2000, help="voxels per delta, at least (default 2000)")
     soak.set_defaults(run=_run_bench_soak)
+    durable = bsub.add_parser(
+        "durability",
+        help="acked deltas lost by the map server's store under SIGKILL and simulated power cuts",
+        description="Power cuts: the store's file operations recorded while a map server merges and "
+        "compacts, and for every instant of the recording every disk state a cut may leave (unsynced "
+        "data and folder names dropped, torn or zeroed tails) opened by a new server: acked deltas "
+        "lost, and deltas applied twice. SIGKILL: --kills kills of a swarm server process mid-stream "
+        "on loopback, restarted on the same store each time. Exit status 1 if anything acked was lost.",
+    )
+    durable.add_argument("--kills", type=at_least(1), default=15, help="SIGKILL rounds (default 15)")
+    durable.add_argument(
+        "--deltas", type=at_least(2), default=8, help="deltas per robot of the power-cut run (default 8)"
+    )
+    durable.set_defaults(run=_run_bench_durability)
+    slow = bsub.add_parser(
+        "slowloris",
+        help="new sessions and acks while a stranger holds hundreds of idle connections to the server",
+        description="A swarm server on loopback over TCP, then over mutual TLS; a stranger holds "
+        "--connections idle or stalled-handshake connections for --seconds, reopening each one closed. "
+        "Prints how long a new robot session takes to open before, during and right after, and the "
+        "longest gap between an honest robot's acks (docs/security.md, Transport limits).",
+    )
+    slow.add_argument("--connections", type=at_least(1), default=300, help="idle connections (default 300)")
+    slow.add_argument("--seconds", type=float, default=20.0, help="attack length (default 20)")
+    slow.set_defaults(run=_run_bench_slowloris)
+    ros2 = bsub.add_parser(
+        "ros2-map",
+        help="cost and bytes of the team map's ROS 2 topics (swarm map ros2), office and large map",
+        description="Replay the exploration of the office map and of the office repeated --tiles x "
+        "--tiles times as merged deltas (one per 1 m tile, --rate per simulated second) through "
+        "swarm map ros2's code with its default options, and print per kind of message (whole grid, "
+        "grid update, cloud) how many went out, the wall ms to build, serialise and put each, their "
+        "bytes as a subscriber received them, and the bytes per simulated second (swarm.bench.ros2_map).",
+    )
+    ros2.add_argument(
+        "--config",
+        type=Path,
+        default=_bundled(Path("configs") / "office.yaml"),
+        help="the mission whose floor plan is the map (default configs/office.yaml)",
+    )
+    ros2.add_argument("--tiles", type=at_least(2), default=4, help="large map: office x N x N (default 4)")
+    ros2.add_argument("--rate", type=float, default=20.0, help="merged deltas per simulated s (default 20)")
+    ros2.set_defaults(run=_run_bench_ros2_map)
+    bench_ros2.register(bsub)
+
+
+def _run_bench_slowloris(args: argparse.Namespace) -> int:
+    from swarm.bench import slowloris
+
+    return slowloris.run(args.connections, args.seconds)
+
+
+def _run_bench_durability(args: argparse.Namespace) -> int:
+    from swarm.bench import durability
+
+    return durability.run(args.kills, args.deltas)
 
 
 def _run_bench_soak(args: argparse.Namespace) -> int:
@@ -203,6 +261,15 @@ def _run_bench_soak(args: argparse.Namespace) -> int:
         print("swarm: error: --agents, --minutes, --period and --voxels must be positive", file=sys.stderr)
         return 2
     soak.run(args.agents, args.minutes, args.period, args.voxels)
+    return 0
+
+
+def _run_bench_ros2_map(args: argparse.Namespace) -> int:
+    from swarm.bench import ros2_map
+
+    if not args.rate > 0:
+        return fail(f"--rate {args.rate:g}: must be > 0")
+    print(ros2_map.format_figures(ros2_map.run(args.config, args.tiles, args.rate)))
     return 0
 
 

@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+from swarm.cli import ros2_map
 from swarm.cli.common import fail
 from swarm.protocol import bus
 
@@ -93,6 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="belief standard deviation of known voxels, coverage units (default 0.1)",
     )
     imp.set_defaults(run=_run_map_import)
+    ros2_map.register(msub, _add_map_query_arguments, _open_client)
 
 
 def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:

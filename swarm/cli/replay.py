@@ -23,6 +23,12 @@ def _common(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="publish at the recorded rate (default: lockstep with the agent)",
     )
+    p.add_argument(
+        "--ros2",
+        action="store_true",
+        help="play the recording as a ROS 2 robot's topics (raw images, CameraInfo, tf; rmw_zenoh) and run "
+        "the agent on its ROS 2 path (swarm agent --ros2; docs/ros2.md)",
+    )
     p.add_argument("--connect", help="join a running Zenoh router and map server at this endpoint")
     p.add_argument(
         "--zenoh-config",
@@ -218,7 +224,7 @@ def _replay(args: argparse.Namespace, opener) -> int:
     )
     options = ReplayOptions(
         args.out, robot, args.start, args.frames, args.realtime, args.connect,
-        zenoh_config=args.zenoh_config, agent_zenoh_config=args.agent_zenoh_config,
+        zenoh_config=args.zenoh_config, agent_zenoh_config=args.agent_zenoh_config, ros2=args.ros2,
     )  # fmt: skip
     metrics = run_replay(recording, mission, options)
     print(json.dumps(metrics, indent=2))

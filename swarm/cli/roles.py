@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from swarm.cli import ros2_options
 from swarm.cli.common import fail
 from swarm.protocol import bus
 
@@ -43,6 +44,7 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         help="seconds between progress lines: frames fused, deltas sent and acked, map entropy (default 10)",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+    ros2_options.add_arguments(p)
     p.set_defaults(run=_run_agent)
 
 
@@ -65,11 +67,19 @@ def _run_agent(args: argparse.Namespace) -> int:
         if args.robot_id not in mission.robot_ids:
             known = ", ".join(mission.robot_ids)
             raise ValueError(f"{args.config}: robots: no robot {args.robot_id!r} (robots: {known})")
+        ros2 = ros2_options.ros2_config(mission, args.robot_id, args)
         log.info("%s: %s", args.robot_id, bus.describe_connection(args.listen, args.connect))
-        session = bus.open_session(args.listen, args.connect, config_file=args.zenoh_config)
+        session = bus.open_session(
+            args.listen, args.connect, config_file=args.zenoh_config, timestamping=ros2 is not None
+        )
         log.info("%s: connected; mission %r (from %s)", args.robot_id, mission.mission, args.config)
         coordinated = args.coordination == "auto"
-        agent = Agent(mission, args.robot_id, session, args.strategy, args.seed, coordination=coordinated)
+        link = None
+        if ros2 is not None:
+            from robot_agent.ros2_link import Ros2Link
+
+            link = Ros2Link.open(mission, args.robot_id, session, ros2)
+        agent = Agent(mission, args.robot_id, session, args.strategy, args.seed, coordinated, link)
         agent.progress_every_s = args.progress_every
     except (ConfigError, ValueError, ConnectionError) as exc:
         return fail(str(exc))
@@ -94,6 +104,11 @@ def _run_agent(args: argparse.Namespace) -> int:
                 f"map entropy {agent.explorer.map_entropy:,.0f} bits",
                 flush=True,
             )
+            if link is not None:
+                frames, commands = link.frames, link.commands
+                dropped = frames.all_counters()
+                print(f"{args.robot_id}: ROS 2: {frames.pairs_made} pairs taken; dropped {dropped}; "
+                      f"commands {dict(commands.counters)}", flush=True)  # fmt: skip
         session.close()
     return fail(f"{args.config}: mission: {mismatch}") if mismatch else 0
 

@@ -79,6 +79,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="mutual TLS and access control: a fresh CA and one certificate per role in <out>/security; "
         "the map server is the TLS router and enforces who may put and answer what (docs/security.md)",
     )
+    run.add_argument(
+        "--ros2",
+        action="store_true",
+        help="every robot a ROS 2 robot over rmw_zenoh: the world publishes each robot's camera topics, "
+        "CameraInfo, tf and /clock and takes cmd_vel; the agents take frames and give commands only there "
+        "(docs/ros2.md)",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(run=_run_sim_mission)
     render = ssub.add_parser(

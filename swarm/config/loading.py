@@ -15,6 +15,7 @@ from swarm.config.models import (
     RigConfig,
     RobotBodyConfig,
 )
+from swarm.config.ros2 import resolve_robot_ros2
 from swarm.formats.errors import refuse_non_finite, user_path
 from swarm.formats.validation_errors import describe_validation_error
 from swarm.formats.yaml_file import read_yaml
@@ -61,6 +62,8 @@ def check_mission(mission: Mission) -> None:
             fail(f"robots[{i}].id", f"duplicate robot id {robot.id!r}")
         seen.add(robot.id)
         mission._robot_rigs[robot.id] = _resolve_rig(mission, robot.rig, f"robots[{i}].rig")
+        field = f"robots[{i}].ros2"
+        mission._robot_ros2[robot.id] = resolve_robot_ros2(mission.ros2, robot.ros2, where, field)
     for name, overrides in mission.rigs.items():
         _resolve_rig(mission, overrides, f"rigs.{name}")
 

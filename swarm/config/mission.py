@@ -30,6 +30,7 @@ from swarm.config.models import (
     StopConfig,
     WorkspaceConfig,
 )
+from swarm.config.ros2 import Ros2Config
 from swarm.formats.errors import user_path
 from swarm.map.sensor_model import SensorModel
 
@@ -52,10 +53,13 @@ class Mission(Section):
     robot: RobotBodyConfig = RobotBodyConfig()
     stop: StopConfig = StopConfig()
     sim: SimConfig = SimConfig()
+    #: how robots running ROS 2 give frames and take commands (docs/ros2.md); robots may override
+    ros2: Ros2Config = Ros2Config()
 
     _source: Path | None = PrivateAttr(default=None)
     _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
     _robot_rigs: dict[str, RigConfig] = PrivateAttr(default_factory=dict)
+    _robot_ros2: dict[str, Ros2Config] = PrivateAttr(default_factory=dict)
     _plan: Any = PrivateAttr(default=None)
 
     # -- accessors -----------------------------------------------------------------------
@@ -78,6 +82,18 @@ class Mission(Section):
         """The resolved rig of a robot (its own overrides applied to the default rig)."""
         self.robot_spec(robot_id)
         return self._robot_rigs.get(robot_id, self.rig)
+
+    def ros2_for(self, robot_id: str) -> Ros2Config:
+        """The resolved ROS 2 link of a robot (its ``ros2`` overrides on the mission's section,
+        ``{robot}`` in the namespace replaced by its id). ConfigError when the id does not make a
+        ROS namespace (``-`` is not allowed in ROS names)."""
+        spec = self.robot_spec(robot_id)
+        try:
+            return self._robot_ros2.get(robot_id, self.ros2).for_robot(robot_id)
+        except ValueError as exc:
+            field = "ros2.namespace" if spec.ros2 is None or "namespace" not in spec.ros2 else (
+                f"robots[{self.robots.index(spec)}].ros2.namespace")  # fmt: skip
+            raise ConfigError(f"{self.source or '<mission>'}: {field}: {exc}") from None
 
     def sensor_model_for(self, robot_id: str) -> SensorModel:
         """The sensor model a robot fuses its frames with (``sensor_model_of`` its rig)."""

@@ -324,3 +324,5 @@ class RobotSpec(Section):
     id: str = Field(pattern=NAME_PATTERN)
     start: Pose2D
     rig: str | dict[str, Any] | None = None
+    #: overrides of the mission's ``ros2`` section for this robot (``swarm.config.ros2``)
+    ros2: dict[str, Any] | None = None

@@ -199,6 +199,7 @@ def stereo_from_camera_infos(
         for info in (left, right)
     )
     maps = None
+    cameras = (left, right)
     if not rectified:
         maps = RectificationMaps(
             *(
@@ -217,6 +218,10 @@ def stereo_from_camera_infos(
         maps=maps,
         left_rotation=None if rectified else left.r.copy(),
         source=source,
+        cameras=None
+        if rectified
+        else tuple((c.k.copy(), c.d.copy(), c.r.copy(), c.p.copy()) for c in cameras),
+        fisheye=left.distortion_model in FISHEYE_MODELS,
     )
 
 

@@ -85,7 +85,10 @@ class StereoCalibration:
     rectified left camera is R1.T X in the physical left camera. ``source`` names where the
     calibration came from, for messages. ``ndisp`` is a disparity range the file states
     (Middlebury's ``ndisp``), None when it gives none. ``notes`` are remarks for the user,
-    e.g. the fields that were read and ignored.
+    e.g. the fields that were read and ignored. ``cameras`` is each raw camera's (K, D, R, P) as a
+    ROS CameraInfo holds them (REP-104), when the calibration rectifies raw images (None: a rig
+    rectified already, whose CameraInfo is its rectified pinhole); ``fisheye``: their D is the
+    equidistant model's (else radial-tangential).
     """
 
     fx: float
@@ -100,6 +103,8 @@ class StereoCalibration:
     source: str = "<calibration>"
     ndisp: int | None = None
     notes: tuple[str, ...] = ()
+    cameras: tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]] | None = None
+    fisheye: bool = False
 
     @property
     def disparity_offset(self) -> float:
@@ -287,6 +292,11 @@ def rectify_stereo(
         left_rotation=np.asarray(r1, dtype=np.float64),
         source=source,
         notes=notes,
+        cameras=tuple(
+            tuple(np.asarray(a, dtype=np.float64).copy() for a in camera)
+            for camera in ((k1, d1, r1, p1), (k2, d2, r2, p2))
+        ),
+        fisheye=fisheye,
     )
 
 

@@ -24,6 +24,7 @@ from typing import Protocol
 import numpy as np
 
 from replay.publisher import FramePublisher
+from replay.ros2_player import Ros2Player
 from robot_agent.explorer import load_kernels
 from robot_agent.stereo import matcher_for_rig
 from swarm.config import Mission, mission_from_dict
@@ -140,12 +141,18 @@ class ReplayOptions:
     quiet: bool = False
     zenoh_config: Path | None = None  # the replay's own session (the frame source), with connect
     agent_zenoh_config: Path | None = None  # the agent's, with connect (docs/security.md)
+    ros2: bool = False  # the recording as a ROS 2 robot's topics, the agent on its ROS 2 path
 
 
 def _frames(recording: Recording, options: ReplayOptions) -> Iterator[Frame]:
+    for _pair, frame in _pairs(recording, options):
+        yield frame
+
+
+def _pairs(recording: Recording, options: ReplayOptions) -> Iterator[tuple[RecordedPair, Frame]]:
     camera = rectified_camera(recording.calibration)
     for seq, pair in enumerate(recording.pairs(options.start, options.count)):
-        yield make_frame(options.robot, seq, pair, recording.calibration, camera)
+        yield pair, make_frame(options.robot, seq, pair, recording.calibration, camera)
 
 
 def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -> dict:
@@ -187,12 +194,15 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             wait_for_server(client, server)
         agent = start_role(
             ["agent", "--id", options.robot, "--connect", endpoint, "--config", str(config_path),
-             "--coordination", "none",
+             "--coordination", "none", *(["--ros2"] if options.ros2 else []),
              *(["--zenoh-config", str(options.agent_zenoh_config)] if options.agent_zenoh_config else [])],
             out / f"agent-{options.robot}.log",
         )  # fmt: skip
         procs.append(agent)  # stopped below however the replay ends
-        publisher = FramePublisher(session, name, options.robot)
+        if options.ros2:
+            publisher = Ros2Player(session, mission, options.robot, recording.calibration)
+        else:
+            publisher = FramePublisher(session, name, options.robot)
         if not publisher.wait_for_agent(AGENT_START_S):
             raise RoleError(
                 f"the agent did not subscribe to its frames within {AGENT_START_S:g} s "
@@ -229,7 +239,8 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
                 print(f"frame {frame.seq + 1:4d}/{len(recording)}  {ms}{shown}  "
                       f"H={h:,.0f} bits{after}", flush=True)  # fmt: skip
 
-        log = publisher.run(_frames(recording, options), options.realtime, after_each=after_each)
+        items = _pairs(recording, options) if options.ros2 else _frames(recording, options)
+        log = publisher.run(items, options.realtime, after_each=after_each)
         for row, (_seq, _t, rtt), sent in zip(rows, log.rows, log.sent_s, strict=True):
             row["round_trip_ms"] = None if rtt is None else rtt * 1e3
             row["sent_s"] = sent

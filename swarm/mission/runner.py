@@ -62,6 +62,7 @@ class MissionOptions:
     kill_coordinator_at_s: float | None = None  # fault injection: SIGKILL it at this sim time
     view: str | None = None  # "window": swarm view beside the mission; a path: its .rrd recording
     secure: bool = False  # mutual TLS and access control, one certificate per role
+    ros2: bool = False  # every robot's frames and commands over ROS 2 (rmw_zenoh), docs/ros2.md
 
 
 @dataclass(frozen=True)
@@ -162,12 +163,16 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         view = _start_view(options.view, plan, name, out)
         if view is not None:
             services.append(view)
-        world = start_role(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
+        ros2 = ["--ros2"] if options.ros2 else []
+        world_args = ["sim", "world", str(config_path), *plan.child_args("world"), *ros2]
+        world = start_role(world_args, out / "world.log")
         coordination = "auto" if options.coordination != "none" else "none"
+        ros2 += ["--ros2-use-sim-time"] if options.ros2 else []
         agents = [
             start_role(
                 ["agent", "--id", rid, *plan.child_args(agent_name(rid)), "--config", str(config_path),
-                 "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination],
+                 "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination,
+             *ros2],
                 out / f"agent-{rid}.log",
             )
             for rid in mission.robot_ids

@@ -141,6 +141,16 @@ def _floor_the_planner_never_reaches(
     return float(np.count_nonzero(never)) * cell_area, pieces
 
 
+def stereo_only(mission: Mission) -> None:
+    """Raise ConfigError unless every robot's rig is a stereo pair (what a ROS 2 robot publishes)."""
+    for i, robot in enumerate(mission.robots):
+        if mission.rig_for(robot.id).mode != "stereo":
+            raise ConfigError(
+                f"{mission.source or '<mission>'}: robots[{i}].rig: mode range: the simulated ROS 2 robots "
+                'publish stereo pairs only (docs/ros2.md, "Not supported")'
+            )
+
+
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
     """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied;
     refused when too large to simulate (``check_simulation_size``)."""
@@ -216,6 +226,13 @@ def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     try:
         if args.seed < 0:
             raise ConfigError(f"--seed {args.seed}: must be 0 or more")
+        if getattr(args, "ros2", False) and args.secure:
+            raise ConfigError(
+                "--ros2 with --secure: the team's access rules admit only swarm/<mission>/ keys, and a ROS 2 "
+                'robot\'s topics travel on its own rmw_zenohd router (docs/ros2.md, "With TLS")'
+            )
+        if getattr(args, "ros2", False):
+            stereo_only(mission)
         if args.max_time is not None and not args.max_time > 0:
             raise ConfigError(f"--max-time {args.max_time:g}: must be > 0 (simulated seconds)")
         fraction = getattr(args, "observable_threshold", None)
@@ -243,11 +260,13 @@ def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         kill_coordinator_at_s=args.kill_coordinator_at,
         view=getattr(args, "view", None),
         secure=args.secure,
+        ros2=getattr(args, "ros2", False),
     )
     print(
         f"mission {mission.mission}: robots {', '.join(mission.robot_ids)}, strategy {args.strategy}, "
         f"coordination {coordination}, seed {args.seed}, H_th {mission.threshold_bits():,.0f} bits"
-        f"{', mutual TLS and access control' if args.secure else ''} -> {out}",
+        f"{', mutual TLS and access control' if args.secure else ''}"
+        f"{', frames and commands over ROS 2 (rmw_zenoh)' if options.ros2 else ''} -> {out}",
         flush=True,
     )
     monitor, facts = run_mission(mission, options)
@@ -279,6 +298,7 @@ def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
     metrics = compute_metrics(record, monitor.cmap, truth, observed_by, sensor_observable)
     metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
     metrics["stop_reason"] = facts["reason"]
+    metrics["robot_link"] = "ros2" if options.ros2 else "swarm"
     metrics["max_time_s"] = mission.stop.max_time_s if args.max_time is None else float(args.max_time)
     metrics["share_min_bits"] = mission.sharing.share_min_bits
     metrics["max_held_bits"] = mission.sharing.max_held_bits

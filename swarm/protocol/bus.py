@@ -25,9 +25,12 @@ from pathlib import Path
 
 import zenoh
 
-from swarm.protocol.message_size import bound_received_messages
+from swarm.protocol.message_size import PATTERN_ROBOTS, bound_received_messages
+from swarm.protocol.transport_limits import apply_team_limits, max_sessions_for, with_handshake_timeout
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: The sessions a router other than the map server keeps (swarm sim's runner): a team's worth.
+DEFAULT_MAX_SESSIONS = max_sessions_for(PATTERN_ROBOTS)
 ROOT = "swarm"
 CONFIG_ENV = "ZENOH_CONFIG"
 # TLS options naming files: a relative path in a config file is relative to that file
@@ -121,6 +124,8 @@ def session_config(
     config_file: str | Path | None = None,
     multicast_scouting: bool = False,
     max_message_bytes: int | None = None,
+    max_sessions: int = DEFAULT_MAX_SESSIONS,
+    timestamping: bool = False,
 ) -> tuple[zenoh.Config, list[str], list[str]]:
     """The config a role opens its session with, and the effective listen/connect endpoints.
 
@@ -128,6 +133,10 @@ def session_config(
     neither, the session connects to ``DEFAULT_ENDPOINT``. A session that listens is a
     router, one that only connects a client. ``max_message_bytes``: the largest message the
     session takes from a link (``swarm.protocol.message_size``; a file's own value wins).
+    Every session gets the team's transport limits (``swarm.protocol.transport_limits``; a
+    file's own values win), ``max_sessions`` among them.
+    ``timestamping``: stamp every sample with the session's clock, whatever its mode (a ROS 2
+    node's latched topics need it: Zenoh's advanced publishers order their cache by it).
     """
     listen = list(listen or [])
     connect = list(connect or [])
@@ -140,9 +149,13 @@ def session_config(
     if not listen and not connect:
         connect = [DEFAULT_ENDPOINT]
     mode = "router" if listen else "client"
-    conf = make_config(listen, connect, multicast_scouting=multicast_scouting, mode=mode, base=base)
+    listen_conf = [with_handshake_timeout(e) for e in listen]
+    conf = make_config(listen_conf, connect, multicast_scouting=multicast_scouting, mode=mode, base=base)
+    apply_team_limits(conf, max_sessions)
     if max_message_bytes is not None:
         bound_received_messages(conf, max_message_bytes)
+    if timestamping:
+        conf.insert_json5("timestamping/enabled", "true")
     return conf, listen, connect
 
 
@@ -154,6 +167,8 @@ def open_session(
     wait_s: float = 30.0,
     config_file: str | Path | None = None,
     max_message_bytes: int | None = None,
+    max_sessions: int = DEFAULT_MAX_SESSIONS,
+    timestamping: bool = False,
 ) -> zenoh.Session:
     """Open a Zenoh session; with neither ``listen`` nor ``connect`` it connects to the default.
 
@@ -165,9 +180,15 @@ def open_session(
     its endpoints are used when none are given here. Raises ``ValueError`` for a bad config
     file, ``zenoh.ZError`` when it cannot listen, and ``ConnectionError`` when no router
     accepts the connection in time (for TLS: a wrong certificate looks the same from this side).
-    ``max_message_bytes`` bounds the messages it receives (``session_config``).
+    ``max_message_bytes`` bounds the messages it receives, ``max_sessions`` the sessions it
+    keeps as a router, ``timestamping`` stamps every sample (``session_config``).
     """
-    options = {"multicast_scouting": multicast_scouting, "max_message_bytes": max_message_bytes}
+    options = {
+        "multicast_scouting": multicast_scouting,
+        "max_message_bytes": max_message_bytes,
+        "max_sessions": max_sessions,
+        "timestamping": timestamping,
+    }
     conf, listen, connect = session_config(listen, connect, config_file=config_file, **options)
     if listen:
         return zenoh.open(conf)  # a busy port raises zenoh.ZError (the CLI prints it as one line)

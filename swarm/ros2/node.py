@@ -120,6 +120,12 @@ class Ros2Publisher:
         self._token = ctx.session.liveliness().declare_token(self.entity.token())
         self.published = 0
 
+    def has_subscribers(self) -> bool:
+        """Whether a subscription matches this topic now (a TRANSIENT_LOCAL publisher's Zenoh
+        advanced publisher tells nothing: True, its late joiners get the cache anyway)."""
+        status = getattr(self._publisher, "matching_status", None)
+        return True if status is None else bool(getattr(status, "matching", status))
+
     def publish(self, message: Any) -> None:
         """Serialise ``message`` (of this publisher's type) and put it with its attachment."""
         self.publish_cdr(self.types.serialize(message, self.type_name))
@@ -132,8 +138,11 @@ class Ros2Publisher:
             self.published += 1
 
     def close(self) -> None:
-        self._token.undeclare()
-        self._publisher.undeclare()
+        """Undeclare the publisher and its token (once; again does nothing)."""
+        if self._token is not None:
+            self._token.undeclare()
+            self._publisher.undeclare()
+            self._token = None
 
 
 class Ros2Subscription:
@@ -208,8 +217,11 @@ class Ros2Subscription:
             self._refuse("callback raised", f"{type(exc).__name__}: {exc}")
 
     def close(self) -> None:
-        self._token.undeclare()
-        self._subscriber.undeclare()
+        """Undeclare the subscription and its token (once; again does nothing)."""
+        if self._token is not None:
+            self._token.undeclare()
+            self._subscriber.undeclare()
+            self._token = None
 
 
 class Ros2Node:

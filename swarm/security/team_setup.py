@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from swarm.protocol import bus
+from swarm.protocol.transport_limits import max_sessions_for, team_limits, with_handshake_timeout
 from swarm.security.access_rules import Identity, access_control, team_identities
 from swarm.security.certificates import DEFAULT_DAYS, issue, make_ca
 
@@ -36,7 +37,8 @@ class TeamFiles:
 
 
 def zenoh_config(identity: Identity, mission: str, robots: list[str], hosts: list[str], port: int) -> dict:
-    """The Zenoh config of ``identity``: mTLS with the mission's CA; the router gets the rules."""
+    """The Zenoh config of ``identity``: mTLS with the mission's CA, the team's transport limits
+    (``swarm.protocol.transport_limits``); the router gets the rules."""
     tls = {
         "root_ca_certificate": "../ca.pem",
         "enable_mtls": True,
@@ -48,12 +50,18 @@ def zenoh_config(identity: Identity, mission: str, robots: list[str], hosts: lis
     if identity.listens:
         tls.update(listen_certificate="cert.pem", listen_private_key="key.pem")
         conf["mode"] = "router"
-        conf["listen"] = {"endpoints": [f"tls/0.0.0.0:{port}"]}
+        conf["listen"] = {"endpoints": [with_handshake_timeout(f"tls/0.0.0.0:{port}")]}
         conf["access_control"] = access_control(mission, robots)
     else:
         conf["mode"] = "client"
         conf["connect"] = {"endpoints": [f"tls/{_host_part(hosts[0])}:{port}"]}
-    conf["transport"] = {"link": {"tls": tls}}
+    limits = team_limits(max_sessions_for(len(robots)))
+    conf["transport"] = {
+        "unicast": {
+            key.rsplit("/", 1)[1]: v for key, v in limits.items() if key.startswith("transport/unicast/")
+        },
+        "link": {"tx": {"lease": limits["transport/link/tx/lease"]}, "tls": tls},
+    }
     return conf
 
 
