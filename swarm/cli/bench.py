@@ -161,7 +161,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sparse.add_argument(
         "--config",
         type=Path,
-        default=Path("configs/office.yaml"),
+        default=_bundled(Path("configs") / "office.yaml"),
         help="mission whose floor and rig give the frames (default configs/office.yaml)",
     )
     sparse.add_argument("--scan", type=Path, default=DEFAULT_SCAN, help=f"real scan (default {DEFAULT_SCAN})")

@@ -93,13 +93,14 @@ class BlockMap:
         return out
 
     def copy(self) -> BlockMap:
+        """An independent copy (its own arrays)."""
         other = BlockMap(self.lattice, self.sensor, self.bounds, entropy=self.tracks_entropy)
         other._grow(self.n_blocks)
         n, used = self.n_blocks, self.n_blocks * self._bv
         other.n_blocks = n
         other._keys[:n] = self._keys[:n]
         other._lam[:used], other._eta[:used] = self._lam[:used], self._eta[:used]
-        other._ent[:used], other._block_bits[:n] = self._ent[:used], self._block_bits[:n]
+        other._ent[:used], other._block_entropy[:n] = self._ent[:used], self._block_entropy[:n]
         other._packed, other._slot_of_packed = self._packed.copy(), self._slot_of_packed.copy()
         return other
 
@@ -150,7 +151,7 @@ class BlockMap:
             setattr(self, name, arr)
         if not self.tracks_entropy:
             self._ent = np.zeros(0, np.float32)
-        for name, shape, dtype in (("_keys", (cap, 3), np.int64), ("_block_bits", (cap,), np.float64)):
+        for name, shape, dtype in (("_keys", (cap, 3), np.int64), ("_block_entropy", (cap,), np.float64)):
             arr = np.empty(shape, dtype)
             if hasattr(self, name):
                 arr[:n] = getattr(self, name)[:n]
@@ -183,7 +184,7 @@ class BlockMap:
         self._lam[rows], self._eta[rows] = self.prior
         if self.tracks_entropy:
             self._ent[rows] = self.prior_bits
-        self._block_bits[n : n + k] = float(self.prior_bits) * self._bv
+        self._block_entropy[n : n + k] = float(self.prior_bits) * self._bv
         self._keys[n : n + k] = keys
         self.n_blocks = n + k
         return np.arange(n, n + k, dtype=np.int64)
@@ -246,9 +247,9 @@ class BlockMap:
 
     def _refresh_entropy(self, positions: np.ndarray) -> None:
         """Recompute the cached entropy of the voxels at ``positions`` (each once) and their blocks' sums."""
-        touched = kernels.take_touched(self._ent, positions, self._block_bits, self._shift)
+        touched = kernels.take_touched(self._ent, positions, self._block_entropy, self._shift)
         new = default_table()(*moments(self._lam[touched], self._eta[touched]))
-        kernels.put_touched(self._ent, touched, new, self._block_bits, self._shift)
+        kernels.put_touched(self._ent, touched, new, self._block_entropy, self._shift)
 
     def integrate(self, origin: np.ndarray, points: np.ndarray, **options) -> BlockBatchResult:
         """Fuse one batch of hit points seen from ``origin``; returns the batch and its block delta.
@@ -314,7 +315,7 @@ class BlockMap:
     def _entropies(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-voxel entropies of the allocated blocks (flat) and their per-block sums."""
         if self.tracks_entropy:
-            return self._ent, self._block_bits
+            return self._ent, self._block_entropy
         used = self.allocated_voxels
         values = default_table()(*moments(self._lam[:used], self._eta[:used]))
         return values, values.reshape(-1, self._bv).sum(axis=1, dtype=np.float64)
