@@ -194,7 +194,7 @@ def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> No
         "from swarm.navigation import grid_kernels as k, planner, view_kernels as v\n"
         "planner.warm_up()",
         "(k.band_occupancy, k.inflate_blocked, k.disc_cells, k.grid_graph, k.segment_is_free,"
-        " c._add_information, v.stand_for)",
+        " c.add_information, v.stand_for)",
     )
     assert len(stats) == 7
     for name, (hits, misses) in stats.items():

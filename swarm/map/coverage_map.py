@@ -75,14 +75,14 @@ class CoverageMap:
 
     def _add(self, delta: Delta, check_range: bool) -> None:
         idx = delta.idx if delta.idx.dtype in (np.uint32, np.int64) else delta.idx.astype(np.int64)
-        status = _add_information(
+        status = add_information(
             self.lam, self.eta, idx, delta.dlam, delta.deta, check_range, LAM_MAX, MEAN_SLACK
         )
-        if status == _OUTSIDE:
+        if status == OUTSIDE:
             self.grid.check_flat(delta.idx)  # raises, naming the range
-        if status == _NONFINITE:
+        if status == NONFINITE:
             raise ValueError("delta holds NaN or inf information")
-        if status == _OUT_OF_RANGE:
+        if status == OUT_OF_RANGE:
             raise ValueError(
                 f"delta would leave a voxel's information outside (0, {LAM_MAX:g}] or its mean outside [0, 1]"
             )
@@ -120,22 +120,23 @@ class CoverageMap:
         return np.float32(lam0) * np.float32(1.0 + 1e-5)
 
 
-_OUTSIDE, _NONFINITE, _OUT_OF_RANGE = 1, 2, 3
+OUTSIDE, NONFINITE, OUT_OF_RANGE = 1, 2, 3
 
 
 @njit(cache=True, nogil=True)
-def _add_information(lam, eta, idx, dlam, deta, check_range, lam_max, slack):
-    """lam[idx] += dlam and eta[idx] += deta in order (repeats add again), or nothing at all:
-    returns 0 when applied, _OUTSIDE for an index outside the map, _NONFINITE for NaN/inf,
-    and with ``check_range`` _OUT_OF_RANGE when a touched voxel would end outside
+def add_information(lam, eta, idx, dlam, deta, check_range, lam_max, slack):
+    """lam[idx] += dlam and eta[idx] += deta in order (repeats add again), or nothing at all
+    (the update of ``CoverageMap.apply`` and of the block-sparse map's flat block arrays):
+    returns 0 when applied, OUTSIDE for an index outside the map, NONFINITE for NaN/inf,
+    and with ``check_range`` OUT_OF_RANGE when a touched voxel would end outside
     0 < lam <= lam_max or -slack lam <= eta <= (1 + slack) lam (its old values put back)."""
     n = idx.shape[0]
     for k in range(n):
         if idx[k] < 0 or idx[k] >= lam.shape[0]:
-            return _OUTSIDE
+            return OUTSIDE
     for k in range(n):
         if not (np.isfinite(dlam[k]) and np.isfinite(deta[k])):
-            return _NONFINITE
+            return NONFINITE
     if not check_range:
         for k in range(n):
             lam[idx[k]] += dlam[k]
@@ -154,7 +155,7 @@ def _add_information(lam, eta, idx, dlam, deta, check_range, lam_max, slack):
             for j in range(n - 1, -1, -1):  # backwards: a repeated index ends at its first old value
                 lam[idx[j]] = old_lam[j]
                 eta[idx[j]] = old_eta[j]
-            return _OUT_OF_RANGE
+            return OUT_OF_RANGE
     return 0
 
 

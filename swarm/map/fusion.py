@@ -56,7 +56,7 @@ def reserve(grid: Grid, discretize: bool = True) -> None:
         _slots(grid)
 
 
-def _pool(blocks: int) -> tuple[np.ndarray, np.ndarray]:
+def kept_pool(blocks: int) -> tuple[np.ndarray, np.ndarray]:
     """This thread's per-voxel sums for ``fuse_rays`` (room for ``blocks`` blocks), kept and grown.
 
     Zero between batches (the kernel restores them). Kept, their memory is faulted in once,
@@ -73,24 +73,24 @@ def _pool(blocks: int) -> tuple[np.ndarray, np.ndarray]:
     return pool
 
 
-def _kept_index(name: str, size: int) -> np.ndarray:
-    """This thread's int32 index array ``name`` of ``size`` entries, all -1 between batches
-    (its users restore them), kept while the size stays the same."""
+def kept_index(name: str, size: int) -> np.ndarray:
+    """The first ``size`` entries of this thread's int32 index array ``name``, all -1 between
+    batches (its users restore them); kept, and grown when a batch needs more."""
     index = getattr(_local, name, None)
-    if index is None or len(index) != size:
+    if index is None or len(index) < size:
         index = np.full(size, -1, dtype=np.int32)
         setattr(_local, name, index)
-    return index
+    return index[:size]
 
 
 def _table(grid: Grid) -> np.ndarray:
     """This thread's brick table for ``grid`` (int32, all -1), kept between batches."""
-    return _kept_index("table", kernel.block_table_size(grid.shape))
+    return kept_index("table", kernel.block_table_size(kernel.grid_box(grid.shape)))
 
 
 def _slots(grid: Grid) -> np.ndarray:
     """This thread's slot map for ``grid`` (int32, all -1) for ``discretize_rays``, kept between batches."""
-    return _kept_index("slots", ray_batch.slot_map_size(grid.shape))
+    return kept_index("slots", ray_batch.slot_map_size(grid.shape))
 
 
 def batch_information(
@@ -130,14 +130,14 @@ def batch_information(
 
     lo, hi, e = grid.lo, grid.hi, grid.voxel
     ends, d, returned, counts = ray_batch.prepare_rays(
-        origin, points, lo, hi, e, sensor.reach, BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS
+        origin, points, lo, hi, e, sensor.reach, BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS, lo
     )
     start = (origin - lo) / e
-    shape = np.asarray(grid.shape, dtype=np.int64)
+    box = kernel.grid_box(grid.shape)
     rays = len(ends)
     if discretize and rays:
         slots = _slots(grid)
-        ends, d, returned, n_rays = ray_batch.discretize_rays(start, e, ends, d, returned, shape, slots)
+        ends, d, returned, n_rays = ray_batch.discretize_rays(start, e, ends, d, returned, box, slots)
         weight = n_rays if weighted else np.ones(len(ends))
     else:
         weight = np.ones(rays)
@@ -151,14 +151,14 @@ def batch_information(
             d,
             returned,
             weight,
-            shape,
+            box,
             e,
             lo - origin + 0.5 * e,
             float(sensor.sigma_min),
             float(sensor.zeta),
             float(sensor.tau),
             bool(hit_precedence),
-            (_table(grid), *_pool(int(kernel.blocks_bound(start, ends, shape)))),
+            (_table(grid), *kept_pool(int(kernel.blocks_bound(start, ends, box)))),
         )
         delta = Delta(idx, lam, eta)
     else:

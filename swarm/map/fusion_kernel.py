@@ -1,18 +1,21 @@
 """Compiled fusion of one batch (Numba): one ray at a time, straight into per-voxel sums.
 
-``fuse_rays`` is the kernel behind ``swarm.map.fusion.batch_information`` (after
-``swarm.map.ray_batch`` has prepared the rays): exact Amanatides-Woo traversal of each ray
+``fuse_rays`` (``traverse_rays``, then the sums read out) is the kernel behind
+``swarm.map.fusion.batch_information`` (after ``swarm.map.ray_batch`` has prepared the rays),
+and ``traverse_rays`` that of the block map: exact Amanatides-Woo traversal of each ray
 (the semantics of ``swarm.map.traversal``, whose numpy implementation the tests use as the
 oracle), the sensor model of eq. 14 per voxel, and the sums of lam and eta per voxel, with
 hit precedence.
 
-- Per-voxel sums live in a pool of blocks, one block of 8 x 8 x 8 voxels per brick of the
-  grid that the batch touches, found through a small brick table (``block_table_size``
-  entries, int32, -1 = no block). A voxel's entry is its block's base plus its place in the
-  brick: a ray looks a block up once per brick it enters, not once per voxel, and the
-  voxels it crosses next sit in the same block.
-  The table is restored to -1 and the pool to zeros before returning, so the same scratch
-  space serves every batch. Nothing allocates per (ray, voxel).
+- The voxels are a box of a lattice, indices ``box[0]`` to ``box[1]`` (exclusive): a grid's 0
+  to its shape (``grid_box``), or the part of a block-sparse map's lattice a batch reaches.
+  Rays and centres are computed from the lattice's indices: any box holding the rays gives
+  the same numbers.
+- Per-voxel sums live in a pool of blocks, one of 8 x 8 x 8 voxels per lattice brick
+  (indices >> 3) the batch touches, found through a table of the bricks meeting the box
+  (``block_table_size`` int32 entries, -1 = none). A ray looks a block up once per brick it
+  enters. The read-out restores table (-1) and pool (zeros), so the same scratch space
+  serves every batch. Nothing allocates per (ray, voxel).
 - In front of a ray's end eq. 14's lam is the ray's gain exp(2 (d - e/2) / tau) / sigma_s^2
   times the voxel's damping exp(-2 r / tau), r the distance from the sensor to the voxel's
   centre. The voxels surely in front (every point nearer than d - e/2 minus the voxel's
@@ -21,8 +24,8 @@ hit precedence.
   in full into two other sums. An update in front costs no square root, no exp and no
   distance.
 - A voxel holding a return of the batch (hit precedence) is marked by a negative gain sum.
-- The output is written in C order by walking the table's blocks row by row, so the pool
-  is read once, in order.
+- ``fuse_rays`` reads out in C order, walking the table's blocks row by row (the pool is read
+  once, in order); ``block_kernels.collect_blocks`` reads out block by block.
 - Only the axis that steps gets its next plane parameter (one division per step).
 
 Compiled with ``cache=True``: a second process loads the machine code from Numba's cache.
@@ -35,7 +38,7 @@ import math
 import numpy as np
 from numba import njit
 
-from swarm.map.ray_batch import BRICK_BITS, brick_count
+from swarm.map.ray_batch import BRICK_BITS
 
 #: Upper bound of one measurement's information lam = 1/sigma^2 on one voxel (sigma >= 1e-12).
 #: Eq. 14's damping makes lam grow as exp(2 (d - d_l) / tau), which overflows float32 for rays
@@ -49,16 +52,27 @@ BLOCK = 1 << (3 * BRICK_BITS)  # voxels per block (one brick)
 HALF_DIAGONAL = 0.5 * math.sqrt(3.0)  # of a voxel, in edges
 
 
-def block_table_size(shape: tuple[int, int, int]) -> int:
-    """Entries of the brick table of a grid of ``shape``: one per 8 x 8 x 8 brick."""
-    return brick_count(shape)
+def grid_box(shape: tuple[int, int, int]) -> np.ndarray:
+    """The box (2, 3) int64 of a grid of ``shape``: indices 0 to ``shape``."""
+    return np.array([(0, 0, 0), tuple(int(n) for n in shape)], dtype=np.int64)
+
+
+def block_table_size(box: np.ndarray) -> int:
+    """Entries of the brick table of ``box`` (2, 3): one per 8 x 8 x 8 lattice brick meeting it."""
+    (i0, j0, k0), (i1, j1, k1) = box.tolist()
+    b = BRICK_BITS
+    return (
+        (((i1 - 1) >> b) - (i0 >> b) + 1)
+        * (((j1 - 1) >> b) - (j0 >> b) + 1)
+        * (((k1 - 1) >> b) - (k0 >> b) + 1)
+    )
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def blocks_bound(start, ends, shape):
+def blocks_bound(start, ends, box):
     """At most how many blocks ``fuse_rays`` allocates: per ray the bricks its voxels cross (its
     L1 length in brick steps, plus one) and the brick behind its end, and never more than
-    the grid's bricks."""
+    the bricks meeting ``box``."""
     b = BRICK_BITS
     i0 = int(math.floor(start[0])) >> b
     j0 = int(math.floor(start[1])) >> b
@@ -69,7 +83,9 @@ def blocks_bound(start, ends, shape):
         bound += abs((int(math.floor(ends[r, 0])) >> b) - i0)
         bound += abs((int(math.floor(ends[r, 1])) >> b) - j0)
         bound += abs((int(math.floor(ends[r, 2])) >> b) - k0)
-    bricks = ((shape[0] + 7) >> b) * ((shape[1] + 7) >> b) * ((shape[2] + 7) >> b)
+    bricks = 1
+    for a in range(3):
+        bricks *= ((box[1, a] - 1) >> b) - (box[0, a] >> b) + 1
     return min(bound, bricks)
 
 
@@ -86,12 +102,13 @@ def _block(brick, table, n_blocks):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _entry(i, j, k, nbj, nbk, table, n_blocks):
+def _entry(i, j, k, nbj, nbk, first, table, n_blocks):
     """Pool entry of voxel (i, j, k): its brick's block's start plus the voxel's place in the
-    brick. Returns (entry, new block count)."""
+    brick (``first``: the table position the lattice formula gives the box's first brick).
+    Returns (entry, new block count)."""
     b = BRICK_BITS
     m = (1 << b) - 1
-    block, n_blocks = _block(((i >> b) * nbj + (j >> b)) * nbk + (k >> b), table, n_blocks)
+    block, n_blocks = _block(((i >> b) * nbj + (j >> b)) * nbk + (k >> b) - first, table, n_blocks)
     return (block << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m), n_blocks
 
 
@@ -133,12 +150,28 @@ def _mean(diff, inv_voxel):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def fuse_rays(
+    start, ends, d, returned, weight, box, voxel, centre_offset, sigma_min, zeta, tau, precedence, buffers
+):
+    """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
+
+    ``traverse_rays`` (the arguments) then the sums read out in C order of ``box``: ``idx`` the
+    voxels' flat indices within ``box``.
+    """
+    n_blocks, updates = traverse_rays(
+        start, ends, d, returned, weight, box, voxel, centre_offset, sigma_min, zeta, tau, precedence, buffers
+    )
+    table, gains, sums = buffers
+    return _collect(table, gains, sums, n_blocks, box, voxel, centre_offset, 2.0 / tau) + (updates,)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def traverse_rays(
     start,
     ends,
     d,
     returned,
     weight,
-    shape,
+    box,
     voxel,
     centre_offset,
     sigma_min,
@@ -147,25 +180,29 @@ def fuse_rays(
     precedence,
     buffers,
 ):
-    """Sum eq. 14's information over every ray's voxels: (idx sorted uint32, lam, eta float32, updates).
+    """Sum eq. 14's information over every ray's voxels into the scratch ``buffers``: (blocks used,
+    updates). ``fuse_rays`` or ``block_kernels.collect_blocks`` read the sums out.
 
-    ``start`` (3,) and ``ends`` (M, 3) in voxel units (inside the grid), ``d`` (M,) the model's
+    ``start`` (3,) and ``ends`` (M, 3) in voxel units of the lattice (inside ``box``, (2, 3)
+    int64: voxel indices lo inclusive, hi exclusive; a grid's ``grid_box``), ``d`` (M,) the model's
     range in metres, ``returned`` (M,) bool: a ray with a return updates its hit voxel and
     the voxel behind it (eq. 8); one without updates free space (mean 0). ``weight`` (M,):
     a ray's information is eq. 14's lam times its weight (1 for one measurement; the number
     of rays a weighted discretize measurement stands for), bounded by ``LAM_MAX``. ``centre_offset``
-    (3,) = grid lo - sensor + voxel / 2 (metres). With ``precedence`` a voxel holding a
+    (3,) = lattice origin - sensor + voxel / 2 (metres). With ``precedence`` a voxel holding a
     return of the batch gets no update from the batch's other rays except as their
-    behind voxel. ``buffers`` = (table int32 (``block_table_size``, all -1), gains float64
-    (n), sums float64 (n, 2), all zero) with n at least 512 x ``blocks_bound``: scratch
-    space kept between batches by the caller, restored before returning.
+    behind voxel, which is dropped outside ``box``. ``buffers`` = (table int32
+    (``block_table_size``, all -1), gains float64 (n), sums float64 (n, 2), all zero) with n at
+    least 512 x ``blocks_bound``: scratch space kept between batches by the caller, restored
+    by the read-out.
     """
     m = ends.shape[0]
-    nx, ny, nz = shape[0], shape[1], shape[2]
     bb = BRICK_BITS
     bm = (1 << bb) - 1
-    nbj = (ny + bm) >> bb
-    nbk = (nz + bm) >> bb
+    nbj = ((box[1, 1] - 1) >> bb) - (box[0, 1] >> bb) + 1
+    nbk = ((box[1, 2] - 1) >> bb) - (box[0, 2] >> bb) + 1
+    # a brick's table position is the lattice formula ((bi nbj + bj) nbk + bk) less the first brick's
+    first = ((box[0, 0] >> bb) * nbj + (box[0, 1] >> bb)) * nbk + (box[0, 2] >> bb)
     i0 = int(math.floor(start[0]))
     j0 = int(math.floor(start[1]))
     k0 = int(math.floor(start[2]))
@@ -181,7 +218,7 @@ def fuse_rays(
                 i = int(math.floor(ends[r, 0]))
                 j = int(math.floor(ends[r, 1]))
                 k = int(math.floor(ends[r, 2]))
-                q, n_blocks = _entry(i, j, k, nbj, nbk, table, n_blocks)
+                q, n_blocks = _entry(i, j, k, nbj, nbk, first, table, n_blocks)
                 gains[q] = -1.0
 
     # Per voxel, float32 is enough (as the numpy oracle's float32 path): eq. 14 in float32, sums in float64.
@@ -225,7 +262,7 @@ def fuse_rays(
             length = voxel * math.sqrt(dx * dx + dy * dy + dz * dz)
             t_front = (dr - (0.5 + HALF_DIAGONAL + 1e-3) * voxel - 1e-5 * dr) / length
         i, j, k = i0, j0, k0
-        brick = -1  # the brick of the ray's current block, looked up once per brick it enters
+        brick = first - 1  # the brick of the ray's current block (none yet: no brick is below first)
         base = 0
         while True:
             t = min(ti, tj, tk)  # where the ray leaves voxel (i, j, k); inf in its end voxel
@@ -233,7 +270,7 @@ def fuse_rays(
             here = ((i >> bb) * nbj + (j >> bb)) * nbk + (k >> bb)
             if here != brick:
                 brick = here
-                block, n_blocks = _block(brick, table, n_blocks)
+                block, n_blocks = _block(brick - first, table, n_blocks)
                 base = block << (3 * bb)
             q = base | ((i & bm) << (2 * bb)) | ((j & bm) << bb) | (k & bm)
             if t < t_front:
@@ -286,32 +323,47 @@ def fuse_rays(
         bi = i1 + (si if (dx != 0 and te_i == t) else 0)
         bj = j1 + (sj if (dy != 0 and te_j == t) else 0)
         bk = k1 + (sk if (dz != 0 and te_k == t) else 0)
-        if bi < 0 or bj < 0 or bk < 0 or bi >= nx or bj >= ny or bk >= nz:
+        if bi < box[0, 0] or bj < box[0, 1] or bk < box[0, 2]:
             continue
-        q, n_blocks = _entry(bi, bj, bk, nbj, nbk, table, n_blocks)
+        if bi >= box[1, 0] or bj >= box[1, 1] or bk >= box[1, 2]:
+            continue
+        q, n_blocks = _entry(bi, bj, bk, nbj, nbk, first, table, n_blocks)
         r32 = _centre_distance(bi, bj, bk, voxel, centre_offset)
         diff = r32 - dr32
         lam = _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
         sums[q, 0] += lam
         sums[q, 1] += _mean(diff, inv_voxel) * lam
         updates += 1
-    return _collect(table, gains, sums, n_blocks, shape, voxel, centre_offset, two_over_tau) + (updates,)
+    return n_blocks, updates
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def voxel_lam(g, other, i, j, k, voxel, centre_offset, two_over_tau):
+    """A touched voxel's lam from its sums: the gain sum ``g`` times its damping exp(-2 r / tau)
+    (none when ``g`` <= 0), plus ``other``."""
+    total = other
+    if g > 0.0:
+        total += g * math.exp(-two_over_tau * np.float64(_centre_distance(i, j, k, voxel, centre_offset)))
+    return total
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _collect(table, gains, sums, n_blocks, shape, voxel, centre_offset, two_over_tau):
-    """The touched voxels in C order: (idx uint32, lam, eta float32); restores table and pool.
+def _collect(table, gains, sums, n_blocks, box, voxel, centre_offset, two_over_tau):
+    """The touched voxels in C order within ``box``: (idx uint32, lam, eta float32); restores table and pool.
 
     A voxel's lam is its gain sum times its damping exp(-2 r / tau), plus its other sums.
-    Walks the grid's rows (i, j) through the bricks that hold a block, skipping (brick i,
+    Walks the box's rows (i, j) through the bricks that hold a block, skipping (brick i,
     brick j) columns that hold none, so each block is read once, in order.
     """
-    nx, ny, nz = shape[0], shape[1], shape[2]
+    lo_i, lo_j, lo_k = box[0, 0], box[0, 1], box[0, 2]
+    hi_i, hi_j, hi_k = box[1, 0], box[1, 1], box[1, 2]
+    ny, nz = hi_j - lo_j, hi_k - lo_k
     bb = BRICK_BITS
     bm = (1 << bb) - 1
-    nbi = (nx + bm) >> bb
-    nbj = (ny + bm) >> bb
-    nbk = (nz + bm) >> bb
+    b0i, b0j, b0k = lo_i >> bb, lo_j >> bb, lo_k >> bb
+    nbi = ((hi_i - 1) >> bb) - b0i + 1
+    nbj = ((hi_j - 1) >> bb) - b0j + 1
+    nbk = ((hi_k - 1) >> bb) - b0k + 1
     columns = np.zeros(nbi * nbj, np.bool_)
     for brick in range(table.shape[0]):
         if table[brick] >= 0:
@@ -321,31 +373,28 @@ def _collect(table, gains, sums, n_blocks, shape, voxel, centre_offset, two_over
     lam = np.empty(cap, np.float32)
     eta = np.empty(cap, np.float32)
     n = 0
-    for i in range(nx):
+    for i in range(lo_i, hi_i):
         for cj in range(nbj):
-            column = (i >> bb) * nbj + cj
+            column = ((i >> bb) - b0i) * nbj + cj
             if not columns[column]:
                 continue
-            for j in range(cj << bb, min(ny, (cj + 1) << bb)):
+            j_brick = (b0j + cj) << bb
+            for j in range(max(lo_j, j_brick), min(hi_j, j_brick + (1 << bb))):
                 for ck in range(nbk):
                     block = table[column * nbk + ck]
                     if block < 0:
                         continue
                     base = (block << (3 * bb)) | ((i & bm) << (2 * bb)) | ((j & bm) << bb)
-                    for kk in range(min(1 << bb, nz - (ck << bb))):
-                        q = base + kk
+                    k_brick = (b0k + ck) << bb
+                    for k in range(max(lo_k, k_brick), min(hi_k, k_brick + (1 << bb))):
+                        q = base | (k & bm)
                         g = gains[q]
                         other = sums[q, 0]
                         if g == 0.0 and other == 0.0:
                             continue
                         # Every touched voxel has a positive sum (a marked one, its own return's).
-                        k = (ck << bb) + kk
-                        total = other
-                        if g > 0.0:
-                            r32 = _centre_distance(i, j, k, voxel, centre_offset)
-                            total += g * math.exp(-two_over_tau * np.float64(r32))
-                        idx[n] = (i * ny + j) * nz + k
-                        lam[n] = total
+                        idx[n] = ((i - lo_i) * ny + (j - lo_j)) * nz + (k - lo_k)
+                        lam[n] = voxel_lam(g, other, i, j, k, voxel, centre_offset, two_over_tau)
                         eta[n] = sums[q, 1]
                         n += 1
                         gains[q] = 0.0

@@ -51,10 +51,12 @@ NONFINITE, DEGENERATE, OUTSIDE, TRUNCATED, CLIPPED = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, margin_voxels):
+def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, margin_voxels, frame):
     """The rays of a batch that fusion traverses (see ``swarm.map.fusion.batch_information``).
 
-    Returns ``ends`` (M, 3) in voxel units from ``lo``, ``d`` (M,) the sensor model's range
+    ``lo``, ``hi`` (3,): the box rays are cut at (world metres; +-inf for none); ``frame`` (3,):
+    the point voxel units are measured from (a grid's ``lo``, or a lattice's origin).
+    Returns ``ends`` (M, 3) in voxel units from ``frame``, ``d`` (M,) the sensor model's range
     (metres; min(true range, max range)), ``returned`` (M,) bool, packed in input order, and
     ``counts`` (5,): points skipped as NaN/inf, as zero-length, as outside (sensor outside
     the grid, or end just beyond it), then fused rays truncated at max range and clipped at
@@ -110,9 +112,9 @@ def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, marg
         if not inside:
             counts[OUTSIDE] += 1
             continue
-        ends[m, 0] = (ex - lo[0]) / voxel
-        ends[m, 1] = (ey - lo[1]) / voxel
-        ends[m, 2] = (ez - lo[2]) / voxel
+        ends[m, 0] = (ex - frame[0]) / voxel
+        ends[m, 1] = (ey - frame[1]) / voxel
+        ends[m, 2] = (ez - frame[2]) / voxel
         d[m] = min(dist, max_range)
         returned[m] = hit
         counts[TRUNCATED] += dist > max_range
@@ -122,25 +124,31 @@ def prepare_rays(origin, points, lo, hi, voxel, max_range, margin_fraction, marg
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def discretize_rays(start, voxel, ends, d, returned, shape, slots):
+def discretize_rays(start, voxel, ends, d, returned, box, slots):
     """One measurement per (end voxel, returned) pair: the mean end point of its rays.
 
     ``start`` (3,) and ``ends`` (M, 3) in voxel units; a returned measurement's range is the
     distance to its mean end point, a free one's the mean of its rays' ranges. Returns
     ``ends``, ``d``, ``returned`` and ``rays`` (float64: how many rays each measurement
-    stands for) of the measurements, in first-seen order. ``slots`` is the grid-sized int32
-    map (all -1), restored before returning.
+    stands for) of the measurements, in first-seen order. ``box`` (2, 3) int64: the voxel
+    indices lo (inclusive) and hi (exclusive) that hold every end (a grid's: 0 and its
+    shape); ``slots`` is the int32 map of at least ``slot_map_size(hi - lo)`` entries (all -1),
+    restored before returning.
     """
     m = ends.shape[0]
-    nbj = (shape[1] + 7) >> BRICK_BITS
-    nbk = (shape[2] + 7) >> BRICK_BITS
+    nbj = (box[1, 1] - box[0, 1] + 7) >> BRICK_BITS
+    nbk = (box[1, 2] - box[0, 2] + 7) >> BRICK_BITS
     sums = np.zeros((2 * m, 4))  # x, y, z, range; rows 2 * group + returned
     counts = np.zeros(2 * m, np.int64)
     voxels = np.empty(m, np.int64)
     groups = 0
     for r in range(m):
         v = brick_index(
-            int(math.floor(ends[r, 0])), int(math.floor(ends[r, 1])), int(math.floor(ends[r, 2])), nbj, nbk
+            int(math.floor(ends[r, 0])) - box[0, 0],
+            int(math.floor(ends[r, 1])) - box[0, 1],
+            int(math.floor(ends[r, 2])) - box[0, 2],
+            nbj,
+            nbk,
         )
         g = slots[v]
         if g < 0:
