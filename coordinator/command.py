@@ -8,7 +8,7 @@ import signal
 import time
 from pathlib import Path
 
-from coordinator.role import SNAPSHOT_TIMEOUT_S, Coordinator
+from coordinator.defaults import SNAPSHOT_TIMEOUT_S
 from swarm.protocol import bus
 
 
@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import threading
 
+    from coordinator.role import Coordinator
     from swarm.config import ConfigError, load_mission
     from swarm.protocol.map_client import missions_answering
 

@@ -34,6 +34,7 @@ import zenoh
 from coordinator.assignment import (
     CoordinationParams,
 )
+from coordinator.defaults import SNAPSHOT_TIMEOUT_S
 from coordinator.requests import RequestQueue
 from coordinator.state import Answer, CoordinatorState
 from swarm.config import Mission
@@ -46,9 +47,6 @@ from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
-
-#: Seconds to wait for a map server's snapshot at start.
-SNAPSHOT_TIMEOUT_S = 3.0
 
 #: The answer times ``coord/stats`` summarises: the most recent this many.
 ANSWER_TIMES_KEPT = 10_000

@@ -16,13 +16,15 @@ import logging
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import cv2
-import numpy as np
-
-from swarm.config import ConfigError, Mission, load_mission, mission_from_map
-from swarm.formats.depth_picture import depth_picture
 from swarm.protocol import bus
+
+if TYPE_CHECKING:
+    from swarm.config import Mission
+
+# OpenCV, numpy and the mission config are imported where they are used: the arguments of
+# these commands are built for `swarm sim ... --help` too, which must stay fast.
 
 #: Seconds ``swarm sim world`` waits for the agents by default (they start slowly on a busy machine).
 STARTUP_TIMEOUT_S = 120.0
@@ -45,6 +47,8 @@ def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
 def _load(args: argparse.Namespace) -> Mission:
     """The mission of CONFIG, or of --map, or else of ``args.default_config`` (set by the
     ``swarm sim`` command line, as ``swarm sim run`` takes it), with --robots applied."""
+    from swarm.config import ConfigError, load_mission, mission_from_map
+
     if args.config and args.map:
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml, not both")
     if not args.config and not args.map:
@@ -82,7 +86,12 @@ def add_render_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_render(args: argparse.Namespace) -> int:
     """Render a robot's first view to ``args.out``; returns a process exit code."""
+    import cv2
+    import numpy as np
+
     from sim2d.render import Renderer, camera_pose
+    from swarm.config import ConfigError
+    from swarm.formats.depth_picture import depth_picture
 
     try:
         mission = _load(args)
@@ -167,6 +176,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
 def run_sim(args: argparse.Namespace) -> int:
     """Run the lockstep simulator until the mission's stop condition; returns an exit code."""
     from sim2d.simulator import Simulator
+    from swarm.config import ConfigError
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:

@@ -100,8 +100,6 @@ def _run_agent(args: argparse.Namespace) -> int:
 
 # -- swarm coordinator --------------------------------------------------------------------
 def register_coordinator(sub: argparse._SubParsersAction) -> None:
-    from coordinator import command as coordinator
-
     p = sub.add_parser(
         "coordinator",
         help="run the coordinator: eq. 35 targets for the robots, spread apart (Burgard et al.)",
@@ -109,6 +107,12 @@ def register_coordinator(sub: argparse._SubParsersAction) -> None:
         "answer coord/assign with the eq. 35 target that maximises utility minus path cost, lowering "
         "the utility of targets near those other robots hold. See docs/coordinator.md.",
     )
+    p.defer(_coordinator_arguments)
+
+
+def _coordinator_arguments(p: argparse.ArgumentParser) -> None:
+    from coordinator import command as coordinator
+
     coordinator.add_arguments(p)
     p.set_defaults(run=coordinator.run)
 

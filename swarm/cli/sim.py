@@ -95,10 +95,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         "swarm/<mission>/robot/<rid>/frame and advance when every live agent has answered with a "
         "cmd. Agents (swarm agent) are started separately and connect to --listen.",
     )
-    from sim2d.commands import add_render_arguments, add_run_arguments, run_render, run_sim
+    render.defer(_render_arguments)
+    world.defer(_world_arguments)
+
+
+def _render_arguments(render: argparse.ArgumentParser) -> None:
+    from sim2d.commands import add_render_arguments, run_render
 
     add_render_arguments(render)
     render.set_defaults(run=run_render, default_config=DEFAULT_MISSION)
+
+
+def _world_arguments(world: argparse.ArgumentParser) -> None:
+    from sim2d.commands import add_run_arguments, run_sim
+
     add_run_arguments(world)
     world.set_defaults(run=run_sim, default_config=DEFAULT_MISSION)
 
