@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from coordinator.defaults import SNAPSHOT_TIMEOUT_S
+from swarm.child_command import stop_signals
 from swarm.protocol import bus
 
 
@@ -98,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
         coordinator.request_stop()
         stopping.set()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    for sig in stop_signals():  # SIGTERM, and SIGINT unless a runner started it (swarm.child_command)
+        signal.signal(sig, on_signal)
     name = coordinator.name
     try:
         coordinator.start()

@@ -12,6 +12,7 @@ import zenoh
 
 from map_server.options import ServerOptions, message_limit_for
 from map_server.server import MapServer
+from swarm.child_command import stop_signals
 from swarm.config import Mission
 from swarm.protocol import bus
 
@@ -67,7 +68,7 @@ def serve(
     ``zenoh_config``: a Zenoh JSON5 config file (TLS, access control); ``listen``/``connect``
     win over its endpoints (``swarm.protocol.bus.open_session``)."""
     stop, reread = threading.Event(), threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in stop_signals()}
     previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: reread.set())
     try:
         server = MapServer(mission, store_dir, mission_name, options)

@@ -200,11 +200,12 @@ def run_sim(args: argparse.Namespace) -> int:
     sim.progress_every_s = args.progress_every
     import signal
 
-    signal.signal(signal.SIGTERM, lambda *_: sim.request_stop())  # stop cleanly and print the summary
+    from swarm.child_command import stop_signals
+
+    for sig in stop_signals():  # stop cleanly and print the summary (SIGINT: unless a runner started us)
+        signal.signal(sig, lambda *_: sim.request_stop())
     try:
         summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
-    except KeyboardInterrupt:
-        return 130
     finally:
         sim.close()
         session.close()

@@ -102,7 +102,7 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames"] == 3 and metrics["unanswered"] == 0 and metrics["agent_exit_code"] == 0
     assert metrics["entropy_end_bits"] < metrics["entropy_start_bits"] - 10_000
-    for name in ("map.npz", "top_view.png", "view_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
+    for name in ("map.npz", "top_view.png", "map_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
         assert (out / name).is_file(), name
     cmap = load_map(out / "map.npz")
     # metrics.json's end is the final map's (after the agent's shutdown flush), and so is the

@@ -220,7 +220,19 @@ def _replay(args: argparse.Namespace, opener) -> int:
         args.out, robot, args.start, args.frames, args.realtime, args.connect,
         zenoh_config=args.zenoh_config, agent_zenoh_config=args.agent_zenoh_config,
     )  # fmt: skip
-    metrics = run_replay(recording, mission, options)
+    from swarm.mission.console import surviving_stdout
+    from swarm.mission.interrupts import INTERRUPTED_EXIT, Interrupts, say
+    from swarm.mission.role_processes import kill_started_roles
+
+    def at_once() -> None:
+        say(f"swarm replay: killed {kill_started_roles()} role process(es); {args.out}/ is incomplete")
+
+    with surviving_stdout(), Interrupts(at_once, "the replay") as interrupts:
+        try:
+            metrics = run_replay(recording, mission, options, interrupts)
+        except KeyboardInterrupt:
+            say(f"swarm replay: interrupted: every role was stopped; {args.out}/ has no metrics.json")
+            return INTERRUPTED_EXIT
     print(json.dumps(metrics, indent=2))
     print(f"wrote {args.out}")
     return 0

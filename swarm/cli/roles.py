@@ -51,6 +51,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     import signal
 
     from robot_agent.agent import Agent
+    from swarm.child_command import stop_signals
     from swarm.config import ConfigError, load_mission
     from swarm.protocol.map_client import MissionMismatch
 
@@ -73,8 +74,8 @@ def _run_agent(args: argparse.Namespace) -> int:
         agent.progress_every_s = args.progress_every
     except (ConfigError, ValueError, ConnectionError) as exc:
         return fail(str(exc))
-    signal.signal(signal.SIGTERM, lambda *_: agent.stop())
-    signal.signal(signal.SIGINT, lambda *_: agent.stop())
+    for sig in stop_signals():  # SIGTERM, and SIGINT unless a runner started it (swarm.child_command)
+        signal.signal(sig, lambda *_: agent.stop())
     mismatch = None
     try:
         agent.run()

@@ -26,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,13 +34,16 @@ import numpy as np
 
 from robot_agent.explorer import load_kernels
 from swarm.config import Mission
+from swarm.mission.interrupts import Interrupts
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.mission.role_failure import RoleError
 from swarm.mission.role_processes import (
     final_server_map,
-    shielded_from_interrupts,
     start_role,
     stop_roles,
+    store_map,
+    terminate_roles,
+    wait_for_roles,
     wait_for_server,
     why_it_exited,
 )
@@ -48,6 +52,13 @@ from swarm.protocol import bus, coord_client
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
+
+#: After an interrupt: seconds to wait for the agents' flush (their exit), then for the map
+#: server's map; the roles still stopping get INTERRUPTED_STOP_S more (then SIGKILL) once the
+#: run folder is written (``facts["stopping"]``), or at once when the map must come from the store.
+INTERRUPTED_FLUSH_S = 1.5
+INTERRUPTED_MAP_S = 2.0
+INTERRUPTED_STOP_S = 3.0
 
 
 @dataclass
@@ -98,8 +109,19 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     return BusPlan([], [endpoint], team.configs[OPERATOR], server_args, team.configs)
 
 
-def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor, dict]:
-    """Run ``mission`` with every role in its own process; returns the monitor and run facts."""
+def run_mission(
+    mission: Mission, options: MissionOptions, interrupts: Interrupts | None = None
+) -> tuple[TeamMonitor, dict]:
+    """Run ``mission`` with every role in its own process; returns the monitor and run facts.
+
+    ``interrupts`` (the command's :class:`~swarm.mission.interrupts.Interrupts`): a first Ctrl-C
+    or SIGTERM ends the run with reason ``interrupted``: the agents and the world are told to
+    stop, the agents' flush gets :data:`INTERRUPTED_FLUSH_S` s, the map server's map
+    :data:`INTERRUPTED_MAP_S` s (else it is read from the server's store once the server has
+    stopped), and the facts are returned as for any other end, with the roles that are still
+    stopping in ``facts["stopping"]``: the caller ends them with ``stop_roles(...,
+    INTERRUPTED_STOP_S)`` once it has written the run folder. Interrupted while starting, the
+    reason is ``interrupted while starting``."""
     out = options.out
     out.mkdir(parents=True, exist_ok=True)
     if options.max_time_s is not None:
@@ -224,15 +246,39 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             if reason != "running":
                 at_stop = (h, monitor.applied)  # what the last progress line showed
                 break
+    except KeyboardInterrupt:  # the first Ctrl-C or SIGTERM (swarm.mission.interrupts)
+        reason = "interrupted" if reason == "running" else "interrupted while starting"
+        at_stop = (monitor.team_entropy, monitor.applied)
     finally:
-        with shielded_from_interrupts():
-            stop_roles(agents)  # agents flush their pending deltas on SIGTERM
-            stop_roles([world] if world is not None else [])
-            if reason != "starting":
-                server_map = final_server_map(client, monitor)
+        interrupted = reason.startswith("interrupted")
+        map_source = None
+        stopping: list[subprocess.Popen] = []  # interrupted: roles told to stop, not waited for
+        with interrupts.held() if interrupts is not None else nullcontext():
+            if interrupted:  # the agents flush (through this router: it stays open) as the world stops
+                stopping = [*agents, *([world] if world is not None else [])]
+                terminate_roles(stopping)
+                wait_for_flush(agents, monitor, INTERRUPTED_FLUSH_S)
+            else:
+                stop_roles(agents)  # agents flush their pending deltas on SIGTERM
+                stop_roles([world] if world is not None else [])
+            if not reason.endswith("starting"):
+                server_map = final_server_map(client, monitor, INTERRUPTED_MAP_S if interrupted else 20.0)
+                map_source = None if server_map is None else "the map server"
                 if options.coordination != "none":
-                    coordinator_stats = coord_client.coordinator_stats(session, name)
-            stop_roles(services)
+                    timeout = 0.5 if interrupted else 2.0
+                    coordinator_stats = coord_client.coordinator_stats(session, name, timeout)
+            if interrupted:  # the server compacts its store as it stops, while the caller evaluates
+                terminate_roles(services)
+                stopping += services
+            else:
+                stop_roles(services)
+            if (
+                server_map is None
+                and reason == "interrupted"
+                and wait_for_roles(services, INTERRUPTED_STOP_S)
+            ):
+                server_map = store_map(store, monitor)
+                map_source = None if server_map is None else f"the map server's store {store}/"
             for sub in subs:
                 sub.undeclare()
             session.close()
@@ -241,7 +287,10 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         "wall_time_s": time.monotonic() - started,
         "threshold_bits": threshold,
         "server_map": server_map,
+        "map_source": map_source,
+        "signal": interrupts.first if interrupts is not None else None,
         "coordinator_stats": coordinator_stats,
+        "stopping": stopping,
         "at_stop": {"entropy_bits": at_stop[0], "deltas": at_stop[1], "deltas_after_flush": monitor.applied},
         "exit_codes": {
             "world": world.returncode if world is not None else None,
@@ -250,6 +299,22 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
         },
     }
     return monitor, facts
+
+
+def wait_for_flush(agents: list[subprocess.Popen], monitor: TeamMonitor, timeout: float) -> None:
+    """After SIGTERM to the agents: wait until they have all exited, or until no delta has come
+    for 0.3 s after the first 0.5 s (an agent's shutdown flush goes out within a frame of the
+    signal, and its process may take a second more to end), at most ``timeout`` s."""
+    start = time.monotonic()
+    seen, since = monitor.applied, start
+    while (now := time.monotonic()) - start < timeout:
+        if all(a.poll() is not None for a in agents):
+            return
+        if monitor.applied != seen:
+            seen, since = monitor.applied, now
+        elif now - start >= 0.5 and now - since >= 0.3:
+            return
+        time.sleep(0.05)
 
 
 def why_the_world_stopped(monitor: TeamMonitor, mission: Mission) -> str:
