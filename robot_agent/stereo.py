@@ -341,6 +341,11 @@ def _camera_points(
     return out[:n].copy()
 
 
+def warm_up_kernels() -> tuple:
+    """The compiled kernels :func:`warm_up` loads (a first run: compiles), for its progress lines."""
+    return (_camera_points, valid_disparity, depth_of_disparity)
+
+
 def warm_up() -> None:
     """Load (or compile, on a fresh install) the compiled stereo kernels before the first frame."""
     points_from_depth(np.ones((1, 1), np.float32), 1.0, 1.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))

@@ -201,14 +201,32 @@ def run_sim(args: argparse.Namespace) -> int:
     import signal
 
     from swarm.child_command import stop_signals
+    from swarm.protocol.mission_listener import MissionDoneListener
 
     for sig in stop_signals():  # stop cleanly and print the summary (SIGINT: unless a runner started us)
         signal.signal(sig, lambda *_: sim.request_stop())
+
+    def on_done(done) -> None:  # the map server's end of the mission
+        logging.getLogger(__name__).info("mission done (%s): stopping", done.describe())
+        sim.request_stop(f"mission done ({done.reason})")
+
+    ending = MissionDoneListener(session, mission.mission, on_done)
     try:
         summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
     finally:
+        ending.close()
         sim.close()
         session.close()
+    if summary.reason == "no_agents":
+        key = bus.key(mission.mission, "robot", "<id>", "frame")
+        print(
+            f"swarm: error: no agent came for any of the robots {', '.join(summary.dead)} within "
+            f"{args.startup_timeout:g} s (--startup-timeout): nothing subscribed to {key}; start one "
+            f"`swarm agent --id ROBOT --config {args.config or args.map} --connect ENDPOINT` per robot "
+            "(a first run compiles their kernels for a minute or two: their logs say so)",
+            file=sys.stderr,
+        )
+        return 1
     print(
         f"{summary.reason}: {summary.ticks} frames, {summary.sim_time_s:.1f} s simulated in "
         f"{summary.wall_time_s:.1f} s (x{summary.real_time_factor:.1f}), dead: "

@@ -16,7 +16,9 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         help="run one robot's agent: stereo -> map -> exploration, over Zenoh",
         description="Run one robot's agent: take its frames (robot/<id>/frame), fuse them into a "
         "local coverage map, share voxel deltas (delta/<id>), choose targets and send velocity "
-        "commands (robot/<id>/cmd). Stops on SIGINT/SIGTERM after flushing its pending deltas.",
+        "commands (robot/<id>/cmd). Stops on SIGINT/SIGTERM, and when the map server announces the "
+        "end of the mission (mission/done), after flushing its pending deltas; then prints its "
+        "final figures.",
     )
     p.add_argument("--id", required=True, dest="robot_id", help="robot id, as in the mission config")
     p.add_argument("--config", required=True, type=Path, help="mission YAML file")
@@ -54,6 +56,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     from swarm.child_command import stop_signals
     from swarm.config import ConfigError, load_mission
     from swarm.protocol.map_client import MissionMismatch
+    from swarm.protocol.mission_listener import MissionDoneListener
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
@@ -76,12 +79,19 @@ def _run_agent(args: argparse.Namespace) -> int:
         return fail(str(exc))
     for sig in stop_signals():  # SIGTERM, and SIGINT unless a runner started it (swarm.child_command)
         signal.signal(sig, lambda *_: agent.stop())
+
+    def on_done(done) -> None:  # the map server's end of the mission: stop as on SIGTERM
+        log.info("%s: mission done (%s): stopping", args.robot_id, done.describe())
+        agent.stop()
+
+    ending = MissionDoneListener(session, mission.mission, on_done)
     mismatch = None
     try:
         agent.run()
     except MissionMismatch as exc:
         mismatch = exc
     finally:
+        ending.close()
         if mismatch is None:  # after the shutdown flush: the final figures
             stats = agent.outbox.stats
             print(

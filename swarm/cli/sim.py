@@ -93,7 +93,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the simulated world alone: frames out, commands in, over Zenoh",
         description="Run the lockstep pymunk world of a mission: publish every robot's frames on "
         "swarm/<mission>/robot/<rid>/frame and advance when every live agent has answered with a "
-        "cmd. Agents (swarm agent) are started separately and connect to --listen.",
+        "cmd. Agents (swarm agent) are started separately and connect to --listen. Stops at the "
+        "mission's max time, on SIGINT/SIGTERM, when the map server announces the end of the mission "
+        "(mission/done), and with an error (exit 1) when no robot's agent came within --startup-timeout.",
     )
     render.defer(_render_arguments)
     world.defer(_world_arguments)

@@ -28,7 +28,7 @@ import numpy as np
 from replay.frames import RecordedPair, make_frame, rectified_camera
 from replay.matching import Matched
 from replay.publisher import FramePublisher
-from robot_agent.explorer import load_kernels
+from robot_agent.kernels import load_kernels
 from robot_agent.stereo import matcher_for_rig
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
@@ -165,7 +165,7 @@ def run_replay(
     # Compile the fusion and point kernels here (a no-op load when Numba's cache is warm), so that
     # the agent loads them from the cache: on a fresh clone it would compile them at start, which
     # on a busy machine outlasted the wait for its subscription below.
-    load_kernels()
+    load_kernels(None if options.quiet else lambda line: print(line, flush=True), "replay")
     endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
     if options.connect:
         session = bus.open_session(connect=[endpoint], config_file=options.zenoh_config)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from robot_agent.explorer import load_kernels
+from robot_agent.kernels import load_kernels
 from swarm.config import Mission
 from swarm.mission.interrupts import Interrupts
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
@@ -50,6 +50,7 @@ from swarm.mission.role_processes import (
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
 from swarm.protocol.map_client import MapClient
+from swarm.protocol.mission_listener import MissionDoneListener
 from swarm.protocol.wire import DeltaMessage
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
 
@@ -133,7 +134,7 @@ def run_mission(
     threshold = mission.threshold_bits()
     # Compile the fusion and point kernels once here (a no-op load when Numba's cache is warm), so that
     # the agents load them from the cache instead of each compiling them at start.
-    load_kernels()
+    load_kernels(None if options.quiet else lambda line: print(line, flush=True), "runner")
 
     monitor = TeamMonitor(mission)
     name = mission.mission
@@ -149,6 +150,7 @@ def run_mission(
     except BaseException:
         stop_roles([server] if server is not None else [])
         raise
+    ending = MissionDoneListener(session, name, lambda _done: None)  # the map server's end, if it says
     subs = [
         bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta),
         bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
@@ -215,6 +217,8 @@ def run_mission(
                 reason = "threshold"
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
                 reason = "agents done"
+            elif ending.done is not None:  # the map server ended it (its H, or nothing left), first
+                reason = "threshold" if ending.done.reason == "threshold" else "agents done"
             elif world.poll() is not None:
                 reason = why_the_world_stopped(monitor, mission)
                 if world.returncode != 0:  # it failed: say so, and the run folder's stop_reason does
@@ -281,6 +285,7 @@ def run_mission(
                 map_source = None if server_map is None else f"the map server's store {store}/"
             for sub in subs:
                 sub.undeclare()
+            ending.close()
             session.close()
     facts = {
         "reason": reason,
