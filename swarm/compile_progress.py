@@ -77,7 +77,7 @@ class _Progress(event.Listener):
             if self.count == 1:
                 self.say(
                     f"{self.prefix}compiling kernels (first run): {self.expected} are not in Numba's cache "
-                    f"({cache_location()}) yet; about a minute or two on 2 cores..."
+                    f"({cache_location()}) yet; once, tens of seconds to minutes by the machine..."
                 )
             func = ev.data["dispatcher"].py_func
             name = f"{func.__module__}.{func.__qualname__}"

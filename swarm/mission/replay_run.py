@@ -33,6 +33,7 @@ from robot_agent.stereo import matcher_for_rig
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
 from swarm.formats.point_cloud_file import write_ply_points
+from swarm.formats.shown_numbers import shown
 from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
@@ -109,15 +110,18 @@ class FrameEntropy:
 def default_mission(
     recording: Recording, robot: str = "r1", margin: float = 3.0, voxel: float = 0.1
 ) -> Mission:
-    """A mission around the recording: a box ``margin`` m around the trajectory, the rectified rig."""
+    """A mission around the recording: a box ``margin`` m around the trajectory (1.5 m below and
+    above it), its corners on the lattice of ``voxel`` (multiples of the voxel edge, as OctoMap
+    anchors its voxels: ``swarm map export --out map.bt`` takes the map as it is), the rectified rig."""
     pos = recording.positions()
     lo, hi = pos.min(axis=0) - margin, pos.max(axis=0) + margin
     lo[2], hi[2] = pos[:, 2].min() - 1.5, pos[:, 2].max() + 1.5
+    lo, hi = lattice_box(lo, hi, voxel)
     cam = rectified_camera(recording.calibration)
     hfov = math.degrees(2 * math.atan(cam.width / 2 / cam.fx))
     data = {
         "mission": "replay",
-        "workspace": {"lo": lo.round(2).tolist(), "hi": hi.round(2).tolist(), "voxel": voxel},
+        "workspace": {"lo": lo, "hi": hi, "voxel": voxel},
         "robots": [{"id": robot, "start": {"x": float(pos[0, 0]), "y": float(pos[0, 1])}}],
         "rig": {
             "width": cam.width,
@@ -131,6 +135,15 @@ def default_mission(
         "sensor": {"hit_precedence": True},
     }
     return mission_from_dict(data)
+
+
+def lattice_box(lo: np.ndarray, hi: np.ndarray, voxel: float) -> tuple[list[float], list[float]]:
+    """The smallest box holding [lo, hi] whose corners are whole numbers of voxel edges from the
+    world origin (m), as plain floats without negative zeros (they go into config.yaml)."""
+    first = np.floor(np.asarray(lo, dtype=np.float64) / voxel + 1e-9)
+    last = np.ceil(np.asarray(hi, dtype=np.float64) / voxel - 1e-9)
+    digits = max(0, -math.floor(math.log10(voxel))) + 3
+    return [shown(k * voxel, digits) for k in first], [shown(k * voxel, digits) for k in last]
 
 
 @dataclass
