@@ -44,8 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "replay",
         help="replay a recorded stereo dataset (ASL/EuRoC folder, ROS 1/2 bag) through the agent",
         description="Publish a recording's rectified stereo pairs on robot/<id>/frame, with the rectified "
-        "left camera's pose, to a real agent and map server, and write the run folder (map.npz, views, "
-        "per-frame timings, stereo valid fraction, entropy).",
+        "left camera's pose, to a real agent and map server, and write the run folder (map.npz, the "
+        "pictures top_view.png, map_3d.png and slices/, per-frame timings, stereo valid fraction, entropy).",
     )
     rsub = p.add_subparsers(dest="replay_command", required=True, metavar="FORMAT")
     asl = rsub.add_parser(

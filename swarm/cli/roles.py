@@ -136,7 +136,10 @@ def register_server(sub: argparse._SubParsersAction) -> None:
         description="Run the map server of a mission: listen on --listen (agents and tools connect "
         "there), apply each delta/<rid> exactly once, log it durably in --store before acking it, "
         "republish it on merged, and answer map/stats, map/acks, map/snapshot and map/region. "
-        "On start it recovers the map and acks from the store; SIGINT/SIGTERM compact it and exit.",
+        "On start it recovers the map and acks from the store; SIGINT/SIGTERM compact it and exit. "
+        "When the team map's entropy reaches the mission's H_th, or every robot heard from has nothing "
+        "left, it announces the end of the mission on mission/done (agents and the world stop) and "
+        "goes on answering queries.",
     )
     p.add_argument("--config", required=True, type=Path, help="mission YAML file (grid, sensor model)")
     p.add_argument("--store", required=True, type=Path, help="store folder (snapshot + write-ahead log)")

@@ -23,8 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run a mission on this machine: the simulated world, the map server, the "
         "coordinator and one agent per robot, each a separate process talking Zenoh over loopback. "
         "Shows progress, stops at the entropy threshold H_th or --max-time, and writes the run "
-        "folder (metrics.json, map.npz, server_map.npz, entropy.png, top_view.png, config.yaml, "
-        f"logs). Default mission: {DEFAULT_MISSION} (4 robots).",
+        "folder (metrics.json, map.npz, server_map.npz, entropy.png, top_view.png, map_3d.png, slices/, "
+        "config.yaml, logs). Ctrl-C stops the roles within seconds and writes the run folder from the "
+        "map server's map (metrics.json says interrupted); a second Ctrl-C stops at once. "
+        f"Default mission: {DEFAULT_MISSION} (4 robots).",
     )
     run.add_argument("config", nargs="?", type=Path, help=f"mission YAML (default {DEFAULT_MISSION})")
     run.add_argument("--map", type=Path, help="a ROS map_server map.yaml to explore instead of a mission")
