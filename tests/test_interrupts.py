@@ -23,9 +23,9 @@ from swarm.mission.study.runner import _matches
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _start_mission(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+def _start_mission(tmp_path: Path, until: str = "sim t=") -> tuple[subprocess.Popen, Path]:
     """``swarm sim`` of the lab in a session of its own (a terminal's foreground job), stdout a
-    pipe; returns once the world has simulated a few seconds."""
+    pipe; returns once it prints ``until`` (by default: once the world has simulated a little)."""
     out = tmp_path / "run"
     lab = ROOT / "configs" / "lab.yaml"
     sim = subprocess.Popen(
@@ -36,7 +36,7 @@ def _start_mission(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     seen = []
     for line in sim.stdout:
         seen.append(line)
-        if "sim t=" in line and "sim t=    0.0" not in line:
+        if until in line and "sim t=    0.0" not in line:
             return sim, out
     raise AssertionError("the mission never ran: " + "".join(seen) + sim.stderr.read())
 
@@ -100,6 +100,18 @@ def test_a_second_ctrl_c_ends_at_once(tmp_path) -> None:
     assert time.monotonic() - start < 5.0
     assert sim.returncode == 130, err
     assert "SIGINT again: stopping at once" in err, err
+    assert _leftovers(out) == []
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_while_the_mission_starts_stops_every_role_and_writes_nothing(tmp_path) -> None:
+    sim, out = _start_mission(tmp_path, until="runner: the map server is up")
+    os.killpg(sim.pid, signal.SIGINT)  # the world and the agents start about now
+    _, err = sim.communicate(timeout=60)
+    assert sim.returncode == 130, err
+    assert "before the first frame" in err and "has no metrics.json" in err, err
+    assert "Traceback" not in err and not (out / "metrics.json").exists()
+    time.sleep(0.5)
     assert _leftovers(out) == []
 
 

@@ -300,7 +300,7 @@ def run_mission(
         "exit_codes": {
             "world": world.returncode if world is not None else None,
             "server": services[0].returncode if services else None,
-            **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=True)},
+            **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=False)},  # those started
         },
     }
     return monitor, facts
