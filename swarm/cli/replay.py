@@ -227,7 +227,7 @@ def _replay(args: argparse.Namespace, opener) -> int:
     def at_once() -> None:
         say(f"swarm replay: killed {kill_started_roles()} role process(es); {args.out}/ is incomplete")
 
-    with surviving_stdout(), Interrupts(at_once, "the replay") as interrupts:
+    with surviving_stdout(), Interrupts(at_once, "the replay", "") as interrupts:
         try:
             metrics = run_replay(recording, mission, options, interrupts)
         except KeyboardInterrupt:

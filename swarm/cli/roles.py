@@ -44,6 +44,13 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="seconds between progress lines: frames fused, deltas sent and acked, map entropy (default 10)",
     )
+    p.add_argument(
+        "--on-mission-done",
+        choices=["stop", "continue"],
+        default="stop",
+        help="when the map server announces the end of the mission (mission/done): stop (default), or "
+        "continue taking frames (a replay: the recording decides when it ends)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     p.set_defaults(run=_run_agent)
 
@@ -81,6 +88,10 @@ def _run_agent(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: agent.stop())
 
     def on_done(done) -> None:  # the map server's end of the mission: stop as on SIGTERM
+        if args.on_mission_done == "continue":
+            log.info("%s: mission done (%s): taking frames on (--on-mission-done continue)",
+                     args.robot_id, done.describe())  # fmt: skip
+            return
         log.info("%s: mission done (%s): stopping", args.robot_id, done.describe())
         agent.stop()
 

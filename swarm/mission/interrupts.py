@@ -34,9 +34,13 @@ class Interrupts:
     Outside the main thread, where handlers cannot be set, the block runs as it is.
     """
 
-    def __init__(self, on_force: Callable[[], None], what: str = "the run") -> None:
+    def __init__(
+        self, on_force: Callable[[], None], what: str = "the run", then: str = "writing its run folder"
+    ) -> None:
+        """``then``: what the first signal goes on to do, for its message."""
         self.on_force = on_force
         self.what = what
+        self.then = then
         self.count = 0
         self.first: str | None = None  # the name of the first signal, e.g. "SIGINT"
         self.first_at: float | None = None  # its time.monotonic()
@@ -82,10 +86,8 @@ class Interrupts:
             _flush_and_exit(INTERRUPTED_EXIT)
         self.first, self.first_at = name, time.monotonic()
         key = "Ctrl-C" if signum == signal.SIGINT else name
-        say(
-            f"swarm: {name}: stopping {self.what} and writing its run folder from what the map "
-            f"server holds ({key} again to stop at once)"
-        )
+        then = f", {self.then}" if self.then else ""
+        say(f"swarm: {name}: stopping {self.what}{then} ({key} again to stop at once)")
         if not self._holding:
             raise KeyboardInterrupt
 

@@ -208,7 +208,7 @@ def run_replay(
             wait_for_server(client, server)
         agent = start_role(
             ["agent", "--id", options.robot, "--connect", endpoint, "--config", str(config_path),
-             "--coordination", "none",
+             "--coordination", "none", "--on-mission-done", "continue",
              *(["--zenoh-config", str(options.agent_zenoh_config)] if options.agent_zenoh_config else [])],
             out / f"agent-{options.robot}.log",
         )  # fmt: skip

@@ -186,7 +186,12 @@ def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
             run_folder[0] / "metrics.json").exists() else ""  # fmt: skip
         say(f"swarm: killed {killed} role process(es){left}")
 
-    with surviving_stdout(), Interrupts(at_once, "the mission") as interrupts:
+    with (
+        surviving_stdout(),
+        Interrupts(
+            at_once, "the mission", "writing its run folder from what the map server holds"
+        ) as interrupts,
+    ):
         pyplot()  # now, not after an interrupt: the run folder's pictures must come within seconds
         try:
             return _run_sim_mission(args, default_config, interrupts, run_folder)
