@@ -161,3 +161,38 @@ def test_the_study_does_not_resume_an_interrupted_run() -> None:
                 "seed": 0, "stop_reason": "threshold", "interrupted": False}  # fmt: skip
     assert _matches(cell, finished)
     assert not _matches(cell, {**finished, "stop_reason": "interrupted", "interrupted": True})
+
+
+def test_a_first_interrupt_is_raised_held_or_deferred_and_a_second_exits_at_once() -> None:
+    """The runner's signal rules, in a child process that signals itself."""
+    code = (
+        "import os, signal, sys\n"
+        "from swarm.mission.interrupts import Interrupts\n"
+        "def kill(): os.kill(os.getpid(), signal.SIGINT)\n"
+        "def run(body):\n"
+        "    with Interrupts(lambda: print('forced', flush=True), 'the test', '') as it:\n"
+        "        try:\n"
+        "            body(it)\n"
+        "        except KeyboardInterrupt:\n"
+        "            print('raised', it.count, flush=True)\n"
+        "def held(it):\n"
+        "    with it.held():\n"
+        "        kill(); print('went on', it.count, flush=True)\n"
+        "def deferred(it):\n"
+        "    with it.deferred():\n"
+        "        kill(); print('not yet', flush=True)\n"
+        "    print('never')\n"
+        "def twice(it):\n"
+        "    with it.held():\n"
+        "        kill(); kill(); print('never')\n"
+        "run(lambda it: kill())\n"
+        "run(held)\n"
+        "run(deferred)\n"
+        "run(twice)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 130, proc.stdout + proc.stderr
+    assert proc.stdout.split("\n") == ["raised 1", "went on 1", "not yet", "raised 1", "forced", ""], (
+        proc.stdout
+    )
+    assert "SIGINT again: stopping at once" in proc.stderr

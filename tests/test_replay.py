@@ -116,7 +116,9 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     assert len(points) == metrics["occupied_voxels"]
     camera = AslRecording(EUROC).positions()[0]
     # Most surfaces lie on the floor, 0.93 m below the camera, in front of it (+x in the Vicon room).
-    floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.15
+    # The floor plane lies on a boundary of the workspace's voxel layers (its corners are on the
+    # 0.1 m lattice): its hits fill the layers on both sides, so the band is two voxels each way.
+    floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.2
     assert floor.mean() > 0.4
     assert np.median(points[floor, 0]) > camera[0]
 

@@ -45,6 +45,8 @@ class Interrupts:
         self.first: str | None = None  # the name of the first signal, e.g. "SIGINT"
         self.first_at: float | None = None  # its time.monotonic()
         self._holding = 0
+        self._deferring = 0
+        self._pending = False  # a first signal came within deferred(): raised at its end
         self._previous: dict[int, object] = {}
 
     def __enter__(self) -> Interrupts:
@@ -77,6 +79,19 @@ class Interrupts:
         finally:
             self._holding -= 1
 
+    @contextmanager
+    def deferred(self) -> Iterator[None]:
+        """Within the block a first signal is raised only at its end: a block that must not be
+        cut in two (a child process started and not yet kept, which nothing would then stop)."""
+        self._deferring += 1
+        try:
+            yield
+        finally:
+            self._deferring -= 1
+        if not self._deferring and self._pending and not self._holding:
+            self._pending = False
+            raise KeyboardInterrupt
+
     def _handle(self, signum: int, _frame) -> None:
         self.count += 1
         name = signal.Signals(signum).name
@@ -88,7 +103,9 @@ class Interrupts:
         key = "Ctrl-C" if signum == signal.SIGINT else name
         then = f", {self.then}" if self.then else ""
         say(f"swarm: {name}: stopping {self.what}{then} ({key} again to stop at once)")
-        if not self._holding:
+        if self._deferring:
+            self._pending = True
+        elif not self._holding:
             raise KeyboardInterrupt
 
 

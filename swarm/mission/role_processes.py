@@ -45,6 +45,17 @@ def start_role(args: list[str], log_path: Path) -> subprocess.Popen:
     return child
 
 
+def started_count() -> int:
+    """How many role processes this process has started so far (a mark for :func:`started_since`)."""
+    return len(_STARTED)
+
+
+def started_since(mark: int) -> list[subprocess.Popen]:
+    """The role processes started after ``mark`` (:func:`started_count`): a run's own, also those
+    an interrupt cut off before the run had kept them."""
+    return list(_STARTED[mark:])
+
+
 def kill_started_roles(reap_s: float = 0.5) -> int:
     """SIGKILL every role process this process started that still runs, and reap them (at most
     ``reap_s`` s); returns how many were killed."""
@@ -94,6 +105,22 @@ def wait_for_roles(procs: list[subprocess.Popen], timeout: float) -> bool:
         except subprocess.TimeoutExpired:
             return False
     return True
+
+
+def wait_for_flush(agents: list[subprocess.Popen], monitor: TeamMonitor, timeout: float) -> None:
+    """After SIGTERM to the agents: wait until they have all exited, or until no delta has come
+    for 0.3 s after the first 0.5 s (an agent's shutdown flush goes out within a frame of the
+    signal, and its process may take a second more to end), at most ``timeout`` s."""
+    start = time.monotonic()
+    seen, since = monitor.applied, start
+    while (now := time.monotonic()) - start < timeout:
+        if all(a.poll() is not None for a in agents):
+            return
+        if monitor.applied != seen:
+            seen, since = monitor.applied, now
+        elif now - start >= 0.5 and now - since >= 0.3:
+            return
+        time.sleep(0.05)
 
 
 def wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float = 60.0) -> None:

@@ -39,14 +39,17 @@ from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, pri
 from swarm.mission.role_failure import RoleError
 from swarm.mission.role_processes import (
     final_server_map,
-    start_role,
+    started_count,
+    started_since,
     stop_roles,
     store_map,
     terminate_roles,
+    wait_for_flush,
     wait_for_roles,
     wait_for_server,
     why_it_exited,
 )
+from swarm.mission.role_processes import start_role as start_role_process
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
 from swarm.protocol.map_client import MapClient
@@ -138,6 +141,13 @@ def run_mission(
 
     monitor = TeamMonitor(mission)
     name = mission.mission
+    mark = started_count()  # this run's role processes are those started from here on
+
+    def start_role(args: list[str], log_path: Path) -> subprocess.Popen:
+        """A role process, started and kept in one piece (an interrupt waits for its end)."""
+        with interrupts.deferred() if interrupts is not None else nullcontext():
+            return start_role_process(args, log_path)
+
     plan = plan_bus(mission, out, options.secure)
     store = out / "server-store"
     if store.exists():
@@ -183,7 +193,7 @@ def run_mission(
             )
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
-        view = _start_view(options.view, plan, name, out)
+        view = _start_view(options.view, plan, name, out, start_role)
         if view is not None:
             services.append(view)
         world = start_role(["sim", "world", str(config_path), *plan.child_args("world")], out / "world.log")
@@ -259,7 +269,9 @@ def run_mission(
         stopping: list[subprocess.Popen] = []  # interrupted: roles told to stop, not waited for
         with interrupts.held() if interrupts is not None else nullcontext():
             if interrupted:  # the agents flush (through this router: it stays open) as the world stops
-                stopping = [*agents, *([world] if world is not None else [])]
+                # every role but the services: also one an interrupt cut off before it was kept
+                kept = [p for p in (server, *services) if p is not None]
+                stopping = [p for p in started_since(mark) if all(p is not s for s in kept)]
                 terminate_roles(stopping)
                 wait_for_flush(agents, monitor, INTERRUPTED_FLUSH_S)
             else:
@@ -272,6 +284,8 @@ def run_mission(
                     timeout = 0.5 if interrupted else 2.0
                     coordinator_stats = coord_client.coordinator_stats(session, name, timeout)
             if interrupted:  # the server compacts its store as it stops, while the caller evaluates
+                kept = [p for p in (server, *services) if p is not None]
+                services = list({id(p): p for p in kept}.values())
                 terminate_roles(services)
                 stopping += services
             else:
@@ -283,6 +297,8 @@ def run_mission(
             ):
                 server_map = store_map(store, monitor)
                 map_source = None if server_map is None else f"the map server's store {store}/"
+            if not interrupted:  # whatever an error cut off before the run kept it
+                stop_roles([p for p in started_since(mark) if p.poll() is None])
             for sub in subs:
                 sub.undeclare()
             ending.close()
@@ -306,22 +322,6 @@ def run_mission(
     return monitor, facts
 
 
-def wait_for_flush(agents: list[subprocess.Popen], monitor: TeamMonitor, timeout: float) -> None:
-    """After SIGTERM to the agents: wait until they have all exited, or until no delta has come
-    for 0.3 s after the first 0.5 s (an agent's shutdown flush goes out within a frame of the
-    signal, and its process may take a second more to end), at most ``timeout`` s."""
-    start = time.monotonic()
-    seen, since = monitor.applied, start
-    while (now := time.monotonic()) - start < timeout:
-        if all(a.poll() is not None for a in agents):
-            return
-        if monitor.applied != seen:
-            seen, since = monitor.applied, now
-        elif now - start >= 0.5 and now - since >= 0.3:
-            return
-        time.sleep(0.05)
-
-
 def why_the_world_stopped(monitor: TeamMonitor, mission: Mission) -> str:
     """The run's stop reason once the world has ended by itself (exit 0), from its last
     ``sim/truth`` message: "max time (T s simulated)" when the simulated clock reached
@@ -336,8 +336,11 @@ def why_the_world_stopped(monitor: TeamMonitor, mission: Mission) -> str:
     return "world stopped"
 
 
-def _start_view(view: str | None, plan: BusPlan, mission: str, out: Path) -> subprocess.Popen | None:
-    """``swarm view`` beside the mission (``view``: "window", or the .rrd file to record), or None.
+def _start_view(
+    view: str | None, plan: BusPlan, mission: str, out: Path, start_role
+) -> subprocess.Popen | None:
+    """``swarm view`` beside the mission (``view``: "window", or the .rrd file to record), or None,
+    started with ``start_role``.
 
     A window needs a display: without one (:func:`swarm.view.live.missing_display`) the view is
     not started and one warning line says what to do instead; the mission runs as without --view.
