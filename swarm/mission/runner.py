@@ -272,7 +272,7 @@ def run_mission(
                 # every role but the services: also one an interrupt cut off before it was kept
                 kept = [p for p in (server, *services) if p is not None]
                 stopping = [p for p in started_since(mark) if all(p is not s for s in kept)]
-                terminate_roles(stopping)
+                terminate_roles(stopping, yield_cpu=True)
                 wait_for_flush(agents, monitor, INTERRUPTED_FLUSH_S)
             else:
                 stop_roles(agents)  # agents flush their pending deltas on SIGTERM
@@ -286,7 +286,7 @@ def run_mission(
             if interrupted:  # the server compacts its store as it stops, while the caller evaluates
                 kept = [p for p in (server, *services) if p is not None]
                 services = list({id(p): p for p in kept}.values())
-                terminate_roles(services)
+                terminate_roles(services, yield_cpu=True)
                 stopping += services
             else:
                 stop_roles(services)
