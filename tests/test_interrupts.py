@@ -23,11 +23,23 @@ from swarm.mission.study.runner import _matches
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def endless_lab(folder: Path) -> Path:
+    """The lab mission with H_th 0 and a day of simulated time: it runs until it is stopped."""
+    from swarm.config import load_mission
+
+    lab = load_mission(ROOT / "configs" / "lab.yaml")
+    stop = lab.stop.model_copy(update={"entropy_threshold_bits": 0.0, "max_time_s": 86400.0})
+    path = folder / "endless-lab.yaml"
+    path.write_text(lab.model_copy(update={"stop": stop}).to_yaml())  # its paths made absolute
+    return path
+
+
 def _start_mission(tmp_path: Path, until: str = "sim t=") -> tuple[subprocess.Popen, Path]:
-    """``swarm sim`` of the lab in a session of its own (a terminal's foreground job), stdout a
-    pipe; returns once it prints ``until`` (by default: once the world has simulated a little)."""
+    """``swarm sim`` of the endless lab in a session of its own (a terminal's foreground job),
+    stdout a pipe; returns once it prints ``until`` (by default: once the world has simulated a
+    little)."""
     out = tmp_path / "run"
-    lab = ROOT / "configs" / "lab.yaml"
+    lab = endless_lab(tmp_path)
     sim = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "sim", str(lab), "--out", str(out), "--max-time", "100000"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,

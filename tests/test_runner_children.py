@@ -36,7 +36,9 @@ def test_a_terminated_mission_stops_every_role_and_says_where_its_run_folder_is(
     import sys
     import time
 
-    lab = Path(__file__).resolve().parents[1] / "configs" / "lab.yaml"
+    from tests.test_interrupts import endless_lab
+
+    lab = endless_lab(tmp_path)  # it must not end by itself before the SIGTERM
     out = tmp_path / "run"
     sim = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "sim", str(lab), "--out", str(out), "--max-time", "600"],
