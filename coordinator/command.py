@@ -8,7 +8,8 @@ import signal
 import time
 from pathlib import Path
 
-from coordinator.role import SNAPSHOT_TIMEOUT_S, Coordinator
+from coordinator.defaults import SNAPSHOT_TIMEOUT_S
+from swarm.child_command import stop_signals
 from swarm.protocol import bus
 
 
@@ -60,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import threading
 
+    from coordinator.role import Coordinator
     from swarm.config import ConfigError, load_mission
     from swarm.protocol.map_client import missions_answering
+    from swarm.protocol.mission_listener import MissionDoneListener
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
@@ -97,9 +100,21 @@ def run(args: argparse.Namespace) -> int:
         coordinator.request_stop()
         stopping.set()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    for sig in stop_signals():  # SIGTERM, and SIGINT unless a runner started it (swarm.child_command)
+        signal.signal(sig, on_signal)
     name = coordinator.name
+
+    def on_done(done) -> None:  # the coordinator is a service: it says so and goes on answering
+        counts = coordinator.counts
+        log.info(
+            "mission done (%s): %d assign requests answered, %d merged deltas applied; answering "
+            "(nothing left) until stopped",
+            done.describe(),
+            counts["requests"],
+            counts["merged_applied"],
+        )
+
+    ending = MissionDoneListener(session, name, on_done)
     try:
         coordinator.start()
         others = [] if coordinator.started_from_snapshot else missions_answering(session, 0.5)
@@ -135,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
             )
             last = (now, answered)
     finally:
+        ending.close()
         coordinator.stop()
         counts = coordinator.counts
         print(

@@ -34,8 +34,10 @@ import zenoh
 from coordinator.assignment import (
     CoordinationParams,
 )
+from coordinator.defaults import SNAPSHOT_TIMEOUT_S
 from coordinator.requests import RequestQueue
 from coordinator.state import Answer, CoordinatorState
+from swarm.compile_progress import compile_progress
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.navigation import planner
@@ -46,9 +48,6 @@ from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
-
-#: Seconds to wait for a map server's snapshot at start.
-SNAPSHOT_TIMEOUT_S = 3.0
 
 #: The answer times ``coord/stats`` summarises: the most recent this many.
 ANSWER_TIMES_KEPT = 10_000
@@ -125,7 +124,8 @@ class Coordinator:
         self._load_snapshot()
         # Load the compiled navigation kernels (Numba's cache) now: on the first request they
         # took over a second on a loaded machine, past the robots' answer timeout.
-        planner.warm_up()
+        with compile_progress(planner.warm_up_kernels(), log.info):
+            planner.warm_up()
         self._threads = [
             threading.Thread(target=self._work, name="coordinator-map", daemon=True),
             threading.Thread(target=self._answer_queries, name="coordinator-assign", daemon=True),

@@ -1,5 +1,6 @@
 """The ``swarm server`` process: a :class:`~map_server.server.MapServer` on a listening Zenoh
-session until SIGTERM/SIGINT; SIGHUP quarantines the robots listed in ``<store>/quarantine``."""
+session until SIGTERM/SIGINT; SIGHUP quarantines the robots listed in ``<store>/quarantine``;
+it announces the end of the mission on ``mission/done`` (:mod:`map_server.mission_end`)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ from pathlib import Path
 
 import zenoh
 
+from map_server.mission_end import MissionEnd
 from map_server.options import ServerOptions, message_limit_for
 from map_server.server import MapServer
-from swarm.config import Mission
+from swarm.child_command import stop_signals
+from swarm.config import ConfigError, Mission
 from swarm.protocol import bus
 from swarm.protocol.transport_limits import max_sessions_for
 
@@ -70,6 +73,22 @@ def server_session(
     return session
 
 
+def mission_end(session: zenoh.Session, server: MapServer, mission: Mission) -> MissionEnd:
+    """The server's :class:`MissionEnd`: H_th is the mission's (a threshold that needs the
+    simulator's ground truth is none here: then only "nothing left" ends the mission)."""
+    try:
+        server.threshold_bits = mission.threshold_bits()
+    except ConfigError as exc:
+        log.warning("no entropy threshold: %s; the mission ends when its robots have nothing left", exc)
+    log.info(
+        "the mission ends when the team map's entropy is at most H_th = %s bits, or when every robot "
+        "heard from has nothing left; then it is announced on %s",
+        "(none)" if server.threshold_bits is None else f"{server.threshold_bits:,.0f}",
+        bus.key(server.name, "mission", "done"),
+    )
+    return MissionEnd(session, server.name, server.robots, server.threshold_bits)
+
+
 def serve(
     mission: Mission,
     listen: list[str],
@@ -84,7 +103,7 @@ def serve(
     ``zenoh_config``: a Zenoh JSON5 config file (TLS, access control); ``listen``/``connect``
     win over its endpoints (``swarm.protocol.bus.open_session``)."""
     stop, reread = threading.Event(), threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in stop_signals()}
     previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: reread.set())
     try:
         raise_open_files_limit()
@@ -94,18 +113,25 @@ def serve(
         except BaseException:
             server.store.discard_new()  # a store this start created goes again
             raise
+        end = None
         try:
             server.start(session)
             _conf, endpoints, _ = bus.session_config(listen, connect or [], config_file=zenoh_config)
             source = "" if listen else f" (from {bus.config_path(zenoh_config)})"
             log.info("listening on %s%s", ", ".join(e.split("#", 1)[0] for e in endpoints), source)
+            end = mission_end(session, server, mission)
             while not stop.wait(0.5):
                 if reread.is_set():
                     reread.clear()
                     for robot in quarantine_list(Path(store_dir) / QUARANTINE_FILE):
                         server.quarantine(robot)
+                done = end.check(server.stats())
+                if done is not None and server.mission_done is None:
+                    server.mission_done = {"reason": done.reason, "t": done.t, "robots": done.robots_done}
             log.info("stopping: applying queued deltas and compacting the store")
         finally:
+            if end is not None:
+                end.close()
             server.stop()
             session.close()
     finally:

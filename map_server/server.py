@@ -134,6 +134,9 @@ class MapServer:
         self.wal_errors = 0
         self._started = time.monotonic()
         self._last_log = (time.monotonic(), len(self.team.ledger))
+        #: map/stats' H_th and end of the mission, as map_server.mission_end decides them
+        self.threshold_bits: float | None = None
+        self.mission_done: dict | None = None
 
     # -- lifecycle -----------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -392,6 +395,8 @@ class MapServer:
             "queries": self._queries.stats(),
             "max_payload_bytes": self.max_payload,
             "uptime_s": round(time.monotonic() - self._started, 3),
+            "threshold_bits": self.threshold_bits,
+            "mission_done": self.mission_done,
         }
         return stats
 

@@ -24,14 +24,15 @@ its teammates head (the reply's ``goals``).
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from collections.abc import Callable
 
 import numpy as np
 
-from robot_agent import stereo
 from robot_agent.decision import Decision
+from robot_agent.kernels import load_kernels
 from robot_agent.local_map import LocalMapping
 from robot_agent.stereo import matcher_for_rig
 from robot_agent.teammate_avoidance import TeammateAvoidance, robot_rank
@@ -39,8 +40,6 @@ from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
-from swarm.map.fusion import warm_up
-from swarm.navigation import planner
 from swarm.navigation.exploration import ExplorationTarget, choose_target, last_look_target
 from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free_cell
@@ -48,6 +47,8 @@ from swarm.navigation.probing import open_swept, optimistic_traversability
 from swarm.navigation.teammates import Teammates, block_teammates, blocking_teammate
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, robot_band_top
 from swarm.navigation.view_targets import CameraReach
+
+log = logging.getLogger("swarm.agent")
 
 STRATEGIES = ("entropy", "frontier", "random")
 GAZE_TOLERANCE = math.radians(12)
@@ -65,15 +66,6 @@ LAST_LOOK_SHARE = 0.5
 VIEW_KINDS = ("view", "frontier3d", "last look")  # targets that look at a map column chosen here
 
 
-def load_kernels() -> None:
-    """Load (on a fresh install: compile into Numba's cache) every compiled kernel an agent runs
-    per frame: fusion (``swarm.map.fusion``, with the map's update), world points
-    (``robot_agent.stereo``) and planning (``swarm.navigation.planner``)."""
-    warm_up()
-    stereo.warm_up()
-    planner.warm_up()
-
-
 class Explorer(TeammateAvoidance, LocalMapping):
     """The local map of one robot and the decisions it drives by."""
 
@@ -89,7 +81,7 @@ class Explorer(TeammateAvoidance, LocalMapping):
         # Returns beyond the rig's hit range are free space up to it, no hit (SensorModel.reach).
         self.sensor = mission.sensor_model_for(robot_id)
         self.map = CoverageMap(self.grid, self.sensor)
-        load_kernels()  # before the first frame
+        load_kernels(log.info, robot_id)  # before the first frame
         self.table = default_table()
         self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
         self.threshold = mission.threshold_bits()

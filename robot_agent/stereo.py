@@ -26,15 +26,22 @@ import numpy as np
 
 from robot_agent.disparity_kernels import depth_of_disparity, valid_disparity
 from robot_agent.subpixel import refine_disparity
-from swarm.config.models import DEFAULT_MIN_DEPTH
+from swarm.config.rig_defaults import DEFAULT_MIN_DEPTH, SGBM_MODE_NAMES
 from swarm.map.rotation import rotation_zyx
 
-SGBM_MODES = {
-    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
-    "hh": cv2.STEREO_SGBM_MODE_HH,
-    "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-    "hh4": cv2.STEREO_SGBM_MODE_HH4,
-}
+#: OpenCV's SGBM variants by the names of ``swarm.config.rig_defaults.SGBM_MODE_NAMES``, in its order.
+SGBM_MODES = dict(
+    zip(
+        SGBM_MODE_NAMES,
+        (
+            cv2.STEREO_SGBM_MODE_SGBM,
+            cv2.STEREO_SGBM_MODE_HH,
+            cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+            cv2.STEREO_SGBM_MODE_HH4,
+        ),
+        strict=True,
+    )
+)
 
 
 #: The texture filter's default threshold (grey levels): on seven real Middlebury pairs it
@@ -339,6 +346,11 @@ def _camera_points(
                 out[n, k] = z * (rot[k, 0] + rot[k, 1] * a + rot[k, 2] * b) + origin[k]
             n += 1
     return out[:n].copy()
+
+
+def warm_up_kernels() -> tuple:
+    """The compiled kernels :func:`warm_up` loads (a first run: compiles), for its progress lines."""
+    return (_camera_points, valid_disparity, depth_of_disparity)
 
 
 def warm_up() -> None:

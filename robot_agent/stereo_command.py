@@ -12,15 +12,12 @@ import argparse
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from robot_agent.stereo import SGBM_MODES, StereoMatcher
-from swarm.config.models import DEFAULT_MIN_DEPTH
-from swarm.formats.calibration_formats import load_stereo_calibration
-from swarm.formats.depth_picture import depth_picture
-from swarm.formats.pixel_bits import SignificantBits, to_8_bits
-from swarm.formats.stereo_calibration import CalibrationError
+from swarm.config.rig_defaults import DEFAULT_MIN_DEPTH, SGBM_MODE_NAMES
+
+# OpenCV, the matcher and the calibration readers are imported where they are used: the
+# arguments are built for `swarm stereo depth --help` too, which must stay fast.
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -80,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--block-size", type=int, default=5, help="SGBM block size, odd (default 5)")
     parser.add_argument(
         "--mode",
-        choices=sorted(SGBM_MODES),
+        choices=sorted(SGBM_MODE_NAMES),
         default="3way",
         help="SGBM variant (default 3way: fastest, as good as hh on real images)",
     )
@@ -107,6 +104,8 @@ def _fail(message: str) -> int:
 
 
 def _read_image(path: Path, role: str) -> np.ndarray:
+    import cv2
+
     if not path.exists():
         raise FileNotFoundError(f"{role} image {path}: no such file")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -122,6 +121,8 @@ def _pair_to_8_bits(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np
     PNG hold 0..1023 or 0..4095, whose top 8 bits would be near black, so the bits the brighter
     image's peak needs are kept (``swarm.formats.pixel_bits``); with a note saying how many. 8-bit
     images pass unchanged."""
+    from swarm.formats.pixel_bits import SignificantBits, to_8_bits
+
     bits = SignificantBits({"pair": 2}, samples=2)
     for image in (left, right):
         bits.add(image)
@@ -133,6 +134,13 @@ def _pair_to_8_bits(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np
 
 def run(args: argparse.Namespace) -> int:
     """Run ``swarm stereo depth``; returns the exit status (0 ok, 2 on a user error)."""
+    import cv2
+
+    from robot_agent.stereo import StereoMatcher
+    from swarm.formats.calibration_formats import load_stereo_calibration
+    from swarm.formats.depth_picture import depth_picture
+    from swarm.formats.stereo_calibration import CalibrationError
+
     if args.out.suffix.lower() != ".npy":
         return _fail(
             f"--out {args.out}: the depth is written as a NumPy .npy file (float32 metres); name it "

@@ -16,13 +16,15 @@ import logging
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import cv2
-import numpy as np
-
-from swarm.config import ConfigError, Mission, load_mission, mission_from_map
-from swarm.formats.depth_picture import depth_picture
 from swarm.protocol import bus
+
+if TYPE_CHECKING:
+    from swarm.config import Mission
+
+# OpenCV, numpy and the mission config are imported where they are used: the arguments of
+# these commands are built for `swarm sim ... --help` too, which must stay fast.
 
 #: Seconds ``swarm sim world`` waits for the agents by default (they start slowly on a busy machine).
 STARTUP_TIMEOUT_S = 120.0
@@ -45,6 +47,8 @@ def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
 def _load(args: argparse.Namespace) -> Mission:
     """The mission of CONFIG, or of --map, or else of ``args.default_config`` (set by the
     ``swarm sim`` command line, as ``swarm sim run`` takes it), with --robots applied."""
+    from swarm.config import ConfigError, load_mission, mission_from_map
+
     if args.config and args.map:
         raise ConfigError("give either a mission CONFIG or --map MAP.yaml, not both")
     if not args.config and not args.map:
@@ -82,7 +86,12 @@ def add_render_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_render(args: argparse.Namespace) -> int:
     """Render a robot's first view to ``args.out``; returns a process exit code."""
+    import cv2
+    import numpy as np
+
     from sim2d.render import Renderer, camera_pose
+    from swarm.config import ConfigError
+    from swarm.formats.depth_picture import depth_picture
 
     try:
         mission = _load(args)
@@ -179,6 +188,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
 def run_sim(args: argparse.Namespace) -> int:
     """Run the lockstep simulator until the mission's stop condition; returns an exit code."""
     from sim2d.simulator import Simulator
+    from swarm.config import ConfigError
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:
@@ -214,14 +224,33 @@ def run_sim(args: argparse.Namespace) -> int:
     sim.progress_every_s = args.progress_every
     import signal
 
-    signal.signal(signal.SIGTERM, lambda *_: sim.request_stop())  # stop cleanly and print the summary
+    from swarm.child_command import stop_signals
+    from swarm.protocol.mission_listener import MissionDoneListener
+
+    for sig in stop_signals():  # stop cleanly and print the summary (SIGINT: unless a runner started us)
+        signal.signal(sig, lambda *_: sim.request_stop())
+
+    def on_done(done) -> None:  # the map server's end of the mission
+        logging.getLogger(__name__).info("mission done (%s): stopping", done.describe())
+        sim.request_stop(f"mission done ({done.reason})")
+
+    ending = MissionDoneListener(session, mission.mission, on_done)
     try:
         summary = sim.run(max_ticks=args.max_ticks, startup_timeout=args.startup_timeout)
-    except KeyboardInterrupt:
-        return 130
     finally:
+        ending.close()
         sim.close()
         session.close()
+    if summary.reason == "no_agents":
+        key = bus.key(mission.mission, "robot", "<id>", "frame")
+        print(
+            f"swarm: error: no agent came for any of the robots {', '.join(summary.dead)} within "
+            f"{args.startup_timeout:g} s (--startup-timeout): nothing subscribed to {key}; start one "
+            f"`swarm agent --id ROBOT --config {args.config or args.map} --connect ENDPOINT` per robot "
+            "(a first run compiles their kernels for a minute or two: their logs say so)",
+            file=sys.stderr,
+        )
+        return 1
     print(
         f"{summary.reason}: {summary.ticks} frames, {summary.sim_time_s:.1f} s simulated in "
         f"{summary.wall_time_s:.1f} s (x{summary.real_time_factor:.1f}), dead: "

@@ -349,3 +349,8 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 def vertical_fov(camera: Camera) -> float:
     """Vertical field of view (radians) of a camera."""
     return 2 * math.atan(0.5 * camera.height / camera.fy)
+
+
+def warm_up_kernels() -> tuple:
+    """The compiled kernels a first frame compiles on a first run (stereo and range frames alike)."""
+    return (cast_rays, shade_pixels, grey_levels)

@@ -26,9 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from sim2d.render import Renderer, camera_pose
+from sim2d.render import Renderer, camera_pose, warm_up_kernels
 from sim2d.robot_link import RobotLink, WireRobots
 from sim2d.world import World
+from swarm.compile_progress import compile_progress
 from swarm.config import Mission, RigConfig
 from swarm.formats.floor_plan import FloorPlan
 from swarm.protocol import bus
@@ -85,6 +86,7 @@ class Simulator:
             rid: np.random.default_rng([mission.sim.seed, i]) for i, rid in enumerate(self.robot_ids)
         }
         self._stop = threading.Event()
+        self._stop_reason: str | None = None
         self.progress_every_s = 10.0  # seconds between progress lines of run()
         #: frames out, commands in: our protocol, or each robot's ROS 2 topics
         self.link = link if link is not None else WireRobots(session, mission)
@@ -105,14 +107,16 @@ class Simulator:
     def live(self) -> list[str]:
         return [rid for rid in self.robot_ids if rid not in self.dead]
 
-    def request_stop(self) -> None:
-        """Ask a running loop to stop after the current wait (thread-safe)."""
+    def request_stop(self, reason: str = "stopped") -> None:
+        """Ask a running loop to stop after the current wait (thread-safe); ``reason`` is the
+        summary's (the first asked for)."""
+        self._stop_reason = self._stop_reason or reason
         self._stop.set()
 
     def finished(self) -> str | None:
         """Why the run is over, or None while it goes on."""
         if self._stop.is_set():
-            return "stopped"
+            return self._stop_reason or "stopped"
         if self.time >= self.mission.stop.max_time_s - 1e-9:
             return "max_time"
         if not self.live:
@@ -141,6 +145,21 @@ class Simulator:
         else:
             frame.left, frame.right = renderer.stereo_pair(pose, rig.noise_std, rng)
         return frame
+
+    def warm_up(self) -> None:
+        """Render each robot's first view once, with a throwaway noise generator, so that the
+        rendering kernels are loaded (a first run: compiled, with a progress line per kernel)
+        before the first frame; the frames the agents get are unchanged by it."""
+        with compile_progress(warm_up_kernels(), log.info):
+            for rid in self.robot_ids:
+                rig = self.mission.rig_for(rid)
+                x, y, yaw = self.world.pose(rid)
+                pose = camera_pose(x, y, yaw, rig.camera_height, math.radians(rig.pitch_deg))
+                rng = np.random.default_rng(0)
+                if rig.mode == "range":
+                    self.renderer(rig).depth_image(pose, rig.range_noise, rig.max_range, rng)
+                else:
+                    self.renderer(rig).stereo_pair(pose, rig.noise_std, rng)
 
     # -- the lockstep loop --------------------------------------------------------------
     def wait_for_agents(self, timeout: float | None = None) -> list[str]:
@@ -206,7 +225,12 @@ class Simulator:
                 waiting.discard(cmd.robot)
 
     def run(self, max_ticks: int | None = None, startup_timeout: float | None = None) -> SimSummary:
-        """Wait for the agents, then tick until the run is over or ``max_ticks`` ticks."""
+        """Wait for the agents, then tick until the run is over or ``max_ticks`` ticks.
+
+        When no robot's agent has come within ``startup_timeout`` s the run does not start:
+        the summary's reason is ``no_agents`` (robots whose agent came only later are declared
+        dead at the first frame, and come alive when they answer)."""
+        self.warm_up()
         start = time.monotonic()
         wait = self.mission.sim.agent_timeout_s if startup_timeout is None else startup_timeout
         log.info(
@@ -216,6 +240,8 @@ class Simulator:
             ", ".join(self.robot_ids),
         )
         missing = self.wait_for_agents(startup_timeout)
+        if missing and len(missing) == len(self.robot_ids) and not self._stop.is_set():
+            return SimSummary(0, 0.0, time.monotonic() - start, "no_agents", sorted(missing))
         if missing:
             log.warning("no agent subscribed for %s; starting anyway", ", ".join(missing))
         else:

@@ -7,12 +7,18 @@ the code in one mission, and every compiled kernel compiled twice on a first run
 warm-up filled the installed copy's cache, which the children never read). The children are
 started with ``-P`` (no working directory on the path, Python 3.11) and, when the parent's
 ``swarm`` is not an installed package, with its folder first on ``PYTHONPATH``.
+
+The roles a runner starts leave Ctrl-C to the runner (:func:`leave_interrupts_to_the_runner`).
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -31,3 +37,54 @@ def child_environment(**extra: str) -> dict[str, str]:
         rest = env.get("PYTHONPATH", "")
         env["PYTHONPATH"] = str(root) + (os.pathsep + rest if rest else "")
     return env
+
+
+# -- who stops a runner's children ---------------------------------------------------------
+
+#: Set in the environment of the role processes a runner starts (``swarm sim``, ``swarm replay``):
+#: the runner, not the terminal, stops them.
+STOPPED_BY_RUNNER = "SWARM_STOPPED_BY_RUNNER"
+
+
+def started_by_runner_environment(**extra: str) -> dict[str, str]:
+    """:func:`child_environment` for a role process that its runner stops (SIGTERM, in order)."""
+    return child_environment(**{STOPPED_BY_RUNNER: "1", **extra})
+
+
+def leave_interrupts_to_the_runner() -> None:
+    """In a role process a runner started: ignore SIGINT, and unblock it.
+
+    A terminal's Ctrl-C sends SIGINT to its whole foreground process group, the runner and
+    every role it started. The roles must not act on it: the runner stops them in its own
+    order (agents and world, then the map server once it has given its map) with SIGTERM.
+    The runner starts each child with SIGINT blocked (:func:`sigint_blocked`), so that a
+    Ctrl-C in the child's first milliseconds waits, pending, until this call discards it.
+    Does nothing in a process no runner started.
+    """
+    if os.environ.get(STOPPED_BY_RUNNER) != "1":
+        return
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def stop_signals() -> tuple[signal.Signals, ...]:
+    """The signals a role stops on: SIGTERM, and SIGINT unless it is ignored (a process a
+    runner started, or a shell's background job: SIGINT ignored at start stays ignored)."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        return (signal.SIGTERM,)
+    return (signal.SIGTERM, signal.SIGINT)
+
+
+@contextmanager
+def sigint_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread for the block: a child started meanwhile inherits the blocked
+    mask (:func:`leave_interrupts_to_the_runner` unblocks it). This process loses no Ctrl-C:
+    its other threads take it, or it waits pending until the block ends."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)

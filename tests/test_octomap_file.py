@@ -91,8 +91,9 @@ def test_our_reader_round_trip(tmp_path: Path):
 def test_origin_off_the_octomap_lattice(tmp_path: Path):
     grid = Grid((0.05, 0.0, 0.0), 0.1, (6, 6, 4))
     cmap = coverage_with(known_states(grid.shape), grid)
-    with pytest.raises(ValueError, match=r"not a multiple of the voxel size.*--align shift"):
+    with pytest.raises(ValueError, match=r"not a multiple of the voxel size.*--align shift") as refused:
         coverage_to_leaves(cmap)
+    assert str(refused.value).endswith("by [-0.05, 0.0, 0.0] m"), refused.value  # no "-0.0"
     leaves = coverage_to_leaves(cmap, align="shift")
     assert max(abs(s) for s in leaves.shift) <= 0.05 + 1e-12
     shifted = Grid(tuple(np.add(grid.origin, leaves.shift)), 0.1, grid.shape)

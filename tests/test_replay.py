@@ -102,7 +102,7 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames"] == 3 and metrics["unanswered"] == 0 and metrics["agent_exit_code"] == 0
     assert metrics["entropy_end_bits"] < metrics["entropy_start_bits"] - 10_000
-    for name in ("map.npz", "top_view.png", "view_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
+    for name in ("map.npz", "top_view.png", "map_3d.png", "entropy.png", "frames.csv", "occupied.ply"):
         assert (out / name).is_file(), name
     cmap = load_map(out / "map.npz")
     # metrics.json's end is the final map's (after the agent's shutdown flush), and so is the
@@ -116,9 +116,35 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     assert len(points) == metrics["occupied_voxels"]
     camera = AslRecording(EUROC).positions()[0]
     # Most surfaces lie on the floor, 0.93 m below the camera, in front of it (+x in the Vicon room).
-    floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.15
+    # The floor plane lies on a boundary of the workspace's voxel layers (its corners are on the
+    # 0.1 m lattice): its hits fill the layers on both sides, so the band is two voxels each way.
+    floor = np.abs(points[:, 2] - (camera[2] - 0.93)) < 0.2
     assert floor.mean() > 0.4
     assert np.median(points[floor, 0]) > camera[0]
+
+
+def test_a_replays_map_exports_to_octomap_as_it_is(euroc_asl_run, tmp_path, capsys):
+    """The default workspace's corners lie on the voxel lattice (OctoMap's): no --align shift."""
+    from swarm.cli.main import main
+    from swarm.formats.map_file import load_map
+
+    origin = load_map(euroc_asl_run / "map.npz").grid.origin
+    assert all(abs(v / 0.1 - round(v / 0.1)) < 1e-6 for v in origin), origin
+    assert "-0.0" not in (euroc_asl_run / "config.yaml").read_text()
+    assert (
+        main(["map", "export", "--from", str(euroc_asl_run / "map.npz"), "--out", str(tmp_path / "m.bt")])
+        == 0
+    )
+    assert "OctoMap tree at 0.1 m" in capsys.readouterr().out and "moved by" not in capsys.readouterr().out
+
+
+def test_the_default_workspace_holds_the_box_on_the_lattice():
+    from swarm.mission.replay_run import lattice_box
+
+    lo, hi = lattice_box(np.array([-3.0012, 0.25, -1e-4]), np.array([4.33, 5.0, 2.1]), 0.1)
+    assert (lo, hi) == ([-3.1, 0.2, -0.1], [4.4, 5.0, 2.1])  # outward, and 2.1 stays 2.1
+    assert lattice_box(np.array([-1e-12, 0.0, 0.0]), np.array([1.0, 1.0, 1.0]), 0.05)[0] == [0.0, 0.0, 0.0]
+    assert str(lattice_box(np.array([-1e-12, 0.0, 0.0]), np.array([1, 1, 1]), 0.05)[0]) == "[0.0, 0.0, 0.0]"
 
 
 def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_path, euroc_asl_run):

@@ -12,7 +12,7 @@ from swarm.formats.floor_plan import FloorPlan, rectangle
 from swarm.formats.map_file import REQUIRED_KEYS
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
-from swarm.mission.run_plots import top_view_image
+from swarm.mission.map_pictures import top_view_image
 from swarm.mission.run_report import METRIC_KEYS, RunRecord, compute_metrics, write_run_folder
 
 GRID = Grid((0.0, 0.0, 0.0), 0.1, (20, 10, 8))  # 2 m x 1 m x 0.8 m

@@ -221,7 +221,7 @@ def test_swarm_map_stats_as_a_tool_finds_the_mission_over_the_rules(team, tmp_pa
     with secure_server(team, tmp_path / "store") as (_server, endpoint):
         tool = ["--zenoh-config", str(team.configs["tool"]), "--connect", endpoint, "--timeout", "10"]
         for mission in (["--mission", "srvtest"], []):  # named, or found via swarm/*/map/stats
-            assert main(["map", "stats", *tool, *mission]) == 0
+            assert main(["map", "stats", "--json", *tool, *mission]) == 0
             assert json.loads(capsys.readouterr().out)["mission"] == "srvtest"
 
 

@@ -53,7 +53,7 @@ def swarm(capsys, *args: str) -> tuple[int, str, str]:
 
 def test_map_stats_prints_the_servers_json(served, capsys):
     endpoint, central = served
-    code, out, err = swarm(capsys, "map", "stats", "--connect", endpoint, "--mission", "srvtest")
+    code, out, err = swarm(capsys, "map", "stats", "--connect", endpoint, "--mission", "srvtest", "--json")
     assert code == 0, err
     stats = json.loads(out)
     assert stats["mission"] == "srvtest" and stats["deltas_applied"] == 12
@@ -141,7 +141,7 @@ def test_map_tools_find_the_servers_mission_or_name_both(served, capsys, tmp_pat
     """Issue 18 case 7: without --mission the tools use the only mission that answers; a
     --mission or --config naming another mission is an error naming both."""
     endpoint, _central = served
-    code, out, err = swarm(capsys, "map", "stats", "--connect", endpoint)
+    code, out, err = swarm(capsys, "map", "stats", "--connect", endpoint, "--json")
     assert code == 0, err
     assert json.loads(out)["mission"] == "srvtest"
     code, out, err = swarm(capsys, "map", "get", "--connect", endpoint, "--point", "1.23,0.71,0.46", "--json")

@@ -169,14 +169,29 @@ def test_silent_agent_is_declared_dead_and_the_run_goes_on(sessions):
 
 
 def test_run_stops_when_all_agents_are_dead(sessions):
-    sim_side, _ = sessions
+    sim_side, agent_side = sessions
     mission = small_mission(agent_timeout_s=0.2)
     sim = Simulator(mission, sim_side)
+    # agents that take their frames and never answer
+    keys = [bus.key("simtest", "robot", r, "frame") for r in ("r1", "r2")]
+    mute = [bus.subscribe(agent_side, key, lambda *_: None) for key in keys]
+    try:
+        summary = sim.run(startup_timeout=5.0)
+        assert summary.reason == "all_agents_dead" and summary.ticks == 1
+        assert summary.dead == ["r1", "r2"]
+    finally:
+        for sub in mute:
+            sub.undeclare()
+        sim.close()
+
+
+def test_run_does_not_start_when_no_agent_ever_came(sessions):
+    sim_side, _ = sessions
+    sim = Simulator(small_mission(agent_timeout_s=0.2), sim_side)
     try:
         assert sorted(sim.wait_for_agents(timeout=0.1)) == ["r1", "r2"]  # nobody listens
         summary = sim.run(startup_timeout=0.1)
-        assert summary.reason == "all_agents_dead" and summary.ticks == 1
-        assert summary.dead == ["r1", "r2"]
+        assert summary.reason == "no_agents" and summary.ticks == 0 and summary.dead == ["r1", "r2"]
     finally:
         sim.close()
 

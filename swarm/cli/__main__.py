@@ -2,6 +2,10 @@
 
 import sys
 
-from swarm.cli.main import main
+from swarm.child_command import leave_interrupts_to_the_runner
+
+leave_interrupts_to_the_runner()  # first: a role a runner started leaves Ctrl-C to the runner
+
+from swarm.cli.main import main  # noqa: E402
 
 sys.exit(main())

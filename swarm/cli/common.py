@@ -1,9 +1,13 @@
-"""What every command shares: the error line users see, and the check of Zenoh endpoints."""
+"""What every command shares: the error line users see, the check of Zenoh endpoints, and
+subcommand parsers that add their arguments only when used (so that ``swarm --help`` does not
+import the roles, OpenCV and the compiled kernels to describe commands it does not run)."""
 
 from __future__ import annotations
 
+import argparse
 import re
 import sys
+from collections.abc import Callable
 
 #: Zenoh link protocols whose address is HOST:PORT.
 _HOST_PORT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
@@ -44,3 +48,48 @@ def zenoh_message(text: str) -> str:
     """A Zenoh error made one line, without the Rust source locations it carries."""
     text = re.sub(r" at /\S+\.rs:\d+\.?", "", str(text))
     return " ".join(text.split())
+
+
+class LazyParser(argparse.ArgumentParser):
+    """An argument parser some of whose arguments are added only when it is used.
+
+    ``defer(add)`` keeps ``add(parser)`` until the parser parses its part of the command line
+    or formats its help, so a subcommand whose arguments need heavy imports (a role's
+    defaults, OpenCV's modes) costs nothing to a command line that does not name it. Its
+    subparsers are LazyParsers too. :func:`complete` adds every deferred argument of a tree.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._deferred: list[Callable[[argparse.ArgumentParser], None]] = []
+
+    def defer(self, add: Callable[[argparse.ArgumentParser], None]) -> None:
+        self._deferred.append(add)
+
+    def complete(self) -> None:
+        """Add the deferred arguments of this parser (not of its subparsers)."""
+        while self._deferred:
+            self._deferred.pop(0)(self)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.complete()
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self) -> str:
+        self.complete()
+        return super().format_help()
+
+    def format_usage(self) -> str:
+        self.complete()
+        return super().format_usage()
+
+
+def complete(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add every deferred argument of ``parser`` and of all its subparsers; returns ``parser``."""
+    if isinstance(parser, LazyParser):
+        parser.complete()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                complete(sub)
+    return parser

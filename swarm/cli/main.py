@@ -12,13 +12,15 @@ import sys
 
 from swarm import __version__
 from swarm.cli import bench, ingest, maps, replay, roles, security, sim, stereo, study, view
-from swarm.cli.common import endpoint_problem, fail, zenoh_message
+from swarm.cli.common import LazyParser, complete, endpoint_problem, fail, zenoh_message
 from swarm.formats.errors import InputError
 from swarm.mission.role_failure import RoleError
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
+    """The whole ``swarm`` command line; with ``lazy``, the arguments of subcommands that need
+    heavy imports are added only when their subcommand parses (:class:`LazyParser`)."""
+    parser = LazyParser(
         prog="swarm",
         description="Multi-robot probabilistic volumetric mapping (Rocha, Dias and Carvalho 2005) "
         "over Zenoh: fuse ranges into Gaussian coverage maps, simulate, benchmark.",
@@ -37,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.register(sub)
     view.register(sub)
     security.register(sub)
-    return parser
+    return parser if lazy else complete(parser)
 
 
 def _infinite_defaults(parser: argparse.ArgumentParser) -> set[str]:
@@ -57,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "sim" and (len(argv) == 1 or argv[1] not in sim.SIM_COMMANDS):
         argv.insert(1, "run")  # 'swarm sim [CONFIG]' means 'swarm sim run [CONFIG]'
-    parser = build_parser()
+    parser = build_parser(lazy=True)
     args = parser.parse_args(argv)
     unlimited = _infinite_defaults(parser)  # e.g. stereo --max-depth: inf means "no limit"
     for dest, value in vars(args).items():

@@ -27,12 +27,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     info.set_defaults(run=_run_map_info)
     stats = msub.add_parser(
         "stats",
-        help="a running map server's figures (map/stats JSON)",
-        description="Ask a running map server (swarm server) for map/stats and print the JSON: "
-        "entropy, known fraction, deltas applied per robot, rejected and duplicate counts, log size.",
+        help="a running map server's figures: a summary, or the map/stats JSON",
+        description="Ask a running map server (swarm server) for map/stats and print a summary: the "
+        "mission and its grid, the known fraction, the entropy beside the initial one and H_th (and "
+        "whether the mission is done), the deltas applied and refused, and per robot its deltas and "
+        "acks. --json prints the whole map/stats object (docs/protocol.md, Queries).",
     )
     _add_map_query_arguments(stats)
+    stats.add_argument("--json", action="store_true", help="print the whole map/stats JSON object")
     stats.set_defaults(run=_run_map_stats)
+    picture = msub.add_parser(
+        "picture",
+        help="the pictures of a map (top view, 3-D, slices) from a map file or a running server",
+        description="Write the picture set every run writes (top_view.png, map_3d.png and slices/ of "
+        "E[C] and entropy per height band, one palette, colour bars in their units) into --out, from "
+        "a map file (map.npz, a store's snapshot.npz) or from the running map server at --connect. "
+        "A run folder's map.npz brings its config.yaml (floor plan, the robots' band) and "
+        "trajectories.json (paths) along.",
+    )
+    _add_map_query_arguments(picture)
+    picture.defer(_picture_arguments)
     get = msub.add_parser(
         "get",
         help="beliefs of a point's voxel or of a box, from a running map server",
@@ -97,6 +111,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     ros2_map.register(msub, _add_map_query_arguments, _open_client)
 
 
+def _picture_arguments(p: argparse.ArgumentParser) -> None:
+    from swarm.cli import map_picture
+
+    map_picture.add_arguments(p)
+    p.set_defaults(run=lambda args: map_picture.run(args, _open_client))
+
+
 def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--connect",
@@ -110,7 +131,11 @@ def _add_map_query_arguments(p: argparse.ArgumentParser) -> None:
         help="mission name, the key prefix (default: --config's mission, else the only mission whose "
         "server answers; a server of another mission is an error naming both)",
     )
-    p.add_argument("--config", type=Path, help="mission YAML file: take the mission name from it")
+    p.add_argument(
+        "--config",
+        type=Path,
+        help="mission YAML file: take the mission name from it (swarm map picture: its floor plan too)",
+    )
     p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for an answer (default 5)")
 
 
@@ -153,13 +178,15 @@ def _run_map_info(args: argparse.Namespace) -> int:
 
 
 def _run_map_stats(args: argparse.Namespace) -> int:
+    from swarm.cli.map_stats import stats_summary
     from swarm.protocol.map_client import MapQueryError
 
     try:
         with _open_client(args) as client:
-            print(json.dumps(client.stats(), indent=1))
+            stats = client.stats()
     except (ConnectionError, MapQueryError, ValueError) as exc:
         return fail(_explained(exc, args))
+    print(json.dumps(stats, indent=1) if args.json else "\n".join(stats_summary(stats)))
     return 0
 
 

@@ -50,8 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "replay",
         help="replay a recorded stereo dataset (ASL/EuRoC folder, ROS 1/2 bag) through the agent",
         description="Publish a recording's rectified stereo pairs on robot/<id>/frame, with the rectified "
-        "left camera's pose, to a real agent and map server, and write the run folder (map.npz, views, "
-        "per-frame timings, stereo valid fraction, entropy).",
+        "left camera's pose, to a real agent and map server, and write the run folder (map.npz, the "
+        "pictures top_view.png, map_3d.png and slices/, per-frame timings, stereo valid fraction, entropy).",
     )
     rsub = p.add_subparsers(dest="replay_command", required=True, metavar="FORMAT")
     asl = rsub.add_parser(
@@ -226,7 +226,19 @@ def _replay(args: argparse.Namespace, opener) -> int:
         args.out, robot, args.start, args.frames, args.realtime, args.connect,
         zenoh_config=args.zenoh_config, agent_zenoh_config=args.agent_zenoh_config, ros2=args.ros2,
     )  # fmt: skip
-    metrics = run_replay(recording, mission, options)
+    from swarm.mission.console import surviving_stdout
+    from swarm.mission.interrupts import INTERRUPTED_EXIT, Interrupts, say
+    from swarm.mission.role_processes import kill_started_roles
+
+    def at_once() -> None:
+        say(f"swarm replay: killed {kill_started_roles()} role process(es); {args.out}/ is incomplete")
+
+    with surviving_stdout(), Interrupts(at_once, "the replay", "") as interrupts:
+        try:
+            metrics = run_replay(recording, mission, options, interrupts)
+        except KeyboardInterrupt:
+            say(f"swarm replay: interrupted: every role was stopped; {args.out}/ has no metrics.json")
+            return INTERRUPTED_EXIT
     print(json.dumps(metrics, indent=2))
     print(f"wrote {args.out}")
     return 0

@@ -17,7 +17,9 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         help="run one robot's agent: stereo -> map -> exploration, over Zenoh",
         description="Run one robot's agent: take its frames (robot/<id>/frame), fuse them into a "
         "local coverage map, share voxel deltas (delta/<id>), choose targets and send velocity "
-        "commands (robot/<id>/cmd). Stops on SIGINT/SIGTERM after flushing its pending deltas.",
+        "commands (robot/<id>/cmd). Stops on SIGINT/SIGTERM, and when the map server announces the "
+        "end of the mission (mission/done), after flushing its pending deltas; then prints its "
+        "final figures.",
     )
     p.add_argument("--id", required=True, dest="robot_id", help="robot id, as in the mission config")
     p.add_argument("--config", required=True, type=Path, help="mission YAML file")
@@ -43,6 +45,13 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="seconds between progress lines: frames fused, deltas sent and acked, map entropy (default 10)",
     )
+    p.add_argument(
+        "--on-mission-done",
+        choices=["stop", "continue"],
+        default="stop",
+        help="when the map server announces the end of the mission (mission/done): stop (default), or "
+        "continue taking frames (a replay: the recording decides when it ends)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     ros2_options.add_arguments(p)
     p.set_defaults(run=_run_agent)
@@ -53,8 +62,10 @@ def _run_agent(args: argparse.Namespace) -> int:
     import signal
 
     from robot_agent.agent import Agent
+    from swarm.child_command import stop_signals
     from swarm.config import ConfigError, load_mission
     from swarm.protocol.map_client import MissionMismatch
+    from swarm.protocol.mission_listener import MissionDoneListener
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s: %(message)s"
@@ -83,14 +94,25 @@ def _run_agent(args: argparse.Namespace) -> int:
         agent.progress_every_s = args.progress_every
     except (ConfigError, ValueError, ConnectionError) as exc:
         return fail(str(exc))
-    signal.signal(signal.SIGTERM, lambda *_: agent.stop())
-    signal.signal(signal.SIGINT, lambda *_: agent.stop())
+    for sig in stop_signals():  # SIGTERM, and SIGINT unless a runner started it (swarm.child_command)
+        signal.signal(sig, lambda *_: agent.stop())
+
+    def on_done(done) -> None:  # the map server's end of the mission: stop as on SIGTERM
+        if args.on_mission_done == "continue":
+            log.info("%s: mission done (%s): taking frames on (--on-mission-done continue)",
+                     args.robot_id, done.describe())  # fmt: skip
+            return
+        log.info("%s: mission done (%s): stopping", args.robot_id, done.describe())
+        agent.stop()
+
+    ending = MissionDoneListener(session, mission.mission, on_done)
     mismatch = None
     try:
         agent.run()
     except MissionMismatch as exc:
         mismatch = exc
     finally:
+        ending.close()
         if mismatch is None:  # after the shutdown flush: the final figures
             stats = agent.outbox.stats
             print(
@@ -115,8 +137,6 @@ def _run_agent(args: argparse.Namespace) -> int:
 
 # -- swarm coordinator --------------------------------------------------------------------
 def register_coordinator(sub: argparse._SubParsersAction) -> None:
-    from coordinator import command as coordinator
-
     p = sub.add_parser(
         "coordinator",
         help="run the coordinator: eq. 35 targets for the robots, spread apart (Burgard et al.)",
@@ -124,6 +144,12 @@ def register_coordinator(sub: argparse._SubParsersAction) -> None:
         "answer coord/assign with the eq. 35 target that maximises utility minus path cost, lowering "
         "the utility of targets near those other robots hold. See docs/coordinator.md.",
     )
+    p.defer(_coordinator_arguments)
+
+
+def _coordinator_arguments(p: argparse.ArgumentParser) -> None:
+    from coordinator import command as coordinator
+
     coordinator.add_arguments(p)
     p.set_defaults(run=coordinator.run)
 
@@ -136,7 +162,10 @@ def register_server(sub: argparse._SubParsersAction) -> None:
         description="Run the map server of a mission: listen on --listen (agents and tools connect "
         "there), apply each delta/<rid> exactly once, log it durably in --store before acking it, "
         "republish it on merged, and answer map/stats, map/acks, map/snapshot and map/region. "
-        "On start it recovers the map and acks from the store; SIGINT/SIGTERM compact it and exit.",
+        "On start it recovers the map and acks from the store; SIGINT/SIGTERM compact it and exit. "
+        "When the team map's entropy reaches the mission's H_th, or every robot heard from has nothing "
+        "left, it announces the end of the mission on mission/done (agents and the world stop) and "
+        "goes on answering queries.",
     )
     p.add_argument("--config", required=True, type=Path, help="mission YAML file (grid, sensor model)")
     p.add_argument("--store", required=True, type=Path, help="store folder (snapshot + write-ahead log)")

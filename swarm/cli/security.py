@@ -6,8 +6,6 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from swarm.security import command
-
     p = sub.add_parser(
         "security",
         help="mutual TLS and access control for a team: certificates and Zenoh configs",
@@ -18,5 +16,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "init",
         help="write a CA, one certificate and one Zenoh config per identity of the team",
     )
+    init.defer(_init_arguments)
+
+
+def _init_arguments(init: argparse.ArgumentParser) -> None:
+    from swarm.security import command
+
     command.add_init_arguments(init)
     init.set_defaults(run=command.run_init)

@@ -23,8 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run a mission on this machine: the simulated world, the map server, the "
         "coordinator and one agent per robot, each a separate process talking Zenoh over loopback. "
         "Shows progress, stops at the entropy threshold H_th or --max-time, and writes the run "
-        "folder (metrics.json, map.npz, server_map.npz, entropy.png, top_view.png, config.yaml, "
-        f"logs). Default mission: {DEFAULT_MISSION} (4 robots).",
+        "folder (metrics.json, map.npz, server_map.npz, entropy.png, top_view.png, map_3d.png, slices/, "
+        "config.yaml, logs). Ctrl-C stops the roles within seconds and writes the run folder from the "
+        "map server's map (metrics.json says interrupted); a second Ctrl-C stops at once. "
+        f"Default mission: {DEFAULT_MISSION} (4 robots).",
     )
     run.add_argument("config", nargs="?", type=Path, help=f"mission YAML (default {DEFAULT_MISSION})")
     run.add_argument("--map", type=Path, help="a ROS map_server map.yaml to explore instead of a mission")
@@ -100,12 +102,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the simulated world alone: frames out, commands in, over Zenoh",
         description="Run the lockstep pymunk world of a mission: publish every robot's frames on "
         "swarm/<mission>/robot/<rid>/frame and advance when every live agent has answered with a "
-        "cmd. Agents (swarm agent) are started separately and connect to --listen.",
+        "cmd. Agents (swarm agent) are started separately and connect to --listen. Stops at the "
+        "mission's max time, on SIGINT/SIGTERM, when the map server announces the end of the mission "
+        "(mission/done), and with an error (exit 1) when no robot's agent came within --startup-timeout.",
     )
-    from sim2d.commands import add_render_arguments, add_run_arguments, run_render, run_sim
+    render.defer(_render_arguments)
+    world.defer(_world_arguments)
+
+
+def _render_arguments(render: argparse.ArgumentParser) -> None:
+    from sim2d.commands import add_render_arguments, run_render
 
     add_render_arguments(render)
     render.set_defaults(run=run_render, default_config=DEFAULT_MISSION)
+
+
+def _world_arguments(world: argparse.ArgumentParser) -> None:
+    from sim2d.commands import add_run_arguments, run_sim
+
     add_run_arguments(world)
     world.set_defaults(run=run_sim, default_config=DEFAULT_MISSION)
 

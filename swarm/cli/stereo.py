@@ -19,6 +19,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Match LEFT and RIGHT with OpenCV SGBM and write depth in metres (NaN where "
         "unknown, same size as the input) to --out, and optionally a colour PNG.",
     )
+    depth.defer(_depth_arguments)
+
+
+def _depth_arguments(depth: argparse.ArgumentParser) -> None:
     from robot_agent.stereo_command import add_arguments
 
     add_arguments(depth)

@@ -7,8 +7,6 @@ import argparse
 
 # -- swarm study --------------------------------------------------------------------------
 def register(sub: argparse._SubParsersAction) -> None:
-    from swarm.mission import study
-
     p = sub.add_parser(
         "study",
         help="run a grid of missions (robots x strategies x coordination x seeds) and tabulate them",
@@ -16,5 +14,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "then write results.csv, summary.csv/.md (means over seeds, speed-up over one robot) and "
         "plots of time to threshold and speed-up. See docs/study.md.",
     )
-    study.add_arguments(p)
-    p.set_defaults(run=study.run)
+    p.defer(_study_arguments)
+
+
+def _study_arguments(p: argparse.ArgumentParser) -> None:
+    from swarm.mission.study import command
+
+    command.add_arguments(p)
+    p.set_defaults(run=command.run)

@@ -7,6 +7,7 @@ import signal
 import threading
 from pathlib import Path
 
+from swarm.child_command import stop_signals
 from swarm.cli.common import fail
 from swarm.protocol import bus
 
@@ -50,7 +51,7 @@ def _run_view(args: argparse.Namespace) -> int:
     if not args.period > 0:
         return fail(f"--period must be > 0, got {args.period}")
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in stop_signals():  # SIGTERM, and SIGINT unless a runner started it (swarm.child_command)
         signal.signal(sig, lambda *_: stop.set())
     spawn = args.save is None or args.spawn
     no_window = missing_display() if spawn else None

@@ -10,16 +10,27 @@ overrides of the default rig); a robot's ``rig`` is a name from ``rigs``, a path
 rig YAML file (overrides too) or an inline mapping of overrides.
 """
 
-from swarm.config.loading import check_mission, load_mission, mission_from_dict, mission_from_map
-from swarm.config.mission import Mission
-from swarm.config.models import (
-    DEFAULT_THRESHOLD_FRACTION,
-    OBSERVABLE_FRACTION,
-    PRIOR_BITS_PER_VOXEL,
-    ConfigError,
-    RigConfig,
-)
-from swarm.formats.validation_errors import describe_validation_error
+from importlib import import_module
+
+#: Each name this package offers -> the module of the package that defines it, imported when
+#: first asked for (a command line's --help needs a default or two, not pydantic and the maths).
+_HOMES = {
+    **dict.fromkeys(("check_mission", "load_mission", "mission_from_dict", "mission_from_map"), "loading"),
+    "Mission": "mission",
+    **dict.fromkeys(("DEFAULT_THRESHOLD_FRACTION", "OBSERVABLE_FRACTION", "PRIOR_BITS_PER_VOXEL"), "models"),
+    **dict.fromkeys(("ConfigError", "RigConfig"), "models"),
+}
+
+
+def __getattr__(name: str):
+    if name == "describe_validation_error":
+        from swarm.formats.validation_errors import describe_validation_error
+
+        return describe_validation_error
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
 
 __all__ = [
     "DEFAULT_THRESHOLD_FRACTION",

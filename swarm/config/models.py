@@ -18,6 +18,7 @@ from pydantic import (
     model_validator,
 )
 
+from swarm.config.rig_defaults import DEFAULT_MIN_DEPTH
 from swarm.formats.errors import InputError
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -81,11 +82,6 @@ class Pose2D(Section):
 #: 13 % of points at 3-4 m and 31-38 % at 4-5 m are more than 0.15 m off: sigma_Z = 0.10 m at
 #: 3.5 m and 0.16 m at 4.5 m, both sigma_d = sigma_Z fx b / Z^2 = 0.10 px.
 DISPARITY_SIGMA_PX = 0.1
-
-#: The stereo matcher's nearest depth (m) unless a rig sets ``min_depth``: SGBM's time is
-#: about proportional to the disparities searched, fx b / min_depth, and at 0.35 m a 640 x 480
-#: EuRoC pair (fx b = 42.9 px m) needs 128 of them against 144 at 0.3 m (docs/stereo.md).
-DEFAULT_MIN_DEPTH = 0.35
 
 
 class RigConfig(Section):

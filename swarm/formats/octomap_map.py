@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm.formats.octomap_file import KEY_ORIGIN, TREE_DEPTH, OctreeLeaves
+from swarm.formats.shown_numbers import shown
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.grid import Grid
@@ -65,10 +66,11 @@ def grid_key_offset(grid: Grid, align: str = "refuse") -> tuple[np.ndarray, np.n
     off = steps - whole
     if np.any(np.abs(off) > 1e-6) and align == "refuse":
         raise ValueError(
-            f"grid origin {list(grid.origin)} is not a multiple of the voxel size {grid.voxel:g} m: "
+            f"grid origin {[shown(v) for v in grid.origin]} is not a multiple of the voxel size "
+            f"{grid.voxel:g} m: "
             "OctoMap anchors voxels at the world origin; use a workspace lo that is a multiple of "
             "the voxel size, or shift the map (swarm map export --align shift; align='shift' in Python) by "
-            f"{[round(float(-d * grid.voxel), 6) for d in off]} m"
+            f"{[shown(-d * grid.voxel, 6) for d in off]} m"
         )
     first = whole.astype(np.int64) + KEY_ORIGIN
     last = first + np.asarray(grid.shape) - 1
@@ -150,7 +152,7 @@ def export_bt(path, cmap: CoverageMap, max_sigma: float = DEFAULT_MAX_SIGMA, ali
     leaves = coverage_to_leaves(cmap, max_sigma, align)
     nodes = write_bt(path, leaves.resolution, leaves.key, leaves.occupied)
     occupied = int(leaves.occupied.sum())
-    shift = [round(s, 6) for s in leaves.shift]  # metres, without float noise
+    shift = [shown(s, 6) for s in leaves.shift]  # metres, without float noise or -0.0
     moved = f", moved by {shift} m to OctoMap's lattice" if any(leaves.shift) else ""
     return (
         f"{path}: OctoMap tree at {leaves.resolution:g} m, {occupied:,} occupied and "

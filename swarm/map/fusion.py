@@ -176,6 +176,17 @@ def batch_information(
     )
 
 
+def warm_up_kernels() -> tuple:
+    """The compiled kernels :func:`warm_up` loads (a first run: compiles), for its progress lines."""
+    return (
+        kernel.fuse_rays,
+        kernel.blocks_bound,
+        ray_batch.prepare_rays,
+        ray_batch.order_by_direction,
+        ray_batch.discretize_rays,
+    )
+
+
 def warm_up() -> None:
     """Load (or, on a first run, compile and cache) every fusion kernel now, not on the first frame.
 

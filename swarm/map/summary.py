@@ -20,7 +20,7 @@ def summarize(cmap: CoverageMap) -> dict:
         "shape": list(cmap.grid.shape),
         "voxels": cmap.grid.size,
         "voxel_size": cmap.grid.voxel,
-        "origin": [round(v, 6) for v in cmap.grid.origin],
+        "origin": [round(v, 6) + 0.0 for v in cmap.grid.origin],  # + 0.0: never -0.0
         "known_fraction": round(float(np.mean(cmap.known_mask())), 6),
         "entropy_bits": round(entropy, 1),
         "initial_entropy_bits": round(initial, 1),

@@ -3,9 +3,10 @@
 The runner is the Zenoh router on loopback (or joins one with ``connect``); it starts ``swarm
 server`` and ``swarm agent`` as processes, publishes the recording's rectified frames on
 ``robot/<id>/frame`` in lockstep with the agent's answers (``replay.publisher``), watches
-``delta/*`` for the entropy, and writes the run folder: config.yaml, map.npz, top_view.png,
-view_3d.png, occupied.ply, frames.csv (per frame: round trip, stereo valid fraction, map
-entropy), metrics.json, and the processes' logs.
+``delta/*`` for the entropy, and writes the run folder: config.yaml, map.npz, the picture set
+of every run (top_view.png, map_3d.png, slices/; :mod:`swarm.mission.map_pictures`, with the
+camera's path), entropy.png, occupied.ply, frames.csv (per frame: round trip, stereo valid
+fraction, map entropy), metrics.json, and the processes' logs.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import shutil
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -25,18 +27,21 @@ import numpy as np
 
 from replay.publisher import FramePublisher
 from replay.ros2_player import Ros2Player
-from robot_agent.explorer import load_kernels
+from robot_agent.kernels import load_kernels
 from robot_agent.stereo import matcher_for_rig
 from swarm.config import Mission, mission_from_dict
 from swarm.formats.map_file import save_map
 from swarm.formats.point_cloud_file import write_ply_points
+from swarm.formats.shown_numbers import shown
 from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
+from swarm.mission.interrupts import Interrupts
+from swarm.mission.map_pictures import write_map_pictures
+from swarm.mission.picture_style import pyplot
 from swarm.mission.role_failure import RoleError
 from swarm.mission.role_processes import (
     final_server_map,
-    shielded_from_interrupts,
     start_role,
     stop_roles,
     wait_for_server,
@@ -106,15 +111,18 @@ class FrameEntropy:
 def default_mission(
     recording: Recording, robot: str = "r1", margin: float = 3.0, voxel: float = 0.1
 ) -> Mission:
-    """A mission around the recording: a box ``margin`` m around the trajectory, the rectified rig."""
+    """A mission around the recording: a box ``margin`` m around the trajectory (1.5 m below and
+    above it), its corners on the lattice of ``voxel`` (multiples of the voxel edge, as OctoMap
+    anchors its voxels: ``swarm map export --out map.bt`` takes the map as it is), the rectified rig."""
     pos = recording.positions()
     lo, hi = pos.min(axis=0) - margin, pos.max(axis=0) + margin
     lo[2], hi[2] = pos[:, 2].min() - 1.5, pos[:, 2].max() + 1.5
+    lo, hi = lattice_box(lo, hi, voxel)
     cam = rectified_camera(recording.calibration)
     hfov = math.degrees(2 * math.atan(cam.width / 2 / cam.fx))
     data = {
         "mission": "replay",
-        "workspace": {"lo": lo.round(2).tolist(), "hi": hi.round(2).tolist(), "voxel": voxel},
+        "workspace": {"lo": lo, "hi": hi, "voxel": voxel},
         "robots": [{"id": robot, "start": {"x": float(pos[0, 0]), "y": float(pos[0, 1])}}],
         "rig": {
             "width": cam.width,
@@ -128,6 +136,15 @@ def default_mission(
         "sensor": {"hit_precedence": True},
     }
     return mission_from_dict(data)
+
+
+def lattice_box(lo: np.ndarray, hi: np.ndarray, voxel: float) -> tuple[list[float], list[float]]:
+    """The smallest box holding [lo, hi] whose corners are whole numbers of voxel edges from the
+    world origin (m), as plain floats without negative zeros (they go into config.yaml)."""
+    first = np.floor(np.asarray(lo, dtype=np.float64) / voxel + 1e-9)
+    last = np.ceil(np.asarray(hi, dtype=np.float64) / voxel - 1e-9)
+    digits = max(0, -math.floor(math.log10(voxel))) + 3
+    return [shown(k * voxel, digits) for k in first], [shown(k * voxel, digits) for k in last]
 
 
 @dataclass
@@ -155,8 +172,12 @@ def _pairs(recording: Recording, options: ReplayOptions) -> Iterator[tuple[Recor
         yield pair, make_frame(options.robot, seq, pair, recording.calibration, camera)
 
 
-def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -> dict:
-    """Replay ``recording`` through a map server and an agent; write the run folder; return metrics."""
+def run_replay(
+    recording: Recording, mission: Mission, options: ReplayOptions, interrupts: Interrupts | None = None
+) -> dict:
+    """Replay ``recording`` through a map server and an agent; write the run folder; return metrics.
+
+    A Ctrl-C (``interrupts``: the command's) stops the roles and raises KeyboardInterrupt."""
     out = options.out
     out.mkdir(parents=True, exist_ok=True)
     config_path = out / "config.yaml"
@@ -164,7 +185,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
     # Compile the fusion and point kernels here (a no-op load when Numba's cache is warm), so that
     # the agent loads them from the cache: on a fresh clone it would compile them at start, which
     # on a busy machine outlasted the wait for its subscription below.
-    load_kernels()
+    load_kernels(None if options.quiet else lambda line: print(line, flush=True), "replay")
     endpoint = options.connect or bus.tcp_endpoint(bus.free_port())
     if options.connect:
         session = bus.open_session(connect=[endpoint], config_file=options.zenoh_config)
@@ -194,7 +215,7 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
             wait_for_server(client, server)
         agent = start_role(
             ["agent", "--id", options.robot, "--connect", endpoint, "--config", str(config_path),
-             "--coordination", "none", *(["--ros2"] if options.ros2 else []),
+             "--coordination", "none", "--on-mission-done", "continue", *(["--ros2"] if options.ros2 else []),
              *(["--zenoh-config", str(options.agent_zenoh_config)] if options.agent_zenoh_config else [])],
             out / f"agent-{options.robot}.log",
         )  # fmt: skip
@@ -254,14 +275,16 @@ def run_replay(recording: Recording, mission: Mission, options: ReplayOptions) -
         if options.connect is None:
             server_map = final_server_map(client, monitor)
     finally:
-        with shielded_from_interrupts():
+        with interrupts.held() if interrupts is not None else nullcontext():
             if publisher is not None:
                 publisher.close()
             stop_roles([p for p in procs if p.poll() is None])
             sub.undeclare()
             session.close()
     cmap = server_map if server_map is not None else monitor.cmap
-    return _write_outputs(out, cmap, rows, log.unanswered, recording, monitor, camera, procs_agent)
+    return _write_outputs(
+        out, cmap, options.robot, rows, log.unanswered, recording, monitor, camera, procs_agent
+    )
 
 
 def occupied_points(cmap: CoverageMap, threshold: float = OCCUPIED) -> tuple[np.ndarray, np.ndarray]:
@@ -275,7 +298,7 @@ def occupied_points(cmap: CoverageMap, threshold: float = OCCUPIED) -> tuple[np.
     return cmap.grid.lo + (ijk + 0.5) * cmap.grid.voxel, cover[idx]
 
 
-def _write_outputs(out, cmap, rows, unanswered, recording, monitor, camera, agent_code) -> dict:
+def _write_outputs(out, cmap, robot, rows, unanswered, recording, monitor, camera, agent_code) -> dict:
     save_map(out / "map.npz", cmap)
     with (out / "frames.csv").open("w", newline="") as fh:
         writer = csv.DictWriter(fh, ["seq", "t", "sent_s", "round_trip_ms", "stereo_valid", "entropy_bits"])
@@ -298,54 +321,29 @@ def _write_outputs(out, cmap, rows, unanswered, recording, monitor, camera, agen
     }
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     start, final = metrics["entropy_start_bits"], metrics["entropy_end_bits"]
-    _plots(out, cmap, points, cover, rows, recording, start, final)
+    _plots(out, cmap, robot, rows, recording, start, final)
     return metrics
 
 
-def _plots(out: Path, cmap: CoverageMap, points, cover, rows, recording, start_bits, final_bits) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def _plots(out: Path, cmap: CoverageMap, robot: str, rows, recording, start_bits, final_bits) -> None:
+    """The picture set of every run (top_view.png, map_3d.png, slices/: the camera's path on
+    them) and the replay's entropy.png (the entropy after each frame)."""
     import matplotlib.ticker
 
-    from swarm.mission.run_plots import top_view_image
-
-    traj = recording.positions()
-    image, _ = top_view_image(cmap, (cmap.grid.lo[2], cmap.grid.hi[2]))
-    (x0, y0, _), (x1, y1, _) = cmap.grid.lo, cmap.grid.hi
-    fig, ax = plt.subplots(figsize=(7, 6), dpi=110, layout="constrained")
-    grey = plt.get_cmap("gray_r").with_extremes(bad="lightsteelblue")  # columns with no known voxel
-    shown = ax.imshow(np.ma.masked_invalid(image.T), origin="lower", extent=(x0, x1, y0, y1), cmap=grey,
-                      vmin=0, vmax=1, interpolation="nearest")  # fmt: skip
-    fig.colorbar(shown, ax=ax, label="max E[C] of known voxels in the column (0: free, 1: occupied)")
-    ax.plot(traj[:, 0], traj[:, 1], "r-", lw=1.5, label="camera")
-    title = "Top view (white: known free, dark: occupied, blue: unknown)"
-    ax.set(xlabel="x (m)", ylabel="y (m)", title=title, aspect="equal")
+    write_map_pictures(out, cmap, {robot: recording.positions()})
+    if not rows:
+        return
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=110, layout="constrained")
+    frames = [r["seq"] + 1 for r in rows]
+    shared = [r["entropy_bits"] for r in rows]
+    ax.plot(frames, shared, "b.-", label="after each frame (the deltas shared so far)")
+    ax.axhline(final_bits, color="k", ls="--", lw=1, label="final map (after the agent's shutdown flush)")
+    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    ax.set(xlabel="frame", ylabel="map entropy (bits)", title=entropy_title(start_bits, final_bits))
     ax.legend(loc="upper right")
-    fig.savefig(out / "top_view.png")
+    fig.savefig(out / "entropy.png")
     plt.close(fig)
-    fig = plt.figure(figsize=(8, 6), dpi=110, layout="constrained")
-    ax = fig.add_subplot(projection="3d")
-    shown = ax.scatter(points[:, 0], points[:, 1], points[:, 2], c=points[:, 2], s=2, cmap="viridis")
-    ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], "r-", lw=2)
-    fig.colorbar(shown, ax=ax, shrink=0.7, label="z (m)")
-    ax.set(
-        xlabel="x (m)", ylabel="y (m)", zlabel="z (m)", title=f"Voxels with E[C] >= {OCCUPIED} (red: camera)"
-    )
-    fig.savefig(out / "view_3d.png")
-    plt.close(fig)
-    if rows:
-        fig, ax = plt.subplots(figsize=(7, 4), dpi=110, layout="constrained")
-        frames = [r["seq"] + 1 for r in rows]
-        shared = [r["entropy_bits"] for r in rows]
-        ax.plot(frames, shared, "b.-", label="after each frame (the deltas shared so far)")
-        ax.axhline(final_bits, color="k", ls="--", lw=1, label="final map (after the agent's shutdown flush)")
-        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
-        ax.set(xlabel="frame", ylabel="map entropy (bits)", title=entropy_title(start_bits, final_bits))
-        ax.legend(loc="upper right")
-        fig.savefig(out / "entropy.png")
-        plt.close(fig)
 
 
 def entropy_title(start_bits: float, final_bits: float) -> str:

@@ -8,8 +8,8 @@ into the ``metrics.json`` dictionary (measures of :mod:`swarm.mission.evaluation
     metrics = compute_metrics(record, cmap, true_coverage, observed_by)
     write_run_folder("runs/lab-0", metrics, cmap, mission.to_yaml(), record)
 
-The plots ``entropy.png`` and ``top_view.png`` are drawn by :mod:`swarm.mission.run_plots`,
-``map_3d.png`` and ``slices/`` by :mod:`swarm.mission.map_pictures`.
+``entropy.png`` is drawn by :mod:`swarm.mission.run_plots`; ``top_view.png``, ``map_3d.png``
+and ``slices/``, the picture set of every kind of run, by :mod:`swarm.mission.map_pictures`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from swarm.map.coverage_map import CoverageMap, prior_entropy_bits
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_table import default_table
 from swarm.mission import evaluation, surface_quality
-from swarm.mission.run_plots import plot_entropy, plot_top_view
+from swarm.mission.run_plots import plot_entropy
 
 #: Keys that ``metrics.json`` always has (docs/design.md section 6, plus our additions).
 METRIC_KEYS = (
@@ -247,8 +247,9 @@ def write_run_folder(
 ) -> None:
     """Write ``metrics.json``, ``map.npz``, ``config.yaml``, ``trajectories.json`` (robot id ->
     [[t s, x m, y m], ...], the simulator's true poses), ``entropy.png``, ``top_view.png``,
-    ``map_3d.png`` and the slice stack ``slices/`` (:mod:`swarm.mission.map_pictures`)."""
-    from swarm.mission.map_pictures import plot_map_3d, plot_slices
+    ``map_3d.png`` and the slice stack ``slices/`` (:func:`swarm.mission.map_pictures.write_map_pictures`)."""
+    from swarm.mission.map_pictures import write_map_pictures
+    from swarm.mission.picture_style import paths_from_trajectories
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -258,9 +259,8 @@ def write_run_folder(
     trajectories = json.dumps(_jsonable(record.trajectories))
     (out / "trajectories.json").write_text(trajectories + "\n", encoding="utf-8")
     plot_entropy(out / "entropy.png", metrics)
-    plot_top_view(out / "top_view.png", cmap, record.height_band, record.trajectories, record.floor_plan)
-    plot_map_3d(out / "map_3d.png", cmap, record.trajectories)
-    plot_slices(out / "slices", cmap)
+    paths = paths_from_trajectories(record.trajectories)
+    write_map_pictures(out, cmap, paths, record.floor_plan, record.height_band)
 
 
 def _jsonable(value: Any) -> Any:

@@ -26,28 +26,43 @@ import shutil
 import subprocess
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from robot_agent.explorer import load_kernels
+from robot_agent.kernels import load_kernels
 from swarm.config import Mission
+from swarm.mission.interrupts import Interrupts
 from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
 from swarm.mission.role_failure import RoleError
 from swarm.mission.role_processes import (
     final_server_map,
-    shielded_from_interrupts,
-    start_role,
+    started_count,
+    started_since,
     stop_roles,
+    store_map,
+    terminate_roles,
+    wait_for_flush,
+    wait_for_roles,
     wait_for_server,
     why_it_exited,
 )
+from swarm.mission.role_processes import start_role as start_role_process
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
 from swarm.protocol.map_client import MapClient
+from swarm.protocol.mission_listener import MissionDoneListener
 from swarm.protocol.wire import DeltaMessage
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
+
+#: After an interrupt: seconds to wait for the agents' flush (their exit), then for the map
+#: server's map; the roles still stopping get INTERRUPTED_STOP_S more (then SIGKILL) once the
+#: run folder is written (``facts["stopping"]``), or at once when the map must come from the store.
+INTERRUPTED_FLUSH_S = 1.5
+INTERRUPTED_MAP_S = 2.0
+INTERRUPTED_STOP_S = 3.0
 
 
 @dataclass
@@ -99,8 +114,19 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     return BusPlan([], [endpoint], team.configs[OPERATOR], server_args, team.configs)
 
 
-def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor, dict]:
-    """Run ``mission`` with every role in its own process; returns the monitor and run facts."""
+def run_mission(
+    mission: Mission, options: MissionOptions, interrupts: Interrupts | None = None
+) -> tuple[TeamMonitor, dict]:
+    """Run ``mission`` with every role in its own process; returns the monitor and run facts.
+
+    ``interrupts`` (the command's :class:`~swarm.mission.interrupts.Interrupts`): a first Ctrl-C
+    or SIGTERM ends the run with reason ``interrupted``: the agents and the world are told to
+    stop, the agents' flush gets :data:`INTERRUPTED_FLUSH_S` s, the map server's map
+    :data:`INTERRUPTED_MAP_S` s (else it is read from the server's store once the server has
+    stopped), and the facts are returned as for any other end, with the roles that are still
+    stopping in ``facts["stopping"]``: the caller ends them with ``stop_roles(...,
+    INTERRUPTED_STOP_S)`` once it has written the run folder. Interrupted while starting, the
+    reason is ``interrupted while starting``."""
     out = options.out
     out.mkdir(parents=True, exist_ok=True)
     if options.max_time_s is not None:
@@ -112,10 +138,17 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     threshold = mission.threshold_bits()
     # Compile the fusion and point kernels once here (a no-op load when Numba's cache is warm), so that
     # the agents load them from the cache instead of each compiling them at start.
-    load_kernels()
+    load_kernels(None if options.quiet else lambda line: print(line, flush=True), "runner")
 
     monitor = TeamMonitor(mission)
     name = mission.mission
+    mark = started_count()  # this run's role processes are those started from here on
+
+    def start_role(args: list[str], log_path: Path) -> subprocess.Popen:
+        """A role process, started and kept in one piece (an interrupt waits for its end)."""
+        with interrupts.deferred() if interrupts is not None else nullcontext():
+            return start_role_process(args, log_path)
+
     plan = plan_bus(mission, out, options.secure)
     store = out / "server-store"
     if store.exists():
@@ -128,6 +161,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
     except BaseException:
         stop_roles([server] if server is not None else [])
         raise
+    ending = MissionDoneListener(session, name, lambda _done: None)  # the map server's end, if it says
     subs = [
         bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta),
         bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
@@ -160,7 +194,7 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             )
         if mission.prior_map is not None:
             _publish_prior(session, mission, client, monitor)
-        view = _start_view(options.view, plan, name, out)
+        view = _start_view(options.view, plan, name, out, start_role)
         if view is not None:
             services.append(view)
         ros2 = ["--ros2"] if options.ros2 else []
@@ -198,6 +232,8 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
                 reason = "threshold"
             elif monitor.states and all(monitor.states.get(r) == "done" for r in mission.robot_ids):
                 reason = "agents done"
+            elif ending.done is not None:  # the map server ended it (its H, or nothing left), first
+                reason = "threshold" if ending.done.reason == "threshold" else "agents done"
             elif world.poll() is not None:
                 reason = why_the_world_stopped(monitor, mission)
                 if world.returncode != 0:  # it failed: say so, and the run folder's stop_reason does
@@ -229,29 +265,63 @@ def run_mission(mission: Mission, options: MissionOptions) -> tuple[TeamMonitor,
             if reason != "running":
                 at_stop = (h, monitor.applied)  # what the last progress line showed
                 break
+    except KeyboardInterrupt:  # the first Ctrl-C or SIGTERM (swarm.mission.interrupts)
+        reason = "interrupted" if reason == "running" else "interrupted while starting"
+        at_stop = (monitor.team_entropy, monitor.applied)
     finally:
-        with shielded_from_interrupts():
-            stop_roles(agents)  # agents flush their pending deltas on SIGTERM
-            stop_roles([world] if world is not None else [])
-            if reason != "starting":
-                server_map = final_server_map(client, monitor)
+        interrupted = reason.startswith("interrupted")
+        map_source = None
+        stopping: list[subprocess.Popen] = []  # interrupted: roles told to stop, not waited for
+        with interrupts.held() if interrupts is not None else nullcontext():
+            if interrupted:  # the agents flush (through this router: it stays open) as the world stops
+                # every role but the services: also one an interrupt cut off before it was kept
+                kept = [p for p in (server, *services) if p is not None]
+                stopping = [p for p in started_since(mark) if all(p is not s for s in kept)]
+                terminate_roles(stopping, yield_cpu=True)
+                wait_for_flush(agents, monitor, INTERRUPTED_FLUSH_S)
+            else:
+                stop_roles(agents)  # agents flush their pending deltas on SIGTERM
+                stop_roles([world] if world is not None else [])
+            if not reason.endswith("starting"):
+                server_map = final_server_map(client, monitor, INTERRUPTED_MAP_S if interrupted else 20.0)
+                map_source = None if server_map is None else "the map server"
                 if options.coordination != "none":
-                    coordinator_stats = coord_client.coordinator_stats(session, name)
-            stop_roles(services)
+                    timeout = 0.5 if interrupted else 2.0
+                    coordinator_stats = coord_client.coordinator_stats(session, name, timeout)
+            if interrupted:  # the server compacts its store as it stops, while the caller evaluates
+                kept = [p for p in (server, *services) if p is not None]
+                services = list({id(p): p for p in kept}.values())
+                terminate_roles(services, yield_cpu=True)
+                stopping += services
+            else:
+                stop_roles(services)
+            if (
+                server_map is None
+                and reason == "interrupted"
+                and wait_for_roles(services, INTERRUPTED_STOP_S)
+            ):
+                server_map = store_map(store, monitor)
+                map_source = None if server_map is None else f"the map server's store {store}/"
+            if not interrupted:  # whatever an error cut off before the run kept it
+                stop_roles([p for p in started_since(mark) if p.poll() is None])
             for sub in subs:
                 sub.undeclare()
+            ending.close()
             session.close()
     facts = {
         "reason": reason,
         "wall_time_s": time.monotonic() - started,
         "threshold_bits": threshold,
         "server_map": server_map,
+        "map_source": map_source,
+        "signal": interrupts.first if interrupts is not None else None,
         "coordinator_stats": coordinator_stats,
+        "stopping": stopping,
         "at_stop": {"entropy_bits": at_stop[0], "deltas": at_stop[1], "deltas_after_flush": monitor.applied},
         "exit_codes": {
             "world": world.returncode if world is not None else None,
             "server": services[0].returncode if services else None,
-            **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=True)},
+            **{r: a.returncode for r, a in zip(mission.robot_ids, agents, strict=False)},  # those started
         },
     }
     return monitor, facts
@@ -271,8 +341,11 @@ def why_the_world_stopped(monitor: TeamMonitor, mission: Mission) -> str:
     return "world stopped"
 
 
-def _start_view(view: str | None, plan: BusPlan, mission: str, out: Path) -> subprocess.Popen | None:
-    """``swarm view`` beside the mission (``view``: "window", or the .rrd file to record), or None.
+def _start_view(
+    view: str | None, plan: BusPlan, mission: str, out: Path, start_role
+) -> subprocess.Popen | None:
+    """``swarm view`` beside the mission (``view``: "window", or the .rrd file to record), or None,
+    started with ``start_role``.
 
     A window needs a display: without one (:func:`swarm.view.live.missing_display`) the view is
     not started and one warning line says what to do instead; the mission runs as without --view.

@@ -3,19 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
-import signal
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from swarm.config import ConfigError, Mission, load_mission, mission_from_map
-from swarm.formats.map_file import save_map
-from swarm.map.entropy_cache import EntropyCache
-from swarm.map.entropy_table import default_table
-from swarm.mission import evaluation
 
 #: The most voxels a simulated mission's workspace may hold. The map server, the coordinator
 #: and every agent each hold the whole map (8 bytes of belief per voxel, and more in the
@@ -181,30 +174,45 @@ def _resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
 
 
 def run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
-    """``swarm sim run``: the mission, then its run folder. A SIGTERM or Ctrl-C stops every role
-    it started and leaves no ``metrics.json`` (``swarm study --resume`` takes one as a finished
-    run); the command then exits with 130 and one line."""
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        return _run_sim_mission(args, default_config)
-    except KeyboardInterrupt:
-        print(
-            "swarm: interrupted: every role was stopped; the run folder has no metrics.json", file=sys.stderr
-        )
-        return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    """``swarm sim run``: the mission, then its run folder.
+
+    A first Ctrl-C, SIGTERM or SIGHUP stops the roles at once and writes the run folder from
+    the map server's map as it stands (``stop_reason: interrupted``, ``interrupted: true`` in
+    ``metrics.json``, which ``swarm study --resume`` does not take for a finished run), says
+    where on stderr and exits with 130; a second one kills what is left and exits at once
+    (:mod:`swarm.mission.interrupts`). A standard output whose reader has gone (``swarm sim |
+    tee log`` after Ctrl-C) drops what is printed to it (:mod:`swarm.mission.console`).
+    """
+    from swarm.mission.console import surviving_stdout
+    from swarm.mission.interrupts import INTERRUPTED_EXIT, Interrupts, say
+    from swarm.mission.picture_style import pyplot
+    from swarm.mission.role_processes import kill_started_roles
+
+    run_folder: list[Path] = []  # the run folder, once chosen: for the last line of at_once
+
+    def at_once() -> None:
+        killed = kill_started_roles()
+        left = f"; {run_folder[0]}/ has no metrics.json" if run_folder and not (
+            run_folder[0] / "metrics.json").exists() else ""  # fmt: skip
+        say(f"swarm: killed {killed} role process(es){left}")
+
+    with (
+        surviving_stdout(),
+        Interrupts(
+            at_once, "the mission", "writing its run folder from what the map server holds"
+        ) as interrupts,
+    ):
+        pyplot()  # now, not after an interrupt: the run folder's pictures must come within seconds
+        try:
+            return _run_sim_mission(args, default_config, interrupts, run_folder)
+        except KeyboardInterrupt:  # before the mission ran (the kernels' warm-up, the threshold)
+            say("swarm: interrupted before the mission ran: every role was stopped; no run folder written")
+            return INTERRUPTED_EXIT
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt  # unwinds through run_mission's clean-up, as Ctrl-C does
-
-
-def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
-    from sim2d.ground_truth import coverage as true_coverage_of
-    from swarm.mission.run_report import RunRecord, compute_metrics, write_run_folder
+def _run_sim_mission(args: argparse.Namespace, default_config: str, interrupts, run_folder: list) -> int:
     from swarm.mission.runner import MissionOptions, run_mission
-    from swarm.mission.team_monitor import NEVER
+    from swarm.mission.sim_evaluation import evaluate_and_write
     from swarm.mission.threshold import resolve_threshold
 
     try:
@@ -269,108 +277,8 @@ def _run_sim_mission(args: argparse.Namespace, default_config: str) -> int:
         f"{', frames and commands over ROS 2 (rmw_zenoh)' if options.ros2 else ''} -> {out}",
         flush=True,
     )
-    monitor, facts = run_mission(mission, options)
-
-    t0 = time.monotonic()
-    grid = mission.workspace.grid()
-    plan = mission.load_floor_plan()
-    truth = true_coverage_of(plan, grid) if plan is not None else None
-    workspace = (mission.workspace.lo, mission.workspace.hi)
-    record = RunRecord(
-        config=str(args.config or args.map or default_config),
-        robots=mission.robot_ids,
-        strategy=args.strategy,
-        coordination=coordination,
-        seed=args.seed,
-        threshold_bits=facts["threshold_bits"],
-        initial_entropy_bits=monitor.curve[0][1],
-        entropy_curve=[[t, h] for t, h in monitor.curve],
-        trajectories={r: [list(p) for p in pts] for r, pts in monitor.trajectories.items()},
-        bytes_shared=dict(monitor.bytes_shared),
-        sim_time_s=monitor.sim_time,
-        wall_time_s=facts["wall_time_s"],
-        workspace=workspace,
-        floor_plan=plan,
-        height_band=(0.1, mission.rig.camera_height + 0.1),
-    )
-    first_delta = monitor.first_delta_copy()  # one snapshot for the overlaps and observed_by.npz
-    observed_by = {r: n != NEVER for r, n in first_delta.items()}
-    metrics = compute_metrics(record, monitor.cmap, truth, observed_by, sensor_observable)
-    metrics["threshold_parts"] = None if threshold_parts is None else threshold_parts.as_dict()
-    metrics["stop_reason"] = facts["reason"]
-    metrics["robot_link"] = "ros2" if options.ros2 else "swarm"
-    metrics["max_time_s"] = mission.stop.max_time_s if args.max_time is None else float(args.max_time)
-    metrics["share_min_bits"] = mission.sharing.share_min_bits
-    metrics["max_held_bits"] = mission.sharing.max_held_bits
-    coordinator_stats = facts.get("coordinator_stats")
-    metrics["coordinator_answer_ms"] = (
-        None if coordinator_stats is None else coordinator_stats.get("answer_ms")
-    )
-    metrics.update(
-        evaluation.overlaps_during_mission(first_delta, metrics["entropy_curve"], metrics["threshold_bits"])
-    )
-    server_map = facts["server_map"]
-    if server_map is not None:
-        # The server merged the same deltas the monitor saw: its map must be the same.
-        diff = float(np.max(np.abs(server_map.lam - monitor.cmap.lam) / monitor.cmap.lam))
-        metrics["server_map_max_rel_diff"] = diff
-        metrics["server_final_entropy_bits"] = float(EntropyCache.from_information(
-            server_map.lam, server_map.eta, table=default_table()).total)  # fmt: skip
-    try:
-        write_run_folder(out, metrics, monitor.cmap, mission.to_yaml(), record)
-        if server_map is not None:
-            save_map(out / "server_map.npz", server_map)
-        curve_t = np.array([t for t, _h in monitor.curve])
-        arrays = {}
-        for r, n in first_delta.items():
-            arrays[f"first_delta_{r}"] = n
-            arrays[f"first_seen_{r}"] = evaluation.first_seen_times(n, curve_t, never=NEVER)
-        np.savez_compressed(out / "observed_by.npz", **arrays)
-    except BaseException:  # a run folder cut short is not a finished run
-        (out / "metrics.json").unlink(missing_ok=True)
-        raise
-    keys = (
-        "reached_threshold",
-        "mission_time_s",
-        "sim_time_s",
-        "final_entropy_bits",
-        "occupancy_f1",
-        "explored_fraction",
-        "distance_m",
-    )
-    print(final_line(metrics, facts), flush=True)
-    answers = metrics["coordinator_answer_ms"]
-    if answers:
-        print(
-            f"coordinator: {answers['count']} answers, {answers['mean']:.1f} ms mean, "
-            f"{answers['p95']:.1f} ms p95, {answers['max']:.1f} ms max (coord/stats)",
-            flush=True,
-        )
-    print(json.dumps({k: _rounded(metrics.get(k)) for k in keys}, default=str))
-    print(f"stopped: {facts['reason']}; evaluation {time.monotonic() - t0:.1f} s; wrote {out}/")
-    return 0
-
-
-def final_line(metrics: dict, facts: dict) -> str:
-    """The run's last figures, after the agents' shutdown flush, as metrics.json holds them,
-    and what the flush did since the last progress line."""
-    stop = facts["at_stop"]
-    flushed = stop["deltas_after_flush"] - stop["deltas"]
-    h, h_stop = metrics["final_entropy_bits"], stop["entropy_bits"]
-    server = metrics.get("server_final_entropy_bits")
-    return (
-        f"final, after the shutdown flush: H={h:,.0f} bits (H_th {metrics['threshold_bits']:,.0f}), "
-        f"sim t={metrics['sim_time_s']:.1f} s; the flush brought {flushed} more delta(s) "
-        f"({h - h_stop:+,.0f} bits since the last progress line, H={h_stop:,.0f}); "
-        + (f"the map server's map: H={server:,.0f} bits" if server is not None else "no map from the server")
-    )
-
-
-def _rounded(value):
-    """Floats to 6 decimals, in dicts too: the summary line shows 306.0, not the sum of 612 frame
-    periods (306.0000000000011)."""
-    if isinstance(value, float):
-        return round(value, 6)
-    if isinstance(value, dict):
-        return {k: _rounded(v) for k, v in value.items()}
-    return value
+    run_folder.append(out)
+    monitor, facts = run_mission(mission, options, interrupts)
+    with interrupts.held():  # a first Ctrl-C now changes nothing: the run folder is being written
+        return evaluate_and_write(args, default_config, mission, monitor, facts, interrupts, out,
+                         (coordination, threshold_parts, sensor_observable))  # fmt: skip

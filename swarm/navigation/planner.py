@@ -198,6 +198,22 @@ def shorten_path(grid: TraversabilityGrid, points: np.ndarray) -> np.ndarray:
     return points[kept]
 
 
+def warm_up_kernels() -> tuple:
+    """The compiled kernels :func:`warm_up` loads (a first run: compiles), for its progress lines."""
+    from swarm.map.coverage_map import _add_information
+    from swarm.navigation.view_kernels import stand_for
+
+    return (
+        _add_information,
+        kernels.band_occupancy,
+        kernels.disc_cells,
+        kernels.grid_graph,
+        kernels.inflate_blocked,
+        kernels.segment_is_free,
+        stand_for,
+    )
+
+
 def warm_up() -> None:
     """Load (on a fresh install: compile into Numba's cache) the compiled navigation kernels
     (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks;

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from swarm.formats.shown_numbers import shown
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
@@ -236,7 +237,7 @@ def region_rows(region: Region) -> list[dict]:
     return [
         {
             "index": [int(v) for v in ijk[n]],
-            "centre": [round(float(v), 6) for v in centres[n]],
+            "centre": [shown(v, 6) for v in centres[n]],
             "mu": float(region.mu[n]),
             "sigma": float(region.sigma[n]),
             "expected_coverage": float(region.expected_coverage[n]),

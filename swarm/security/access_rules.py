@@ -11,7 +11,7 @@ is denied (``default_permission: deny``). Keys are under ``swarm/<mission>/``:
 | ``agent-<rid>`` (robot rid's agent) | ``delta/<rid>``, ``robot/<rid>/cmd``, ``robot/<rid>/status`` | - |
 | ``source-<rid>`` (robot rid's driver or replay) | ``robot/<rid>/frame`` | - |
 | ``world`` (the simulator, for all its robots) | ``robot/*/frame``, ``sim/truth`` | - |
-| ``server`` (map server) | ``merged`` | ``map/**`` |
+| ``server`` (map server) | ``merged``, ``mission/done`` | ``map/**`` |
 | ``coordinator`` | - | ``coord/**`` |
 | ``tool`` (viewer, ``swarm map``, monitors) | - | - |
 | ``operator`` (``swarm sim``'s runner) | ``delta/prior`` (a previous map) | - |
@@ -92,7 +92,7 @@ def access_control(mission: str, robots: list[str]) -> dict:
             [f"{p}/map/**", f"{p}/coord/stats", STATS_OF_ANY_MISSION],
         ),
         _rule("server-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/map/**"]),
-        _rule("server-puts", ["put"], "ingress", [f"{p}/merged"]),
+        _rule("server-puts", ["put"], "ingress", [f"{p}/merged", f"{p}/mission/done"]),
         _rule("coordinator-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/coord/**"]),
         _rule("world-puts", ["put"], "ingress", [f"{p}/robot/*/frame", f"{p}/sim/truth"]),
         _rule("operator-puts", ["put"], "ingress", [f"{p}/{PRIOR_DELTA}"]),

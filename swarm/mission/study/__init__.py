@@ -22,11 +22,26 @@ Modules: ``grid`` (the cells), ``runner`` (the subprocesses), ``tables`` (CSV an
 ``plots``, ``orchestration`` (a whole study) and ``command`` (``swarm study``).
 """
 
-from swarm.mission.study.command import add_arguments, main, run, spec_from_args
-from swarm.mission.study.grid import Cell, Skipped, StudyError, StudySpec, expand_grid, mission_capacity
-from swarm.mission.study.orchestration import run_study, write_outputs
-from swarm.mission.study.runner import RunResult, execute, launch_sim, stop_children
-from swarm.mission.study.tables import SettingSummary, result_row, summarize, summary_markdown
+from importlib import import_module
+
+#: Each name this package offers -> the module of the package that defines it (imported when
+#: first asked for: ``swarm study --help`` needs the arguments only, not the runs' machinery).
+_HOMES = {
+    **dict.fromkeys(("add_arguments", "main", "run", "spec_from_args"), "command"),
+    **dict.fromkeys(
+        ("Cell", "Skipped", "StudyError", "StudySpec", "expand_grid", "mission_capacity"), "grid"
+    ),
+    **dict.fromkeys(("run_study", "write_outputs"), "orchestration"),
+    **dict.fromkeys(("RunResult", "execute", "launch_sim", "stop_children"), "runner"),
+    **dict.fromkeys(("SettingSummary", "result_row", "summarize", "summary_markdown"), "tables"),
+}
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
 
 __all__ = [
     "Cell",

@@ -9,7 +9,6 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from swarm.mission.study.grid import COORDINATIONS, OPTION_OF, STRATEGIES, StudyError, StudySpec
-from swarm.mission.study.orchestration import run_study
 
 # -- command line ----------------------------------------------------------------------------------
 
@@ -136,6 +135,8 @@ def describe_spec_error(err: ValidationError) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """``swarm study``: validate the options, run the study, write its outputs."""
+    from swarm.mission.study.orchestration import run_study
+
     try:
         spec = spec_from_args(args)
         return run_study(spec)

@@ -67,8 +67,10 @@ def read_metrics(run_dir: Path) -> dict[str, Any] | None:
 
 
 def _matches(cell: Cell, metrics: Mapping[str, Any], spec: StudySpec | None = None) -> bool:
-    """Whether a run folder's metrics are this cell's, run with this study's --max-time and
-    --observable-threshold (when the study gives them)."""
+    """Whether a run folder's metrics are this cell's, run to its end (not interrupted) with this
+    study's --max-time and --observable-threshold (when the study gives them)."""
+    if metrics.get("interrupted"):
+        return False
     same_cell = (
         len(metrics.get("robots") or []) == cell.robots
         and metrics.get("strategy") == cell.strategy
@@ -194,10 +196,12 @@ def execute(
                         report(k, f"resumed from {run_dir / 'metrics.json'}: {outcome_text(metrics)}")
                         continue
                     if metrics is not None:
-                        echo(
-                            f"[{k + 1}/{total}] {cell.name}: metrics.json is of another cell, --max-time or "
-                            "--observable-threshold; running"
+                        why = (
+                            "metrics.json is of an interrupted run"
+                            if metrics.get("interrupted")
+                            else "metrics.json is of another cell, --max-time or --observable-threshold"
                         )
+                        echo(f"[{k + 1}/{total}] {cell.name}: {why}; running")
                 echo(f"[{k + 1}/{total}] {cell.name}: started")
                 args = cell.sim_args(run_dir, spec.max_time_s, spec.observable_threshold)
                 running[k] = (launch(args, out / "logs" / f"{cell.name}.log"), time.monotonic())
