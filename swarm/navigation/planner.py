@@ -200,11 +200,11 @@ def shorten_path(grid: TraversabilityGrid, points: np.ndarray) -> np.ndarray:
 
 def warm_up_kernels() -> tuple:
     """The compiled kernels :func:`warm_up` loads (a first run: compiles), for its progress lines."""
-    from swarm.map.coverage_map import _add_information
+    from swarm.map.coverage_map import add_information
     from swarm.navigation.view_kernels import stand_for
 
     return (
-        _add_information,
+        add_information,
         kernels.band_occupancy,
         kernels.disc_cells,
         kernels.grid_graph,
