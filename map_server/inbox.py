@@ -32,8 +32,9 @@ class Inbox:
         self.high_water_messages = 0
         self.high_water_bytes = 0
 
-    def offer(self, robot: str, payload: bytes) -> bool:
-        """Queue ``payload`` under ``robot``; False (counted in ``refused``) when its queue is full."""
+    def offer(self, robot: str, payload: bytes, mac: bytes | None = None) -> bool:
+        """Queue ``payload`` (and the MAC attached to it) under ``robot``; False (counted in
+        ``refused``) when its queue is full."""
         with self._cond:
             queue = self._queues.setdefault(robot, deque())
             if len(queue) >= self.max_messages or self._bytes[robot] + len(payload) > self.max_bytes:
@@ -41,7 +42,7 @@ class Inbox:
                 return False
             if not queue:
                 self._ready.append(robot)
-            queue.append(payload)
+            queue.append((payload, mac))
             self._bytes[robot] += len(payload)
             self._messages += 1
             self._total_bytes += len(payload)
@@ -50,8 +51,8 @@ class Inbox:
             self._cond.notify()
             return True
 
-    def take(self, max_items: int, timeout: float) -> list[tuple[str, bytes]]:
-        """Up to ``max_items`` ``(robot, payload)``, one robot after the other (round-robin);
+    def take(self, max_items: int, timeout: float) -> list[tuple[str, bytes, bytes | None]]:
+        """Up to ``max_items`` ``(robot, payload, mac)``, one robot after the other (round-robin);
         waits up to ``timeout`` seconds for the first, returns [] when none came."""
         with self._cond:
             if not self._ready and not self._cond.wait_for(lambda: bool(self._ready), timeout):
@@ -60,11 +61,11 @@ class Inbox:
             while self._ready and len(batch) < max_items:
                 robot = self._ready.popleft()
                 queue = self._queues[robot]
-                payload = queue.popleft()
+                payload, mac = queue.popleft()
                 self._bytes[robot] -= len(payload)
                 self._messages -= 1
                 self._total_bytes -= len(payload)
-                batch.append((robot, payload))
+                batch.append((robot, payload, mac))
                 if queue:
                     self._ready.append(robot)
             return batch

@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm.map.grid import Grid
-from swarm.protocol.codec import short
+from swarm.protocol.codec import DELTA_VERSION, short
 from swarm.protocol.wire import DeltaMessage, WireError
 
 #: Why a delta payload is refused, as counted in ``map/stats`` ``rejected`` (docs/protocol.md).
 REJECT_KINDS = (
     "malformed",  # not msgpack, missing or mistyped field, arrays of different lengths
-    "unsupported_version",  # "v" is not the integer 1
+    "unsupported_version",  # "v" is not the integer 2 (a v1 delta: ask map/epoch)
     "wrong_grid",  # grid differs from the mission's
     "robot_mismatch",  # the robot field differs from the <rid> of the key it came on
     "out_of_grid",  # a voxel index >= the number of voxels
@@ -34,12 +34,13 @@ REJECT_KINDS = (
     "mean_outside_unit",  # deta < 0 or deta > dlam: a coverage mean outside [0, 1]
     "too_large",  # payload over the maximum size (refused before decoding)
     "unknown_robot",  # <rid> is not one of the mission's robots (refused before decoding)
-    "too_much_information",  # more information than the robot's rig can gather (limits.py)
-    "stale_epoch",  # an epoch of the robot compacted away, or older than the ones kept
-    "future_epoch",  # an epoch more than EPOCH_AHEAD_NS after the server's clock
-    "seq_out_of_window",  # seq too far beyond the robot's contiguous ack
+    "unknown_epoch",  # an epoch the server did not issue to this robot (map_server.epochs)
+    "stale_epoch",  # an epoch of the robot the server has fenced
+    "bad_mac",  # the attachment is not the MAC of the payload under the epoch's key
+    "seq_gap",  # seq beyond the next one the epoch expects (contiguous ack + 1)
+    "too_much_information",  # over the robot's information budget (limits.py)
     "map_overflow",  # would lift a voxel's information over LAM_MAX
-    "quarantined",  # the robot is quarantined (swarm server --quarantine, or at run time)
+    "quarantined",  # the robot is quarantined (swarm server --quarantine, at run time, or breaches)
     "no_information",  # empty, or every dlam and deta zero: it would change nothing (not logged, not sent on)
     "internal_error",  # any other exception while validating or applying this one delta
 )
@@ -63,7 +64,11 @@ def describe_grid(grid: Grid) -> str:
 
 
 def validate_delta(
-    payload: bytes, grid: Grid, robot: str | None = None, increments: bool = True
+    payload: bytes,
+    grid: Grid,
+    robot: str | None = None,
+    increments: bool = True,
+    versions: tuple[int, ...] = (DELTA_VERSION,),
 ) -> DeltaMessage:
     """Decode a delta (once) and check it against ``grid`` (and the key's ``robot``); raise Rejected.
 
@@ -73,9 +78,10 @@ def validate_delta(
     from the prior to another Gaussian, and its mean is checked on the resulting voxel by
     TeamMap instead). Any exception at all becomes a Rejected (``malformed``, or
     ``internal_error`` for one that is not a WireError), so one payload can only ever be refused.
+    ``versions``: the protocol versions taken (the log's replay takes v1 deltas of older stores).
     """
     try:
-        return _validate(payload, grid, robot, increments)
+        return _validate(payload, grid, robot, increments, versions)
     except Rejected:
         raise
     except WireError as exc:
@@ -85,8 +91,10 @@ def validate_delta(
         raise Rejected("internal_error", f"delta: {type(exc).__name__}: {short(exc)}") from exc
 
 
-def _validate(payload: bytes, grid: Grid, robot: str | None, increments: bool) -> DeltaMessage:
-    msg = DeltaMessage.decode(payload)
+def _validate(
+    payload: bytes, grid: Grid, robot: str | None, increments: bool, versions: tuple[int, ...]
+) -> DeltaMessage:
+    msg = DeltaMessage.decode(payload, versions)
     if not grid.matches(msg.grid):
         raise Rejected(
             "wrong_grid", f"delta: grid {describe_grid(msg.grid)} is not the mission's {describe_grid(grid)}"
@@ -138,30 +146,19 @@ class _Seqs:
         return max(self.above, default=self.contiguous)
 
 
-#: Epochs (agent runs) of one robot the ledger keeps; older ones are compacted away.
-MAX_EPOCHS = 4
-#: A seq may run at most this far beyond its epoch's contiguous ack (bounds the set above it).
-SEQ_WINDOW = 16384
-#: An epoch (the agent's start, ns since 1970) may be at most this far ahead of the server's
-#: clock: four epochs in the far future would compact the robot's real one away for good.
-EPOCH_AHEAD_NS = 24 * 3600 * 10**9
-
-
 class Ledger:
     """Applied delta ids per (robot, epoch); acks are the contiguous prefixes.
 
-    Bounded: at most ``max_epochs`` epochs per robot (the newest; an older one is compacted
-    away and its robot's ``floor`` remembers it, so a delta of it is refused, never applied
-    twice), and seqs at most ``seq_window`` beyond an epoch's contiguous prefix.
+    Which epochs it holds is the server's to say (map_server.epochs): :meth:`drop` forgets a
+    fenced epoch's ids (its robot's ``compacted`` count keeps how many it had). The seqs above
+    a gap come only from stores written before deltas had to arrive in order.
     """
 
-    def __init__(self, max_epochs: int = MAX_EPOCHS, seq_window: int = SEQ_WINDOW) -> None:
+    def __init__(self) -> None:
         self._seqs: dict[tuple[str, int], _Seqs] = {}
-        self.max_epochs = max_epochs
-        self.seq_window = seq_window
-        #: per robot, the newest compacted epoch: every epoch <= it is refused
+        #: per robot, the newest epoch compacted away by an older server (kept for its stores)
         self.floors: dict[str, int] = {}
-        #: per robot, deltas applied in its compacted epochs
+        #: per robot, deltas applied in its fenced (compacted) epochs
         self.compacted: Counter[str] = Counter()
 
     def __contains__(self, delta_id: DeltaId) -> bool:
@@ -169,45 +166,31 @@ class Ledger:
         seqs = self._seqs.get((robot, epoch))
         return seqs is not None and seq in seqs
 
-    def refusal(self, delta_id: DeltaId, now_ns: int | None = None) -> tuple[str, str] | None:
-        """(kind, reason) when the ledger cannot take this id (a compacted epoch, an epoch more
-        than EPOCH_AHEAD_NS after ``now_ns`` when given, a seq out of the window), else None.
-        An id already applied is not refused here (a duplicate)."""
-        robot, epoch, seq = delta_id
-        if now_ns is not None and epoch > now_ns + EPOCH_AHEAD_NS:
-            ahead = (epoch - now_ns) / 3.6e12
-            return "future_epoch", f"epoch {epoch} of {robot} is {ahead:,.0f} h ahead of the server's clock"
-        if epoch <= self.floors.get(robot, -1):
-            return "stale_epoch", f"epoch {epoch} of {robot} was compacted away"
+    def next_seq(self, robot: str, epoch: int) -> int:
+        """The seq the (robot, epoch) expects next: its contiguous ack + 1."""
         seqs = self._seqs.get((robot, epoch))
-        if seqs is None:
-            epochs = self._epochs(robot)
-            if len(epochs) >= self.max_epochs and epoch < epochs[0]:
-                return "stale_epoch", f"epoch {epoch} of {robot} is older than the {len(epochs)} kept"
-        contiguous = 0 if seqs is None else seqs.contiguous
-        if seq > contiguous + self.seq_window:
-            return "seq_out_of_window", f"seq {seq} is over {self.seq_window} beyond the ack {contiguous}"
-        return None
+        return 1 if seqs is None else seqs.contiguous + 1
 
-    def _epochs(self, robot: str) -> list[int]:
-        return sorted(e for r, e in self._seqs if r == robot)
+    def used(self) -> list[tuple[str, int]]:
+        """The (robot, epoch) pairs it holds ids of."""
+        return list(self._seqs)
 
     def add(self, delta_id: DeltaId) -> bool:
-        """Record an applied delta; False (and nothing changes) when it was already there.
-        A new epoch beyond ``max_epochs`` compacts the robot's oldest away."""
+        """Record an applied delta; False (and nothing changes) when it was already there."""
         robot, epoch, seq = delta_id
         if seq < 1:
             raise ValueError(f"seq must be >= 1, got {seq}")
-        seqs = self._seqs.get((robot, epoch))
-        if seqs is None:
-            seqs = self._seqs[(robot, epoch)] = _Seqs()
-            for old in self._epochs(robot)[: -self.max_epochs]:
-                self.compacted[robot] += self._seqs.pop((robot, old)).count
-                self.floors[robot] = max(self.floors.get(robot, -1), old)
+        seqs = self._seqs.setdefault((robot, epoch), _Seqs())
         if seq in seqs:
             return False
         seqs.add(seq)
         return True
+
+    def drop(self, robot: str, epoch: int) -> None:
+        """Forget a fenced epoch's ids (its deltas stay in the map and in the counts)."""
+        seqs = self._seqs.pop((robot, epoch), None)
+        if seqs is not None:
+            self.compacted[robot] += seqs.count
 
     def __len__(self) -> int:
         """Number of applied deltas (compacted epochs included)."""

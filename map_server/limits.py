@@ -9,11 +9,14 @@ crosses and the one behind its hit, at most ``sqrt(3) d / voxel + 5`` voxels; ea
     I_ray = max over d in [0, R] of (sqrt(3) d / voxel + 5) exp(2 max(d, sqrt(3) voxel) / tau)
             / (sigma_min + zeta d)^2
 
-and one frame at most ``I_frame = width * height * I_ray`` (one ray per pixel). A robot whose
-deltas so far span ``[t_lo, t_hi]`` seconds of its clock has taken at most
-``floor((t_hi - t_lo) / frame_period) + 1`` frames since the first of them, plus the frames
-before it that its first delta may hold and the shutdown flush: ``slack_frames``. The sum of
-``dlam`` over every delta of the robot may not exceed ``I_frame`` times that many frames.
+and one frame at most ``I_frame = width * height * I_ray`` (one ray per pixel). A robot takes one
+frame every ``frame_period`` seconds, so it gathers at most ``I_frame / frame_period`` per second.
+
+The budget runs on the server's own clock, never on the sender's ``t``: a token bucket per
+robot (:class:`InformationBucket`) refilled at that rate per second of the server's monotonic
+clock, holding at most ``rate * burst_s`` (``BURST_S`` by default) and full when the server
+starts. A delta's ``sum(dlam)`` is charged when it is admitted (after de-duplication) and given
+back when it cannot be made durable; a delta that does not fit is refused.
 """
 
 from __future__ import annotations
@@ -26,9 +29,10 @@ import numpy as np
 from swarm.config import Mission
 from swarm.map.sensor_model import SensorModel
 
-#: Frames allowed beyond the span of a robot's deltas (the frames before its first delta
-#: and the shutdown flush; the agent shares at its first frame, and flushes once).
-SLACK_FRAMES = 20
+#: Seconds of the rig's maximum rate a robot's bucket holds. An honest robot's deltas carry a
+#: few percent of I_frame per frame (2.6% at most in the office mission), so a full bucket holds
+#: the outbox an honest robot gathers in hours of outage, and its resend after a server restart.
+BURST_S = 300.0
 
 
 def ray_information_bound(sensor: SensorModel, voxel: float) -> float:
@@ -43,24 +47,25 @@ def ray_information_bound(sensor: SensorModel, voxel: float) -> float:
 
 @dataclass(frozen=True)
 class InformationBound:
-    """The most information one robot's deltas may carry: ``per_frame`` per frame taken, one
-    frame every ``frame_period_s`` of its clock, ``slack_frames`` beyond the span of its deltas."""
+    """The most information one robot may add: ``per_frame`` per frame, one frame every
+    ``frame_period_s``, at most ``burst_s`` seconds' worth at once."""
 
     per_frame: float
     frame_period_s: float
-    slack_frames: int = SLACK_FRAMES
+    burst_s: float = BURST_S
 
-    def allowed(self, span_s: float) -> float:
-        """The information of every delta of a robot whose deltas span ``span_s`` seconds
-        (infinite when the span in frames overflows a float: ``t`` is the sender's own word,
-        and two finite ``t`` far apart span ``inf`` seconds)."""
-        frames = max(span_s, 0.0) / self.frame_period_s
-        if not math.isfinite(frames):
-            return math.inf
-        return self.per_frame * (math.floor(frames) + 1 + self.slack_frames)
+    @property
+    def rate(self) -> float:
+        """Information per second (the bucket's refill)."""
+        return self.per_frame / self.frame_period_s
+
+    @property
+    def capacity(self) -> float:
+        """The most a full bucket holds: ``rate * burst_s``."""
+        return self.rate * self.burst_s
 
 
-def mission_bounds(mission: Mission, slack_frames: int = SLACK_FRAMES) -> dict[str, InformationBound]:
+def mission_bounds(mission: Mission, burst_s: float = BURST_S) -> dict[str, InformationBound]:
     """The information bound of each robot of ``mission`` (its own rig, the mission's sensor
     model, voxel and frame period ``sim.frame_period_s``)."""
     sensor = mission.sensor.model()
@@ -69,35 +74,35 @@ def mission_bounds(mission: Mission, slack_frames: int = SLACK_FRAMES) -> dict[s
     out = {}
     for rid in mission.robot_ids:
         rig = mission.rig_for(rid)
-        out[rid] = InformationBound(
-            rig.width * rig.height * per_ray, mission.sim.frame_period_s, slack_frames
-        )
+        out[rid] = InformationBound(rig.width * rig.height * per_ray, mission.sim.frame_period_s, burst_s)
     return out
 
 
-@dataclass
-class RobotBudget:
-    """What one robot has added so far (this server process): the span of its deltas' ``t``
-    and the sum of their ``dlam`` (float64)."""
+class InformationBucket:
+    """One robot's token bucket of information; ``now`` is the server's monotonic clock (s)."""
 
-    t_lo: float = math.inf
-    t_hi: float = -math.inf
-    used: float = 0.0
+    def __init__(self, bound: InformationBound, now: float) -> None:
+        self.bound = bound
+        self.tokens = bound.capacity
+        self._at = now
 
-    def check(self, bound: InformationBound, t: float, information: float) -> str | None:
-        """None when a delta at ``t`` carrying ``information`` fits the bound, else why not."""
-        lo, hi = min(self.t_lo, t), max(self.t_hi, t)
-        allowed = bound.allowed(hi - lo)
-        if self.used + information > allowed:
-            return (
-                f"{information:.3g} of information on top of {self.used:.3g} exceeds the rig's bound "
-                f"{allowed:.3g} for deltas spanning {hi - lo:.3g} s"
-            )
-        return None
+    def _refill(self, now: float) -> None:
+        if now > self._at:
+            self.tokens = min(self.bound.capacity, self.tokens + self.bound.rate * (now - self._at))
+            self._at = now
 
-    def charge(self, t: float, information: float) -> None:
-        self.t_lo, self.t_hi = min(self.t_lo, t), max(self.t_hi, t)
-        self.used += information
+    def refusal(self, information: float, now: float) -> str | None:
+        """None when ``information`` fits the bucket now, else why not (nothing is charged)."""
+        self._refill(now)
+        if information <= self.tokens:
+            return None
+        return (
+            f"{information:.3g} of information over the {self.tokens:.3g} its budget holds now (the rig "
+            f"adds at most {self.bound.rate:.3g}/s, {self.bound.capacity:.3g} at once)"
+        )
+
+    def charge(self, information: float) -> None:
+        self.tokens -= information
 
     def refund(self, information: float) -> None:
-        self.used = max(self.used - information, 0.0)
+        self.tokens = min(self.bound.capacity, self.tokens + information)

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from map_server.ledger import MAX_EPOCHS
-from map_server.limits import SLACK_FRAMES
+from map_server.admission import QUARANTINE_AFTER
+from map_server.epochs import MAX_LIVE_EPOCHS
+from map_server.limits import BURST_S
 from map_server.query_gate import MAX_QUERIES, MAX_QUERIES_PER_REQUESTER, QUERY_WORKERS
 from map_server.store import LOG_RESERVE_BYTES
 from swarm.config import Mission
@@ -40,8 +41,12 @@ class ServerOptions:
     robot_pattern: str | None = None
     max_pattern_robots: int = MAX_PATTERN_ROBOTS
     information_bound: bool = True
-    slack_frames: int = SLACK_FRAMES
-    max_epochs: int = MAX_EPOCHS
+    #: seconds of the rig's maximum information rate a robot's budget holds (map_server.limits)
+    burst_s: float = BURST_S
+    #: breaches of the information budget after which a robot is quarantined (0: never)
+    quarantine_after: int = QUARANTINE_AFTER
+    #: live epochs per robot (map_server.epochs)
+    max_epochs: int = MAX_LIVE_EPOCHS
     quarantine: tuple[str, ...] = ()
     max_queries: int = MAX_QUERIES
     max_queries_per_requester: int = MAX_QUERIES_PER_REQUESTER

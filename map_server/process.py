@@ -86,7 +86,7 @@ def mission_end(session: zenoh.Session, server: MapServer, mission: Mission) -> 
         "(none)" if server.threshold_bits is None else f"{server.threshold_bits:,.0f}",
         bus.key(server.name, "mission", "done"),
     )
-    return MissionEnd(session, server.name, server.robots, server.threshold_bits)
+    return MissionEnd(session, server.name, server.admission.robots, server.threshold_bits)
 
 
 def serve(

@@ -13,15 +13,16 @@ configured size, and :meth:`MapServer.stop` drains the queue and compacts once m
 from __future__ import annotations
 
 import logging
-import re
 import threading
 import time
 from pathlib import Path
 
 import zenoh
 
+from map_server.admission import Admission
 from map_server.contributions import Contributions
 from map_server.disk_pause import DiskPause
+from map_server.epochs import EpochFileError, EpochRegistry
 from map_server.inbox import Inbox
 from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
 from map_server.limits import mission_bounds
@@ -34,8 +35,7 @@ from map_server.team_map import TeamMap, parse_vector, region_of
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
-from swarm.protocol.codec import short
-from swarm.protocol.map_messages import PRIOR_SOURCE
+from swarm.protocol.codec import DELTA_VERSION, short
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
@@ -65,7 +65,6 @@ class MapServer:
         #: acks paused while the store cannot write, resumed when it can (map_server.disk_pause)
         self._disk = DiskPause(log)
         ledger = Ledger.from_json(recovered.ledger_json)
-        ledger.max_epochs = self.options.max_epochs
         ledger.restore_compaction(recovered.counters.get("ledger", {}))
         try:
             contributions = Contributions.from_arrays(recovered.arrays, grid.size)
@@ -87,28 +86,28 @@ class MapServer:
             )
         self.team.updates.update(recovered.counters.get("updates", {}))
         from_snapshot = len(self.team.ledger)
-        for payload in recovered.wal_payloads:
+        for payload in recovered.wal_payloads:  # checked when logged: epochs, MACs, budgets
             try:
-                msg = validate_delta(payload, grid, increments=False)
-                if self.team.admit(msg):  # bounds were checked when it was logged
+                msg = validate_delta(payload, grid, increments=False, versions=(1, DELTA_VERSION))
+                if self.team.admit(msg):
                     self.team.apply(msg)
             except Rejected as exc:
                 log.warning("WAL record refused on replay (%s): %s", exc.kind, exc)
         self.team.duplicates = 0
         self.team.rejected.clear()
         self.recovered = (from_snapshot, len(self.team.ledger) - from_snapshot, recovered.torn_bytes)
-        self.robots = frozenset(self.options.robots or mission.robot_ids)
-        #: a mission with a previous map takes it on delta/prior (no rig: no information bound)
-        self.takes_prior = mission.prior_map is not None
-        self._robot_pattern = re.compile(self.options.robot_pattern) if self.options.robot_pattern else None
-        #: the ids the pattern admitted (those of the store's past too), at most max_pattern_robots
-        pattern, known = self._robot_pattern, {*self.team.ledger.robots(), *self.team.contributions.by_robot}
-        self._by_pattern = {r for r in known - self.robots if pattern is not None and pattern.fullmatch(r)}
-        self._by_pattern_lock = threading.Lock()
-        self.bounds = (
-            mission_bounds(mission, self.options.slack_frames) if self.options.information_bound else {}
-        )
-        self._default_bound = max(self.bounds.values(), key=lambda b: b.per_frame, default=None)
+        try:
+            registry = EpochRegistry.load(
+                self.store.path,
+                files,
+                self.options.max_epochs,
+                used=self.team.ledger.used(),
+                counters=recovered.counters.get("epochs", {}),
+            )
+        except EpochFileError as exc:
+            self.store.close()
+            raise StoreError(str(exc)) from exc
+        self.bounds = mission_bounds(mission, self.options.burst_s) if self.options.information_bound else {}
         self.max_payload = self.options.max_payload_bytes or max_payload_for(grid)
         self._lock = threading.Lock()
         #: held by a compaction while it writes the map to disk, and by a quarantine while it
@@ -126,6 +125,21 @@ class MapServer:
         )
         #: what a remote peer makes the server log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
+        #: which deltas are taken (epochs, MACs, seqs, budgets) and the map/epoch answers
+        self.admission = Admission(
+            self.team,
+            self._lock,
+            registry,
+            robots=frozenset(self.options.robots or mission.robot_ids),
+            # a mission with a previous map takes it on delta/prior (no rig: no information bound)
+            takes_prior=mission.prior_map is not None,
+            robot_pattern=self.options.robot_pattern,
+            max_pattern_robots=self.options.max_pattern_robots,
+            bounds=self.bounds,
+            quarantine_after=self.options.quarantine_after,
+            quarantine=self.quarantine,
+            peer_log=self._peer_log,
+        )
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
@@ -154,6 +168,8 @@ class MapServer:
         }
         for part, handler in handlers.items():
             self._declared.append(self.session.declare_queryable(key("map", part), handler))
+        epochs = bus.key_pattern(self.name, "map", "epoch", "*")
+        self._declared.append(self.session.declare_queryable(epochs, guarded(self.admission.on_epoch_query)))
         self._worker.start()
         self._delta_sub = self.session.declare_subscriber(
             bus.key_pattern(self.name, "delta", "*"), self._on_sample
@@ -196,20 +212,8 @@ class MapServer:
 
     # -- deltas --------------------------------------------------------------------------
     def accepts_robot(self, robot: str) -> bool:
-        """Whether ``delta/<robot>`` is taken: one of the mission's (or configured) robots, or a
-        full match of the configured pattern while fewer than ``max_pattern_robots`` ids have
-        matched it (each admitted id costs memory for good: on an open bus anyone could invent
-        ids without end)."""
-        if robot in self.robots or (robot == PRIOR_SOURCE and self.takes_prior):
-            return True
-        if self._robot_pattern is None or self._robot_pattern.fullmatch(robot) is None:
-            return False
-        with self._by_pattern_lock:
-            if robot not in self._by_pattern:
-                if len(self._by_pattern) >= self.options.max_pattern_robots:
-                    return False
-                self._by_pattern.add(robot)
-            return True
+        """Whether ``delta/<robot>`` is taken (map_server.admission.Admission.accepts_robot)."""
+        return self.admission.accepts_robot(robot)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh's callback: refuse an unknown or quarantined robot or an oversized payload
@@ -220,16 +224,13 @@ class MapServer:
             robot = str(sample.key_expr).rsplit("/", 1)[-1]
             size = len(sample.payload)
             if not self.accepts_robot(robot):
-                why = "not one of the mission's robots"
-                if self._robot_pattern is not None and self._robot_pattern.fullmatch(robot):
-                    why = f"--robot-pattern has admitted its {self.options.max_pattern_robots} robots already"
-                self._reject(robot, None, Rejected("unknown_robot", why))
+                self._reject(robot, None, Rejected("unknown_robot", self.admission.unknown_reason(robot)))
             elif robot in self.team.quarantined:  # checked again when applied (set at run time)
                 self._reject(robot, None, Rejected("quarantined", f"{robot} is quarantined"))
             elif size > self.max_payload:
                 reason = f"payload of {size:,} bytes over the maximum {self.max_payload:,}"
                 self._reject(robot, None, Rejected("too_large", reason))
-            elif not self._inbox.offer(robot, sample.payload.to_bytes()):
+            elif not self._inbox.offer(robot, sample.payload.to_bytes(), _attachment(sample)):
                 refused = self._inbox.refused[robot]
                 self._peer_log.warning(
                     "inbox_full",
@@ -272,34 +273,27 @@ class MapServer:
                 log.exception("merging a batch of %d deltas failed", len(batch))
             self._log_progress()
 
-    def _admit(self, robot: str, payload: bytes) -> DeltaMessage | None:
+    def _admit(self, robot: str, payload: bytes, mac: bytes | None) -> DeltaMessage | None:
         """The validated delta if it is new, else None (a duplicate, or refused and counted).
         Whatever one payload raises is confined to it."""
-        msg = None
         try:
-            prior = robot == PRIOR_SOURCE and robot not in self.robots
-            msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
-            if not msg.carries_information():  # no agent sends one: a flood would cost every replica
-                raise Rejected("no_information", f"delta of {len(msg.idx)} voxels that changes nothing")
-            bound = None if prior else self.bounds.get(msg.robot, self._default_bound)
-            with self._lock:
-                return msg if self.team.admit(msg, bound, now_ns=time.time_ns()) else None
+            return self.admission.admit(robot, payload, mac)
         except Rejected as exc:
-            self._reject(robot, msg, exc)
+            self._reject(robot, None, exc)
         except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)
             self._peer_log.exception(
                 "admit_failure", "unexpected failure admitting a delta of %s", short(robot, 40)
             )
-            self._reject(robot, msg, Rejected("internal_error", f"{type(exc).__name__}: {short(exc)}"))
+            self._reject(robot, None, Rejected("internal_error", f"{type(exc).__name__}: {short(exc)}"))
         return None
 
-    def merge(self, batch: list[tuple[str, bytes]]) -> int:
-        """Validate, log durably, apply and republish a batch of (robot, payload); returns how many
-        were applied. Each payload is decoded once; a refused one is counted and touches nothing
-        else. Called by the worker thread only."""
+    def merge(self, batch: list[tuple[str, bytes, bytes | None]]) -> int:
+        """Validate, log durably, apply and republish a batch of (robot, payload, MAC attached);
+        returns how many were applied. Each payload is decoded once; a refused one is counted and
+        touches nothing else. Called by the worker thread only."""
         admitted: list[tuple[DeltaMessage, bytes]] = []
-        for robot, payload in batch:
-            msg = self._admit(robot, payload)
+        for robot, payload, mac in batch:
+            msg = self._admit(robot, payload, mac)
             if msg is not None:
                 admitted.append((msg, payload))
         if not admitted:
@@ -311,7 +305,7 @@ class MapServer:
             self._disk.failed(exc, len(admitted))  # "disk full: acks paused", then a line per 10 s
             with self._lock:
                 for msg, _ in admitted:
-                    self.team.release(msg)
+                    self.admission.release(msg)
             return 0
         self._disk.succeeded()
         applied = []
@@ -319,10 +313,11 @@ class MapServer:
             try:
                 with self._lock:
                     self.team.apply(msg)
+                    self.admission.applied(msg)
                 applied.append(payload)
             except Exception as exc:  # noqa: BLE001 (e.g. map_overflow: this delta alone is refused)
                 with self._lock:
-                    self.team.release(msg)
+                    self.admission.release(msg)
                 kind = exc.kind if isinstance(exc, Rejected) else "internal_error"
                 self._reject(msg.robot, msg, Rejected(kind, str(exc)))
         for payload in applied if self._merged_pub is not None else ():
@@ -345,6 +340,8 @@ class MapServer:
         team = self.team
         with self._rebuild_lock:  # not the query lock: acks and stats answer during the write
             counters = {"updates": dict(team.updates), "ledger": team.ledger.compaction_json()}
+            with self._lock:
+                counters["epochs"] = self.admission.registry.counters()
             counters["quarantined"] = sorted(team.quarantined)
             try:
                 lam, eta, arrays = team.cmap.lam, team.cmap.eta, team.contributions.to_arrays()
@@ -395,6 +392,8 @@ class MapServer:
             "queries": self._queries.stats(),
             "max_payload_bytes": self.max_payload,
             "uptime_s": round(time.monotonic() - self._started, 3),
+            "epochs_issued": self.admission.epochs_issued,
+            "breaches": dict(self.admission.breaches),
             "threshold_bits": self.threshold_bits,
             "mission_done": self.mission_done,
         }
@@ -405,7 +404,7 @@ class MapServer:
 
     def _on_acks(self, query: zenoh.Query) -> None:
         with self._lock:
-            acks = self.team.acks()
+            acks = self.admission.acks()
         reply_json(query, {r: {str(e): s for e, s in by_epoch.items()} for r, by_epoch in acks.items()})
 
     def _on_snapshot(self, query: zenoh.Query) -> None:
@@ -447,3 +446,9 @@ class MapServer:
             )
         self._last_log = (now, n)
         log.info(msg)
+
+
+def _attachment(sample: zenoh.Sample) -> bytes | None:
+    """The bytes attached to a sample (a delta's MAC), or None."""
+    attachment = sample.attachment
+    return None if attachment is None else attachment.to_bytes()

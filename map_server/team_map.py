@@ -19,7 +19,6 @@ import numpy as np
 
 from map_server.contributions import Contributions
 from map_server.ledger import ETA_TOLERANCE, REJECT_KINDS, DeltaId, Ledger, Rejected
-from map_server.limits import InformationBound, RobotBudget
 from swarm.map.coverage_map import LAM_MAX, CoverageMap, prior_entropy_bits, prior_information
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
@@ -68,7 +67,6 @@ class TeamMap:
         self.rejected: Counter[str] = Counter()
         self.duplicates = 0
         self._pending: dict[DeltaId, float] = {}  # admitted, not yet applied: their information
-        self.budgets: dict[str, RobotBudget] = {}
 
     def _repair(self) -> int:
         """Reset to the prior every voxel a store written by an older server may hold with
@@ -85,36 +83,33 @@ class TeamMap:
         return n
 
     # -- merging -------------------------------------------------------------------------
-    def admit(
-        self, msg: DeltaMessage, bound: InformationBound | None = None, now_ns: int | None = None
-    ) -> bool:
+    def is_known(self, ident: DeltaId) -> bool:
+        """Whether the delta ``ident`` is applied already or pending."""
+        return ident in self.ledger or ident in self._pending
+
+    def next_seq(self, robot: str, epoch: int) -> int:
+        """The seq (robot, epoch) takes next: its contiguous ack + 1, past the pending ones."""
+        seq = self.ledger.next_seq(robot, epoch)
+        while (robot, epoch, seq) in self._pending:
+            seq += 1
+        return seq
+
+    def admit(self, msg: DeltaMessage) -> bool:
         """True when ``msg`` is new (it is then pending until :meth:`apply` or :meth:`release`);
         False for a delta already applied or pending, which is counted as a duplicate.
 
-        Raises Rejected for a delta the ledger cannot take (``stale_epoch``; ``future_epoch``
-        against ``now_ns``, the server's clock in ns, when given; ``seq_out_of_window``), one
-        over the robot's information ``bound`` (when given: ``too_much_information``), or one
-        that would lift a voxel over LAM_MAX (``map_overflow``).
+        Raises Rejected for a quarantined robot's delta, or one that would lift a voxel over
+        LAM_MAX (``map_overflow``) or move a mean out of [0, 1]. Which epochs and seqs are
+        taken is map_server.admission's to check before.
         """
         ident = delta_id(msg)
         if msg.robot in self.quarantined:
             raise Rejected("quarantined", f"{msg.robot} is quarantined")
-        if ident in self.ledger or ident in self._pending:
+        if self.is_known(ident):
             self.duplicates += 1
             return False
-        refusal = self.ledger.refusal(ident, now_ns)
-        if refusal is not None:
-            raise Rejected(*refusal)
-        information = float(np.sum(msg.dlam, dtype=np.float64))
-        if bound is not None:
-            budget = self.budgets.setdefault(msg.robot, RobotBudget())
-            why = budget.check(bound, msg.t, information)
-            if why is not None:
-                raise Rejected("too_much_information", f"delta of {msg.robot}: {why}")
         self._check_overflow(msg)
-        if bound is not None:
-            self.budgets[msg.robot].charge(msg.t, information)
-        self._pending[ident] = information
+        self._pending[ident] = float(np.sum(msg.dlam, dtype=np.float64))
         return True
 
     def _check_overflow(self, msg: DeltaMessage) -> np.ndarray:
@@ -129,12 +124,10 @@ class TeamMap:
             raise Rejected("mean_outside_unit", f"delta of {msg.robot} would move a mean outside [0, 1]")
         return lam
 
-    def release(self, msg: DeltaMessage) -> None:
+    def release(self, msg: DeltaMessage) -> float:
         """Forget an admitted delta that could not be made durable or applied (its sender will
-        resend it), and give its information back to the robot's budget."""
-        information = self._pending.pop(delta_id(msg), None)
-        if information is not None and msg.robot in self.budgets:
-            self.budgets[msg.robot].refund(information)
+        resend it); returns its information (0 when it was not pending), for the budget."""
+        return self._pending.pop(delta_id(msg), 0.0)
 
     def apply(self, msg: DeltaMessage) -> None:
         """Add a validated, admitted delta to the map, the entropy and the ledger.

@@ -3,7 +3,8 @@
 Takes ``robot/<rid>/frame``, answers every frame with ``robot/<rid>/cmd`` (the simulator's
 lockstep clock waits for it), publishes ``robot/<rid>/status``, and shares voxel deltas
 on ``delta/<rid>`` through the utility-filtered outbox, keeping them until the map
-server's ``map/acks`` says they are durable.
+server's ``map/acks`` says they are durable; robot_agent.delta_sender publishes them from
+its own thread under the epoch the server issued.
 
 The team map reaches the agent as the server's ``merged`` stream: every delta of another
 robot (or of an earlier run of this one) is added to the local map once, so the robot
@@ -26,6 +27,7 @@ from collections import Counter
 import numpy as np
 import zenoh
 
+from robot_agent.delta_sender import DeltaSender
 from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
 from robot_agent.frame_link import FrameLink, PendingFrame, WireLink
@@ -79,7 +81,8 @@ class Agent:
         self.robot_id = robot_id
         self.session = session
         self.explorer = Explorer(mission, robot_id, strategy, seed)
-        self.epoch = time.time_ns()
+        #: the epoch the map server issued (map/epoch/<rid>); None until it has
+        self.epoch: int | None = None
         sharing = mission.sharing
         self.outbox = DeltaOutbox(
             self.explorer.grid.size,
@@ -90,7 +93,7 @@ class Agent:
         name = mission.mission
         #: where frames come from and commands go: robot/<rid>/frame and cmd, or a robot's ROS 2 topics
         self.link = link or WireLink(session, name, robot_id)
-        self._delta_pub = bus.reliable_publisher(session, bus.key(name, "delta", robot_id))
+        self.sender = DeltaSender(session, name, robot_id, self.explorer.grid, self._sent, self._granted)
         self._status_pub = session.declare_publisher(bus.key(name, "robot", robot_id, "status"))
         self._acks_key = bus.key(name, "map", "acks")
         self._frames = FrameInbox()  # the newest frame: older waiting ones are dropped, counted
@@ -119,7 +122,6 @@ class Agent:
         self.acked = 0  # the map server's last contiguous acked seq of this run's deltas
         self.progress_every_s = PROGRESS_EVERY_S
         self._frame_key = self.link.describe()
-        self._last_sent: dict[int, float] = {}
         self._stop = threading.Event()
         self._acker = threading.Thread(target=self._poll_acks, daemon=True)
 
@@ -127,6 +129,7 @@ class Agent:
     def run(self, max_frames: int | None = None, idle_timeout: float | None = None) -> None:
         """Handle frames until stopped (or ``max_frames``, or ``idle_timeout`` s without a frame)."""
         self.catch_up()
+        self.sender.start()
         self._acker.start()
         handled = 0
         last_frame = time.monotonic()
@@ -258,13 +261,13 @@ class Agent:
             self._publish(*taken)
 
     def _publish(self, seq: int, delta) -> None:
-        msg = DeltaMessage(
-            self.robot_id, self.epoch, seq, self.last_t, self.explorer.grid, delta.idx, delta.dlam, delta.deta
-        )
-        payload = msg.encode()
-        self._delta_pub.put(payload)
-        self.outbox.stats.bytes_sent += len(payload)
-        self._last_sent[seq] = time.monotonic()
+        self.sender.send(seq, self.last_t, delta)  # never blocks: the sender thread puts it
+
+    def _sent(self, _seq: int, size: int) -> None:
+        self.outbox.stats.bytes_sent += size
+
+    def _granted(self, grant) -> None:
+        self.epoch = grant.epoch
 
     # -- the team map --------------------------------------------------------------------
     def catch_up(self, timeout: float = 2.0) -> bool:
@@ -368,16 +371,17 @@ class Agent:
                 continue  # no server yet: keep everything
             self.outbox.acknowledge(acks)
             self.acked = max(self.acked, acks)
-            for seq in [s for s in self._last_sent if s <= acks]:
-                del self._last_sent[seq]
+            self.sender.forget(acks)
             now = time.monotonic()
-            for seq, delta in self.outbox.to_resend():
-                if now - self._last_sent.get(seq, 0.0) > RESEND_AFTER_S:
+            for seq, delta in self.outbox.to_resend():  # oldest first: the server takes seqs in order
+                if now - self.sender.last_sent(seq) > RESEND_AFTER_S:
                     self.outbox.stats.resent += 1
                     self._publish(seq, delta)
 
     def query_acks(self, timeout: float = 1.0) -> int | None:
         """This agent's last contiguous acked seq per the map server, or None if none answers."""
+        if self.epoch is None:
+            return None  # nothing can be acked before the server issued an epoch
         try:
             answer = replies.ask(self.session, self._acks_key, timeout=timeout)
             if answer is None or answer.ok is None:
@@ -420,7 +424,9 @@ class Agent:
         self._stop.set()
         if self._acker.is_alive():
             self._acker.join(timeout=ACK_POLL_S + 1.5)
+        self.sender.drain(ack_wait_s)
         self._await_acks(ack_wait_s)
+        self.sender.stop()
         log.info(
             "%s: shutdown flush: %s; %d deltas not yet acked by the map server%s",
             self.robot_id,

@@ -213,6 +213,14 @@ def register_server(sub: argparse._SubParsersAction) -> None:
         "(docs/protocol.md, Limits)",
     )
     p.add_argument(
+        "--information-burst", type=float, default=300.0, metavar="S",
+        help="seconds of a rig's maximum information rate a robot may send at once (default 300)",
+    )  # fmt: skip
+    p.add_argument(
+        "--quarantine-after", type=int, default=3, metavar="N",
+        help="quarantine a robot after N deltas over its information budget (default 3; 0: never)",
+    )  # fmt: skip
+    p.add_argument(
         "--quarantine",
         action="append",
         default=[],
@@ -240,6 +248,8 @@ def _run_server(args: argparse.Namespace) -> int:
         return fail("--compact-mb, --compact-records, --log-every and --inbox must be positive")
     if args.max_payload_mb is not None and not args.max_payload_mb > 0:
         return fail("--max-payload-mb must be positive")
+    if not args.information_burst > 0 or args.quarantine_after < 0:
+        return fail("--information-burst must be positive and --quarantine-after at least 0")
     robots = tuple(r.strip() for r in args.robots.split(",") if r.strip()) if args.robots else None
     try:
         if args.robot_pattern:
@@ -255,6 +265,8 @@ def _run_server(args: argparse.Namespace) -> int:
         robots=robots,
         robot_pattern=args.robot_pattern,
         information_bound=not args.no_information_bound,
+        burst_s=args.information_burst,
+        quarantine_after=args.quarantine_after,
         quarantine=tuple(args.quarantine),
     )
     try:

@@ -17,6 +17,9 @@ import msgpack
 import numpy as np
 
 VERSION = 1
+#: The version of ``delta/<rid>`` payloads (and so of ``merged``) and of the ``map/epoch`` reply:
+#: server-issued epochs and a MAC per delta (docs/protocol.md, "Versions").
+DELTA_VERSION = 2
 STEREO_ENCODINGS = ("raw8", "png")
 DEPTH_ENCODING = "f32"
 
@@ -46,9 +49,10 @@ def as_bytes(payload: Any) -> bytes:
     raise WireError(f"payload must be bytes, got {type(payload).__name__}")
 
 
-def unpack(payload: Any, kind: str) -> dict:
+def unpack(payload: Any, kind: str, versions: tuple[int, ...] = (VERSION,), hint: str = "") -> dict:
     """The msgpack map of a payload, decoded once; WireError unless it is a map of string keys
-    whose ``v`` is the integer VERSION (kind ``unsupported_version`` for another ``v``)."""
+    whose ``v`` is one of the integers ``versions`` (kind ``unsupported_version`` for another
+    ``v``, whose text ends with ``hint``)."""
     try:
         msg = msgpack.unpackb(
             as_bytes(payload),
@@ -68,9 +72,10 @@ def unpack(payload: Any, kind: str) -> dict:
     if not all(isinstance(k, str) for k in msg):
         raise WireError(f"{kind}: map keys must be strings")
     version = msg.get("v")
-    if type(version) is not int or version != VERSION:  # True == 1 and 1.0 == 1 in Python
+    if type(version) is not int or version not in versions:  # True == 1 and 1.0 == 1 in Python
+        expected = " or ".join(str(v) for v in versions)
         raise WireError(
-            f"{kind}: unsupported version {short(version)} (expected the integer {VERSION})",
+            f"{kind}: unsupported version {short(version)} (expected the integer {expected}){hint}",
             "unsupported_version",
         )
     return msg
@@ -82,8 +87,8 @@ def short(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def pack(kind: str, fields: dict) -> bytes:
-    return msgpack.packb({"v": VERSION, **fields}, use_bin_type=True)
+def pack(kind: str, fields: dict, version: int = VERSION) -> bytes:
+    return msgpack.packb({"v": version, **fields}, use_bin_type=True)
 
 
 def require(msg: dict, name: str, kind: str) -> Any:

@@ -17,6 +17,12 @@ from swarm.protocol.codec import WireError
 #: the mission runner before the robots start (swarm.mission.prior_map uses the same id).
 PRIOR_SOURCE = "prior"
 
+#: What a v1 delta's refusal says: v2 epochs come from the server.
+V1_DELTA_HINT = (
+    "; protocol v2: ask swarm/<mission>/map/epoch/<rid> for an epoch and its key, and send each "
+    "delta with its MAC as the attachment (docs/protocol.md)"
+)
+
 #: Voxels along one grid axis at most (the flat index is uint32).
 MAX_AXIS = 1 << 20
 
@@ -57,8 +63,10 @@ class DeltaMessage:
     """``delta/<rid>`` and ``merged``: information gathered by ``robot`` since its last delta,
     per flat voxel ``idx`` (dlam, deta); ``swarm.map.delta.Delta`` holds the same arrays.
 
-    ``(robot, epoch, seq)`` identifies a delta once: epoch is the agent process's start time
-    in ns, seq counts 1, 2, 3 within it.
+    ``(robot, epoch, seq)`` identifies a delta once: epoch is issued by the map server
+    (``map/epoch/<rid>``, swarm.protocol.epochs), seq counts 1, 2, 3 within it. Encoded as
+    protocol v2; :meth:`decode` takes v2 only unless ``versions`` says otherwise (the map
+    server's log replays the v1 deltas an older store holds).
     """
 
     robot: str
@@ -94,12 +102,13 @@ class DeltaMessage:
                 "dlam": codec.le(self.dlam, "<f4"),
                 "deta": codec.le(self.deta, "<f4"),
             },
+            codec.DELTA_VERSION,
         )
 
     @classmethod
-    def decode(cls, payload: Any) -> DeltaMessage:
+    def decode(cls, payload: Any, versions: tuple[int, ...] = (codec.DELTA_VERSION,)) -> DeltaMessage:
         kind = cls.KIND
-        msg = codec.unpack(payload, kind)
+        msg = codec.unpack(payload, kind, versions, V1_DELTA_HINT)
         grid = _grid(codec.require(msg, "grid", kind), kind)
         idx = codec.indices(codec.require(msg, "idx", kind), kind, grid.size)
         n = len(idx)
