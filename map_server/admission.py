@@ -111,6 +111,8 @@ class Admission:
         msg = validate_delta(payload, self.team.grid, robot, increments=not prior)
         if not msg.carries_information():  # no agent sends one: a flood would cost every replica
             raise Rejected("no_information", f"delta of {len(msg.idx)} voxels that changes nothing")
+        if robot in self.team.quarantined:
+            raise Rejected("quarantined", f"{robot} is quarantined")
         key = self.registry.key_of(robot, msg.epoch)
         if key is None:
             raise Rejected(*self.registry.refusal(robot, msg.epoch))

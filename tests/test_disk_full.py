@@ -22,6 +22,7 @@ from tests.test_server_merge import (
     central_fusion,
     encode_all,
     robot_batches,
+    signed,
     small_mission,
 )
 
@@ -66,7 +67,7 @@ def offer_unacked(server: MapServer, sent) -> int:
     """An agent's resend: every delta not acked yet, in one batch per robot; how many applied."""
     done = acked(server)
     return sum(
-        server.merge([(r, p) for r, s, p in sent if r == rid and s > done.get(rid, 0)])
+        server.merge(signed(server, [(r, s, p) for r, s, p in sent if r == rid and s > done.get(rid, 0)]))
         for rid in sorted({r for r, _, _ in sent})
     )
 
@@ -81,7 +82,7 @@ def test_a_full_disk_pauses_the_acks_and_space_back_resumes_them(small_disk: Pat
     options = ServerOptions(compact_records=1000, log_reserve_bytes=64 << 10)
     server = MapServer(mission, store, options=options)
     first = [x for x in sent if x[1] <= 4]
-    assert server.merge([(r, p) for r, _, p in first]) == len(first)
+    assert server.merge(signed(server, first)) == len(first)
     before = acked(server)
     assert before == {"r1": 4, "r2": 4}
 

@@ -14,7 +14,7 @@ import map_server.store as store_module
 from map_server.server import MapServer
 from map_server.store_files import StoreFiles
 from tests.test_server_hostile import oracle
-from tests.test_server_merge import EPOCH, encode_all, robot_batches, small_mission
+from tests.test_server_merge import EPOCH, encode_all, robot_batches, signed, small_mission
 
 
 class Killed(BaseException):
@@ -66,9 +66,9 @@ def test_a_server_killed_mid_compaction_restarts_with_every_acked_delta(tmp_path
     sent = encode_all(grid, robot_batches(grid, sensor, robots=2, per_robot=4, rays=60, seed=5))
     first, second = sent[:4], sent[4:]
     server = MapServer(mission, tmp_path / "store")
-    assert server.merge([(r, p) for r, _, p in first]) == len(first)
+    assert server.merge(signed(server, first)) == len(first)
     server._compact()  # one good compaction: a snapshot and a log to lose
-    assert server.merge([(r, p) for r, _, p in second]) == len(second)  # durable: acked
+    assert server.merge(signed(server, second)) == len(second)  # durable: acked
     with monkeypatch.context() as mp:
         CRASHES[crash](mp)
         with pytest.raises(Killed):
@@ -80,10 +80,11 @@ def test_a_server_killed_mid_compaction_restarts_with_every_acked_delta(tmp_path
     np.testing.assert_array_equal(again.team.cmap.lam, expected.cmap.lam)
     np.testing.assert_array_equal(again.team.cmap.eta, expected.cmap.eta)
     assert again.team.acks() == {"r1": {EPOCH: 4}, "r2": {EPOCH: 4}}
-    assert again.merge([(r, p) for r, _, p in sent]) == 0  # every one applied already
+    assert again.merge(signed(again, sent)) == 0  # every one applied already
     again._compact()  # and the store keeps working
     again.store.close()
     assert sorted(p.name for p in (tmp_path / "store").iterdir()) == [
+        "epochs.json",
         "snapshot.npz",
         "store.json",
         "store.lock",

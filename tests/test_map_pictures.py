@@ -103,9 +103,11 @@ def test_the_stats_summary_of_a_real_map_server_is_a_few_lines(tmp_path) -> None
     grid = mission.workspace.grid()
     idx = np.arange(100, 400, dtype=np.uint32)
     msg = DeltaMessage(
-        "r1", 7, 1, 0.5, grid, idx, np.full(300, 50.0, np.float32), np.full(300, 1.0, np.float32)
+        "r1", 1, 1, 0.5, grid, idx, np.full(300, 50.0, np.float32), np.full(300, 1.0, np.float32)
     )
-    assert server.merge([("r1", msg.encode())]) == 1
+    from tests.test_server_merge import signed
+
+    assert server.merge(signed(server, [("r1", 1, msg.encode())])) == 1
     server.threshold_bits = mission.threshold_bits()
     stats = server.stats()
     lines = stats_summary(stats)

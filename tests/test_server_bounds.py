@@ -11,8 +11,10 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from map_server.ledger import Ledger, Rejected, validate_delta
-from map_server.limits import mission_bounds, ray_information_bound
+from map_server.admission import Admission
+from map_server.epochs import EpochRegistry
+from map_server.ledger import Rejected, validate_delta
+from map_server.limits import InformationBucket, mission_bounds, ray_information_bound
 from map_server.team_map import TeamMap
 from robot_agent.explorer import Explorer
 from robot_agent.sharing import DeltaOutbox
@@ -20,8 +22,9 @@ from sim2d.simulator import Simulator
 from swarm.config import load_mission
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
+from swarm.protocol.epochs import delta_mac
 from swarm.protocol.wire import DeltaMessage
-from tests.test_server_merge import EPOCH, encode_all, robot_batches, small_mission
+from tests.test_server_merge import EPOCH, encode_all, robot_batches, signed, small_mission
 from tests.test_server_rejects import good
 
 
@@ -52,6 +55,7 @@ def test_office_deltas_fit_the_bound():
     information and every shared delta is within the bound; none is refused."""
     mission = load_mission("configs/office.yaml")
     bounds = mission_bounds(mission)
+    buckets = {rid: InformationBucket(bound, 0.0) for rid, bound in bounds.items()}
     team = TeamMap(mission.workspace.grid(), mission.sensor.model())
     session = bus.open_session(listen=[bus.tcp_endpoint(bus.free_port())])
     try:
@@ -77,7 +81,11 @@ def test_office_deltas_fit_the_bound():
                     seq, d = taken
                     msg = DeltaMessage(rid, EPOCH, seq, frame.t, ex.grid, d.idx, d.dlam, d.deta)
                     msg = validate_delta(msg.encode(), team.grid, rid)  # honest: never refused
-                    assert team.admit(msg, bounds[rid])
+                    # all at one instant of the server's clock: the burst alone holds them
+                    information = float(np.sum(msg.dlam, dtype=np.float64))
+                    assert buckets[rid].refusal(information, 0.0) is None
+                    buckets[rid].charge(information)
+                    assert team.admit(msg)
                     team.apply(msg)
             sim.world.step(mission.sim.frame_period_s)
     finally:
@@ -87,18 +95,24 @@ def test_office_deltas_fit_the_bound():
     print(f"largest frame information / I_frame = {worst:.2e}")
 
 
-def test_ledger_keeps_four_epochs_and_refuses_compacted_ones():
-    ledger = Ledger(max_epochs=4)
-    for epoch in (10, 20, 30, 40, 50):
-        ledger.add(("r1", epoch, 1))
-    assert set(ledger.acks()["r1"]) == {20, 30, 40, 50} and len(ledger) == 5
-    assert ledger.refusal(("r1", 10, 2))[0] == "stale_epoch"  # compacted: never applied twice
-    assert ledger.refusal(("r1", 5, 1))[0] == "stale_epoch"  # older than the four kept
-    assert ledger.refusal(("r1", 50, 2)) is None
-    assert ledger.refusal(("r1", 50, 1 + ledger.seq_window + 1))[0] == "seq_out_of_window"
-    again = Ledger.from_json(ledger.to_json())
-    again.restore_compaction(ledger.compaction_json())
-    assert again.refusal(("r1", 10, 2))[0] == "stale_epoch" and len(again) == 5
+def bare_admission(team: TeamMap, mission, **options) -> Admission:
+    """The server's admission of deltas on ``team`` without a server: epochs kept in memory."""
+    import logging
+    import threading
+
+    from swarm.log_limit import LogLimiter
+
+    settings = {
+        "robots": frozenset(mission.robot_ids),
+        "takes_prior": False,
+        "robot_pattern": None,
+        "max_pattern_robots": 0,
+        "bounds": mission_bounds(mission),
+        "quarantine_after": 3,
+        "quarantine": team.quarantine,
+        "peer_log": LogLimiter(logging.getLogger("test")),
+    } | options
+    return Admission(team, threading.Lock(), EpochRegistry(None), **settings)
 
 
 def _hostile():
@@ -142,15 +156,21 @@ def test_hostile_payloads_never_touch_the_valid_deltas(hostile, rnd):
             msg = msgpack.unpackb(good(grid, robot="r1", seq=99), raw=False)
             msg[value[0]] = value[1]
             bad.append(msgpack.packb(msg, use_bin_type=True))
-    stream = [(rid, p) for rid, _, p in valid] + [("r1", p) for p in bad]
-    rnd.shuffle(stream)
-    team, bounds = TeamMap(grid, sensor), mission_bounds(mission)
+    team = TeamMap(grid, sensor)
+    admission = bare_admission(team, mission)
+    keys = {rid: admission.issue(rid).key for rid in ("r1", "r2")}
+    # the valid deltas in their order (each robot's seqs in turn), the hostile ones anywhere
+    stream = [(rid, p, delta_mac(keys[rid], p)) for rid, _, p in valid]
+    for payload in bad:
+        mac = rnd.choice([None, b"", delta_mac(keys["r1"], payload)[:8], bytes(16)])
+        stream.insert(rnd.randrange(len(stream) + 1), ("r1", payload, mac))
     applied = []
-    for rid, payload in stream:
+    for rid, payload, mac in stream:
         try:
-            msg = validate_delta(payload, grid, rid)
-            if team.admit(msg, bounds[rid]):
+            msg = admission.admit(rid, payload, mac)
+            if msg is not None:
                 team.apply(msg)
+                admission.applied(msg)
                 applied.append(payload)
         except Rejected as exc:
             assert exc.kind != "internal_error", exc
@@ -172,7 +192,7 @@ def test_inbox_is_bounded_per_robot_and_served_in_turn():
         False,
     ]  # 8 bytes, then 12 > 10
     assert inbox.offer("b", b"x") and inbox.offer("b", b"y")
-    assert [r for r, _ in inbox.take(10, timeout=0.1)] == ["a", "b", "a", "b"]
+    assert [r for r, *_ in inbox.take(10, timeout=0.1)] == ["a", "b", "a", "b"]
     assert inbox.take(10, timeout=0.01) == []
     stats = inbox.stats()
     assert stats["refused"] == {"a": 2} and stats["high_water"] == 4 and stats["queued"] == 0
@@ -202,10 +222,11 @@ def test_a_previous_map_comes_on_delta_prior_only_when_the_mission_has_one(tmp_p
     payload = DeltaMessage(PRIOR_SOURCE, EPOCH, 1, 0.0, grid, idx, dlam, deta).encode()
     assert not MapServer(plain, tmp_path / "a").accepts_robot(PRIOR_SOURCE)
     server = MapServer(with_prior, tmp_path / "b")
-    assert server.accepts_robot(PRIOR_SOURCE) and server.merge([(PRIOR_SOURCE, payload)]) == 1
+    assert server.accepts_robot(PRIOR_SOURCE)
+    assert server.merge(signed(server, [(PRIOR_SOURCE, 1, payload)])) == 1
     assert server.team.known == grid.size
     bad = DeltaMessage(PRIOR_SOURCE, EPOCH, 2, 0.0, grid, idx[:1], dlam[:1], -dlam[:1]).encode()
-    assert server.merge([(PRIOR_SOURCE, bad)]) == 0  # would leave a negative mean
+    assert server.merge(signed(server, [(PRIOR_SOURCE, 2, bad)])) == 0  # would leave a negative mean
     assert server.stats()["rejected"]["mean_outside_unit"] == 1
     server.stop()
     again = MapServer(with_prior, tmp_path / "b")  # and it survives a restart (snapshot + log)

@@ -82,7 +82,7 @@ def signed(server: MapServer, sent, epoch: int = EPOCH) -> list[tuple[str, bytes
     """``(robot, payload, MAC)`` of ``(robot, seq, payload)`` items, for :meth:`MapServer.merge`:
     the server issues its robots epochs up to ``epoch`` first where it has not yet."""
     keys = {}
-    for rid, _, payload in sent:
+    for rid, _, _payload in sent:
         if rid not in keys:
             keys[rid] = server.admission.registry.key_of(rid, epoch)
             while keys[rid] is None:
@@ -153,7 +153,8 @@ class SignedPublisher:
 
 def publishers(session, mission: str, robots, grants: dict | None = None) -> dict:
     """A :class:`SignedPublisher` per robot, under ``grants`` or epochs the server issues now."""
-    grants = grants if grants is not None else {rid: wait_for_epoch(session, mission, rid, 30) for rid in robots}
+    if grants is None:
+        grants = {rid: wait_for_epoch(session, mission, rid, 30) for rid in robots}
     pubs = {rid: SignedPublisher(session, mission, grants[rid]) for rid in robots}
     assert bus.wait_for_subscribers([p.pub for p in pubs.values()], timeout=10.0)
     return pubs

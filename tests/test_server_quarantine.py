@@ -28,6 +28,7 @@ from tests.test_server_merge import (
     encode_all,
     publishers,
     robot_batches,
+    signed,
     small_mission,
     wait_until,
 )
@@ -61,12 +62,12 @@ def test_quarantine_survives_a_restart_and_applies_to_a_store_at_start(tmp_path:
     batches = robot_batches(grid, sensor, per_robot=3, seed=9)
     store = tmp_path / "store"
     server = MapServer(mission, store)
-    server.merge([(rid, p) for rid, _seq, p in encode_all(grid, batches)])
+    server.merge(signed(server, encode_all(grid, batches)))
     server.stop()  # compacts: the contributions are in the snapshot
     server = MapServer(mission, store, options=ServerOptions(quarantine=("r3",)))
     without = {rid: d for rid, d in batches.items() if rid != "r3"}
     assert_maps_equal(server.team.cmap.lam, server.team.cmap.eta, central_fusion(grid, sensor, without))
-    server.merge([("r3", DeltaMessage("r3", EPOCH + 1, 1, 1.0, grid, *_one(grid)).encode())])
+    server.merge([("r3", DeltaMessage("r3", EPOCH + 1, 1, 1.0, grid, *_one(grid)).encode(), None)])
     assert server.stats()["rejected"]["quarantined"] == 1
     server.stop()
     server = MapServer(mission, store)  # no option: the quarantine was stored

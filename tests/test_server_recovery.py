@@ -66,6 +66,7 @@ def test_sigkill_mid_stream_loses_no_acked_delta(tmp_path: Path):
             client = MapClient(session, mission.mission, timeout=1.0, endpoint=endpoint)
             wait_for_server(client, proc, log)
             pubs = publishers(session, mission.mission, batches)
+            grants = {rid: pub.grant for rid, pub in pubs.items()}  # the restarted server keeps them
             stop = threading.Event()
 
             def publish() -> None:  # interleaved, in order per robot, until the kill
@@ -105,7 +106,7 @@ def test_sigkill_mid_stream_loses_no_acked_delta(tmp_path: Path):
             assert client.stats()["deltas_applied"] == sum(recovered.values())
 
             # the agents' part: publish again what is not acked (and, harmlessly, a few that are)
-            pubs = publishers(session, mission.mission, batches)
+            pubs = publishers(session, mission.mission, batches, grants)
             for rid in batches:
                 for payload in by_robot[rid][max(recovered[rid] - 3, 0) :]:
                     pubs[rid].put(payload)

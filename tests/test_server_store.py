@@ -23,6 +23,7 @@ from tests.test_server_merge import (
     central_fusion,
     encode_all,
     robot_batches,
+    signed,
     small_mission,
 )
 
@@ -158,7 +159,7 @@ def test_server_recovers_map_and_acks_from_snapshot_plus_log(tmp_path: Path):
     server = MapServer(mission, tmp_path / "s", options=ServerOptions(compact_records=4))
     server._merged_pub = _NullPublisher()
     for i in range(0, len(sent), 3):
-        server.merge([(rid, p) for rid, _, p in sent[i : i + 3]])
+        server.merge(signed(server, sent[i : i + 3]))
     assert server.store.snapshots_written >= 2 and server.store.wal_records > 0
     server.store.close()  # as if killed: no final compaction
     again = MapServer(mission, tmp_path / "s")

@@ -16,7 +16,7 @@ import pytest
 from map_server.server import MapServer
 from map_server.store import Store, StoreError
 from swarm import cli
-from tests.test_server_merge import EPOCH, MISSION_YAML, encode_all, robot_batches, small_mission
+from tests.test_server_merge import EPOCH, MISSION_YAML, encode_all, robot_batches, signed, small_mission
 from tests.test_server_store import IDENTITY
 
 
@@ -79,7 +79,7 @@ def test_a_failed_start_keeps_a_store_that_holds_deltas(tmp_path: Path):
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
     sent = encode_all(grid, robot_batches(grid, sensor, robots=1, per_robot=2, rays=40, seed=3))
     server = MapServer(mission, tmp_path / "store")
-    assert server.merge([(r, p) for r, _, p in sent]) == 2
+    assert server.merge(signed(server, sent)) == 2
     server.store.discard_new()  # what a failed start does: this store holds acked deltas
     again = MapServer(mission, tmp_path / "store")
     assert again.team.acks() == {"r1": {EPOCH: 2}}

@@ -42,7 +42,8 @@ MISSION = {
     "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [3.0, 2.0, 1.0], "voxel": 0.1},
     "robots": [{"id": "r1", "start": {"x": 0.5, "y": 0.5}}, {"id": "r2", "start": {"x": 2.5, "y": 1.5}}],
 }
-EPOCH = 1_763_900_000_000_000_000
+#: the epoch a fresh store issues each robot first (map_server.epochs)
+EPOCH = 1
 
 
 @dataclass
@@ -87,9 +88,11 @@ def record_workload(root: Path, mission: Mission, sent, batch: int = 3, compact_
     files = RecordingFiles(root)
     options = ServerOptions(compact_records=compact_records, log_reserve_bytes=0, **server)
     srv = MapServer(mission, root / "store", options=options, files=files)
+    grants = {rid: srv.admission.issue(rid) for rid in mission.robot_ids}  # epoch 1 each, durable
+    assert all(g.epoch == EPOCH for g in grants.values())
     for start in range(0, len(sent), batch):
         chunk = sent[start : start + batch]
-        srv.merge([(rid, payload) for rid, _, payload in chunk])
+        srv.merge([(rid, payload, grants[rid].sign(payload)) for rid, _, payload in chunk])
         for rid, seq, _ in chunk:
             files.note("acked", rid, seq)
     srv.stop()
@@ -162,9 +165,11 @@ def sigkills(kills: int = 15, per_robot: int = 40, seed: int = 1, timeout_s: flo
     """``kills`` SIGKILLs of a ``swarm server`` process mid-stream (module docstring): acked
     deltas lost, deltas applied twice, and the final map against every delta once."""
     from swarm.protocol import bus
+    from swarm.protocol.epochs import put_delta, wait_for_epoch
     from swarm.protocol.map_client import MapClient
 
     mission = bench_mission()
+    grants: dict = {}  # asked once: the restarted server keeps the epochs and their keys
     sent = deltas(mission, per_robot, seed)
     lost = doubled = 0
     seen: dict[str, int] = {}
@@ -187,11 +192,15 @@ def sigkills(kills: int = 15, per_robot: int = 40, seed: int = 1, timeout_s: flo
                     r: bus.reliable_publisher(session, bus.key(mission.mission, "delta", r))
                     for r in MISSION_IDS
                 }
+                for r in MISSION_IDS:
+                    if r not in grants:
+                        grants[r] = wait_for_epoch(session, mission.mission, r, timeout_s)
+                        assert grants[r].epoch == EPOCH, grants[r]
                 todo = [(r, s, p) for r, s, p in sent if s > before.get(r, 0)]
                 target = sum(before.values()) + (len(todo) if round_ == kills else max(1, len(todo) // 4))
                 seen = before
                 for rid, _, payload in todo:
-                    pubs[rid].put(payload)
+                    put_delta(pubs[rid], grants[rid], payload)
                     time.sleep(0.003)
                     seen = _acked(client.acks())
                     if sum(seen.values()) >= target and round_ < kills:
