@@ -65,7 +65,9 @@ def bench_mission() -> Mission:
     return mission_from_dict(MISSION)
 
 
-def deltas(mission: Mission, per_robot: int, seed: int = 0, rays: int = 60) -> list[tuple[str, int, bytes]]:
+def deltas(
+    mission: Mission, per_robot: int, seed: int = 0, rays: int = 60, epoch: int = EPOCH
+) -> list[tuple[str, int, bytes]]:
     """``(robot, seq, payload)`` of each robot's deltas of random rays, interleaved by seq."""
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
     rng = np.random.default_rng(seed)
@@ -76,7 +78,7 @@ def deltas(mission: Mission, per_robot: int, seed: int = 0, rays: int = 60) -> l
             points = rng.uniform(grid.lo, grid.hi - 1e-6, size=(rays, 3))
             d = batch_information(grid, sensor, origin, points).delta
             out.append(
-                (rid, seq, DeltaMessage(rid, EPOCH, seq, float(seq), grid, d.idx, d.dlam, d.deta).encode())
+                (rid, seq, DeltaMessage(rid, epoch, seq, float(seq), grid, d.idx, d.dlam, d.deta).encode())
             )
     return out
 

@@ -33,6 +33,7 @@ from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
+from swarm.protocol.epochs import SigningPublisher
 from swarm.protocol.wire import DeltaMessage
 
 WORKSPACE = ((0.0, 0.0, 0.0), (20.0, 10.0, 2.0))
@@ -168,11 +169,17 @@ def open_agents(sessions: list, endpoint: str, agents: int) -> list:
     index 0) and one reliable ``delta/a<i>`` publisher each, ready once the server subscribes."""
     for _ in range(agents):
         sessions.append(bus.open_session(connect=[endpoint]))
-    pubs = [
-        bus.reliable_publisher(s, bus.key(MISSION, "delta", f"a{i + 1}")) for i, s in enumerate(sessions[1:])
-    ]
+    pubs = [SigningPublisher(s, MISSION, f"a{i + 1}") for i, s in enumerate(sessions[1:])]
     bus.wait_for_subscribers(pubs, timeout=10)
     return pubs
+
+
+def _renew(pubs: list, epoch: int) -> None:
+    """Each agent asks the server for its next epoch: ``epoch`` on the bench's fresh store."""
+    for pub in pubs:
+        got = pub.renew()
+        if got != epoch:
+            raise RuntimeError(f"{pub.robot}: the server issued epoch {got}, expected {epoch}")
 
 
 def _put_all(publisher, payloads: list[bytes]) -> None:
@@ -214,6 +221,7 @@ def _latencies(grid: Grid, pick: list, pubs: list, probe, epoch: int, period_s: 
     """Seconds from publish to the first map/acks reply that covers it, for every delta of every
     agent: each agent publishes every ``period_s`` (random phase), or, with None, as soon as its
     previous delta is acked."""
+    _renew(pubs, epoch)
     watch = _AckWatch(probe, epoch)
     watch.start()
     published: dict[tuple[str, int], float] = {}
@@ -277,6 +285,7 @@ def zenoh_figures(
 
         # throughput: everything at once
         epoch = 1
+        _renew(pubs, epoch)
         payloads = [_messages(grid, pick[a], f"a{a + 1}", epoch) for a in range(agents)]
         t0 = time.perf_counter()
         threads = [
@@ -293,7 +302,7 @@ def zenoh_figures(
                 acks = _acks(probe) or {}
                 for a in range(agents):
                     acked = int(acks.get(f"a{a + 1}", {}).get(str(epoch), 0))
-                    for m in payloads[a][acked : acked + 32]:
+                    for m in payloads[a][acked : acked + 32]:  # in order: the next seq is taken
                         pubs[a].put(m)
                         resent += 1
                 last_resend = time.perf_counter()

@@ -73,7 +73,10 @@ def flood_figures(
             time.sleep(0.1)
         start_kb = _memory_kb(server.pid)[0]
         pubs = open_agents(sessions, endpoint, agents)
-        epoch = 7
+        epoch = 1  # the first epoch the fresh store issues each agent
+        for pub in pubs:
+            if pub.renew() != epoch:
+                raise RuntimeError(f"{pub.robot}: the server issued another epoch than {epoch}")
         sent = [0] * agents  # highest seq each agent has published
         puts = [0] * agents  # payloads published, resends included
         acked = [0] * agents  # the agents' view of map/acks

@@ -25,6 +25,7 @@ import yaml
 
 from swarm.bench.durability import MISSION, bench_mission, deltas
 from swarm.protocol import bus
+from swarm.protocol.epochs import SigningPublisher
 from swarm.protocol.map_client import MapClient
 
 #: The first bytes of a TLS ClientHello: a handshake record header that promises 512 bytes.
@@ -138,8 +139,11 @@ def attack(transport: str, connections: int = 300, attack_s: float = 15.0, limit
             session = zenoh.open(conf)
             try:
                 client = MapClient(session, mission.mission, timeout=2.0, endpoint=endpoint)
-                pub = bus.reliable_publisher(session, bus.key(mission.mission, "delta", "r1"))
-                payloads = [p for r, _, p in deltas(mission, 400, seed=2, rays=20) if r == "r1"]
+                pub = SigningPublisher(session, mission.mission, "r1")
+                pub.renew()
+                payloads = [
+                    p for r, _, p in deltas(mission, 400, seed=2, rays=20, epoch=pub.epoch) if r == "r1"
+                ]
                 stop, held, done = threading.Event(), [0], threading.Event()
                 gaps: list[float] = []
 

@@ -26,6 +26,7 @@ from swarm.child_command import child_environment, swarm_argv
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
+from swarm.protocol.epochs import SigningPublisher
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
 from swarm.security.access_rules import TOOL, agent_name
 from swarm.security.team_setup import init_team
@@ -50,9 +51,10 @@ class _Team:
     """Agents publishing on a schedule and a watcher noting when each (agent, seq) is acked."""
 
     def __init__(self, sessions: list, grid: Grid, deltas: list, period_s: float) -> None:
-        self.pubs = [
-            bus.reliable_publisher(s, bus.key(MISSION, "delta", f"a{i + 1}")) for i, s in enumerate(sessions)
-        ]
+        self.pubs = [SigningPublisher(s, MISSION, f"a{i + 1}") for i, s in enumerate(sessions)]
+        for pub in self.pubs:  # the first epoch a fresh store issues
+            if pub.renew() != EPOCH:
+                raise RuntimeError(f"{pub.robot}: the server issued another epoch than {EPOCH}")
         self.grid, self.deltas, self.period_s = grid, deltas, period_s
         self.sent: dict[tuple[str, int], float] = {}
         self.latencies: list[tuple[float, float]] = []  # (ack time, latency s)

@@ -89,7 +89,7 @@ class FrameEntropy:
         with self._lock:
             self.monitor.on_delta(key, payload)
             try:
-                header = codec.unpack(payload, "delta")
+                header = codec.unpack(payload, "delta", (codec.DELTA_VERSION,))
                 robot, t = header.get("robot"), float(header.get("t"))
             except (codec.WireError, TypeError, ValueError, AttributeError):
                 return  # counted as rejected by the monitor

@@ -52,6 +52,7 @@ from swarm.mission.role_processes import (
 from swarm.mission.role_processes import start_role as start_role_process
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
+from swarm.protocol.epochs import EpochRefused, put_delta, wait_for_epoch
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.mission_listener import MissionDoneListener
 from swarm.protocol.wire import DeltaMessage
@@ -376,10 +377,13 @@ def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMo
     delta = prior_delta(grid, sensor, load_previous_map(path, sensor))
     pieces = chunks(delta)
     publisher = bus.reliable_publisher(session, bus.key(mission.mission, "delta", PRIOR_SOURCE))
-    epoch = time.time_ns()
+    try:
+        grant = wait_for_epoch(session, mission.mission, PRIOR_SOURCE, timeout=60.0)
+    except (TimeoutError, EpochRefused) as exc:
+        raise RoleError(f"the map server issued no epoch for the previous map: {exc}") from exc
     for seq, piece in enumerate(pieces, start=1):
-        msg = DeltaMessage(PRIOR_SOURCE, epoch, seq, 0.0, grid, piece.idx, piece.dlam, piece.deta)
-        publisher.put(msg.encode())
+        msg = DeltaMessage(PRIOR_SOURCE, grant.epoch, seq, 0.0, grid, piece.idx, piece.dlam, piece.deta)
+        put_delta(publisher, grant, msg.encode())
     deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline:
         applied = int(client.stats().get("deltas_applied", 0))

@@ -118,3 +118,34 @@ class EpochRefused(RuntimeError):
 def put_delta(publisher: zenoh.Publisher, grant: EpochGrant, payload: bytes) -> None:
     """Publish a delta payload of ``grant``'s epoch with its MAC as the attachment."""
     publisher.put(payload, attachment=grant.sign(payload))
+
+
+class SigningPublisher:
+    """A ``delta/<rid>`` publisher of a tool or bench: :meth:`renew` asks the server for an
+    epoch, :meth:`put` attaches each payload's MAC under it (reliable, congestion control BLOCK)."""
+
+    def __init__(self, session: zenoh.Session, mission: str, robot: str) -> None:
+        self.session, self.mission, self.robot = session, mission, robot
+        self.pub = bus.reliable_publisher(session, bus.key(mission, "delta", robot))
+        self.grant: EpochGrant | None = None
+
+    def renew(self, timeout: float = 30.0) -> int:
+        """Ask for a new epoch (TimeoutError when no server issues one); returns it."""
+        self.grant = wait_for_epoch(self.session, self.mission, self.robot, timeout)
+        return self.grant.epoch
+
+    @property
+    def epoch(self) -> int | None:
+        return None if self.grant is None else self.grant.epoch
+
+    @property
+    def matching_status(self):  # for bus.wait_for_subscribers
+        return self.pub.matching_status
+
+    def put(self, payload: bytes) -> None:
+        if self.grant is None:
+            raise RuntimeError(f"{self.robot}: no epoch yet (call renew first)")
+        put_delta(self.pub, self.grant, payload)
+
+    def undeclare(self) -> None:
+        self.pub.undeclare()

@@ -16,9 +16,11 @@ is denied (``default_permission: deny``). Keys are under ``swarm/<mission>/``:
 | ``tool`` (viewer, ``swarm map``, monitors) | - | - |
 | ``operator`` (``swarm sim``'s runner) | ``delta/prior`` (a previous map) | - |
 
-Every identity may subscribe to the mission's keys and query ``map/**`` and ``coord/stats``
-(and ``swarm/*/map/stats``, which tools ask to find the mission whose server answers). Robot
-rid's agent alone may query ``coord/assign/<rid>``: the key tells the coordinator who asks.
+Every identity may subscribe to the mission's keys and query ``map/stats``, ``map/acks``,
+``map/snapshot``, ``map/region`` and ``coord/stats`` (and ``swarm/*/map/stats``, which tools ask
+to find the mission whose server answers). Robot rid's agent alone may query
+``coord/assign/<rid>`` (the key tells the coordinator who asks) and ``map/epoch/<rid>`` (the
+epoch and MAC key of its deltas); the operator alone ``map/epoch/prior``.
 Every identity receives what it subscribed to (egress is open within the mission's keys).
 """
 
@@ -36,6 +38,9 @@ SERVICES = (SERVER, COORDINATOR, WORLD, TOOL, OPERATOR)
 PRIOR_DELTA = "delta/prior"
 # what tools ask to find the mission whose server answers (swarm.protocol.map_client.missions_answering)
 STATS_OF_ANY_MISSION = "swarm/*/map/stats"
+#: The map server's queries every identity may ask (``map/epoch/<rid>`` only robot rid's agent,
+#: ``map/epoch/prior`` only the operator: an epoch's key is that robot's)
+MAP_QUERIES = ("stats", "acks", "snapshot", "region")
 
 RECEIVED = ["put", "declare_subscriber", "declare_queryable", "query", "reply"]
 
@@ -89,13 +94,14 @@ def access_control(mission: str, robots: list[str]) -> dict:
             "team-queries-map",
             ["query"],
             "ingress",
-            [f"{p}/map/**", f"{p}/coord/stats", STATS_OF_ANY_MISSION],
+            [*(f"{p}/map/{q}" for q in MAP_QUERIES), f"{p}/coord/stats", STATS_OF_ANY_MISSION],
         ),
         _rule("server-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/map/**"]),
         _rule("server-puts", ["put"], "ingress", [f"{p}/merged", f"{p}/mission/done"]),
         _rule("coordinator-answers", ["declare_queryable", "reply"], "ingress", [f"{p}/coord/**"]),
         _rule("world-puts", ["put"], "ingress", [f"{p}/robot/*/frame", f"{p}/sim/truth"]),
         _rule("operator-puts", ["put"], "ingress", [f"{p}/{PRIOR_DELTA}"]),
+        _rule("operator-asks", ["query"], "ingress", [f"{p}/map/epoch/prior"]),
     ]
     subjects = [
         {"id": "team", "cert_common_names": [i.name for i in team_identities(robots)]},
@@ -109,14 +115,15 @@ def access_control(mission: str, robots: list[str]) -> dict:
         {"id": SERVER, "rules": ["server-answers", "server-puts"], "subjects": [SERVER]},
         {"id": COORDINATOR, "rules": ["coordinator-answers"], "subjects": [COORDINATOR]},
         {"id": WORLD, "rules": ["world-puts"], "subjects": [WORLD]},
-        {"id": OPERATOR, "rules": ["operator-puts"], "subjects": [OPERATOR]},
+        {"id": OPERATOR, "rules": ["operator-puts", "operator-asks"], "subjects": [OPERATOR]},
     ]
     for rid in robots:
         agent, source = agent_name(rid), source_name(rid)
         rules.append(
             _rule(f"{agent}-puts", ["put"], "ingress", [f"{p}/{k}" for k in _agent_keys(rid)]),
         )
-        rules.append(_rule(f"{agent}-asks", ["query"], "ingress", [f"{p}/coord/assign/{rid}"]))
+        asks = [f"{p}/coord/assign/{rid}", f"{p}/map/epoch/{rid}"]
+        rules.append(_rule(f"{agent}-asks", ["query"], "ingress", asks))
         rules.append(_rule(f"{source}-puts", ["put"], "ingress", [f"{p}/robot/{rid}/frame"]))
         subjects.append({"id": agent, "cert_common_names": [agent]})
         subjects.append({"id": source, "cert_common_names": [source]})
