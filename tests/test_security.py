@@ -24,6 +24,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from map_server.server import MapServer
 from swarm.protocol import bus
 from swarm.protocol.coord_client import ask_for_target
+from swarm.protocol.epochs import ask_epoch, wait_for_epoch
 from swarm.protocol.map_client import ConflictingMapReplies, MapClient
 from swarm.protocol.wire import AssignReply, DeltaMessage, Pose
 from swarm.security.access_rules import access_control, agent_name
@@ -74,6 +75,14 @@ def one_delta(robot: str, seq: int = 1) -> bytes:
         np.ones(2, np.float32),
         np.ones(2, np.float32),
     ).encode()
+
+
+def put_signed(session: zenoh.Session, robot: str, payload: bytes) -> None:
+    """Ask the server for ``robot``'s epoch (EPOCH, the first of a fresh store) and put ``payload``
+    on ``delta/<robot>`` with its MAC."""
+    grant = wait_for_epoch(session, "srvtest", robot, 10.0)
+    assert grant.epoch == EPOCH, grant
+    session.put(bus.key("srvtest", "delta", robot), payload, attachment=grant.sign(payload))
 
 
 # -- what init writes -------------------------------------------------------------------------------
@@ -152,13 +161,15 @@ def test_r1_cannot_get_a_delta_applied_as_r2_and_a_tool_cannot_put(team, tmp_pat
         with session_as(team, "agent-r1", endpoint) as r1, session_as(team, "tool", endpoint) as tool:
             tool.put(bus.key("srvtest", "delta", "r3"), one_delta("r3"))
             r1.put(bus.key("srvtest", "delta", "r2"), one_delta("r2"))
-            r1.put(bus.key("srvtest", "delta", "r1"), one_delta("r1"))  # after the others, same link
+            # a tool may not ask for another robot's epoch (its key): no reply reaches it
+            assert ask_epoch(tool, "srvtest", "r1", 1.0) is None
+            put_signed(r1, "r1", one_delta("r1"))  # after the others, same link
             client = MapClient(r1, "srvtest", timeout=5.0)
             wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10.0, "r1's delta")
             time.sleep(0.3)
             acks = client.acks()
             assert set(acks) == {"r1"}, acks
-            assert client.stats()["deltas_applied"] == 1
+            assert client.stats()["deltas_applied"] == 1 and client.stats()["epochs_issued"] == 1
 
 
 def test_a_client_without_a_mission_certificate_cannot_connect(team, tmp_path):
@@ -185,7 +196,7 @@ def test_a_session_that_is_not_the_server_cannot_answer_map_acks(team, tmp_path)
             queryable = forger.declare_queryable(
                 bus.key("srvtest", "map", "acks"), lambda q: q.reply(q.key_expr, forged)
             )
-            r1.put(bus.key("srvtest", "delta", "r1"), one_delta("r1"))
+            put_signed(r1, "r1", one_delta("r1"))
             client = MapClient(r1, "srvtest", timeout=5.0)
             wait_until(lambda: client.acks().get("r1", {}).get(EPOCH) == 1, 10.0, "the true ack")
             for _ in range(5):

@@ -50,7 +50,7 @@ def bad_payloads(grid: Grid) -> list[tuple[str, str, bytes]]:
         ("malformed", "r1", msgpack.packb([1, 2, 3])),
         ("malformed", "r1", tamper(ok, seq=None)),
         ("malformed", "r1", tamper(ok, dlam=np.ones(2, f32).tobytes())),  # 3 idx, 2 dlam
-        ("unsupported_version", "r1", tamper(ok, v=2)),
+        ("unsupported_version", "r1", tamper(ok, v=1)),  # v1: ask map/epoch
         ("wrong_grid", "r1", good(other)),
         ("wrong_grid", "r1", tamper(ok, grid={**grid.to_dict(), "voxel": 0.2})),
         ("robot_mismatch", "r2", ok),
