@@ -105,7 +105,8 @@ class DeltaSender:
     def stop(self) -> None:
         """Stop the thread (a put blocked on a dead link is left to the daemon thread)."""
         self._stop.set()
-        self._thread.join(timeout=1.0)
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
 
     # -- the thread ------------------------------------------------------------------------
     def _run(self) -> None:

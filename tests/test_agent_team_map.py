@@ -49,6 +49,8 @@ def test_a_late_agent_catches_up_from_a_snapshot_then_follows_the_merged_stream(
             # Then: r2's next deltas (each sent twice), r3's first delta again (in the snapshot
             # already), and a delta of r1's own agent, which its local map holds already.
             own = later["r1"][0]
+            agent.sender.start()  # asks map/epoch/r1
+            wait_until(lambda: agent.epoch is not None, 10.0, "r1's epoch")
             mine = DeltaMessage("r1", agent.epoch, 1, 1.0, grid, own.idx, own.dlam, own.deta)
             agent.explorer.apply_external(own)  # as fusing that frame did locally
             extra = [(rid, p) for rid, _s, p in encode_all(grid, {"r2": early["r2"] + later["r2"][:2]})][4:]
