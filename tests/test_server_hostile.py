@@ -66,7 +66,7 @@ def run_hostile(tmp_path: Path, hostile: list[tuple[str, bytes]], options: Serve
     ):
         client = MapClient(session, mission.mission, timeout=5.0, endpoint=endpoint)
         merged, merged_inbox = bus.subscribe_queue(session, f"swarm/{mission.mission}/merged")
-        robots = {"r1", "r2", "r3"} | {r for r, _ in hostile}
+        robots = {"r1", "r2", "r3"} | {r for r, _ in hostile}  # an unknown robot gets no epoch
         pubs = publishers(session, mission.mission, sorted(robots))
         for i, (rid, _seq, payload) in enumerate(honest):
             pubs[rid].put(payload)
@@ -155,7 +155,7 @@ def test_information_beyond_the_rig_is_refused_and_the_map_stays_finite(tmp_path
 
     def flat(value: float, seq: int) -> bytes:
         d = np.full(grid.size, value, np.float32)
-        return DeltaMessage("r2", EPOCH + 1, seq, 1.0, grid, every, d, d * 0.5).encode()
+        return DeltaMessage("r2", EPOCH, 4 + seq, 1.0, grid, every, d, d * 0.5).encode()
 
     ok = good(grid, robot="r1")
     hostile = [
@@ -166,8 +166,10 @@ def test_information_beyond_the_rig_is_refused_and_the_map_stays_finite(tmp_path
         ("r1", tamper(ok, seq=50, deta=np.array([-1.0, 1.0, 1.0], np.float32).tobytes())),
         ("r1", tamper(ok, seq=51, deta=np.array([1.0, 1.0, 60.0], np.float32).tobytes())),
     ]
-    stats, snap, _ = run_hostile(tmp_path, hostile)
-    assert stats["rejected"]["too_much_information"] == 4
+    # r2's own epoch and seqs 5..8: one that meets the budget is refused for it, the others come
+    # out of turn (seq_gap); tests/test_bus_integrity.py sends such lies in turn
+    stats, snap, _ = run_hostile(tmp_path, hostile, ServerOptions(quarantine_after=0))
+    assert stats["rejected"]["too_much_information"] + stats["rejected"]["seq_gap"] == 4
     assert stats["rejected"]["mean_outside_unit"] == 2
     assert np.all(np.isfinite(snap.lam)) and np.all(np.isfinite(snap.eta))
     assert stats["entropy_bits"] > 0.5 * stats["initial_entropy_bits"]

@@ -28,7 +28,7 @@ from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
-from swarm.protocol.epochs import EpochGrant, delta_mac, put_delta, wait_for_epoch
+from swarm.protocol.epochs import EpochGrant, EpochRefused, delta_mac, put_delta, wait_for_epoch
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
 
@@ -151,11 +151,34 @@ class SignedPublisher:
         put_delta(self.pub, self.grant, payload)
 
 
+class UnsignedPublisher:
+    """``delta/<rid>`` of a robot the server issues no epoch to: payloads go without a MAC."""
+
+    grant = None
+
+    def __init__(self, session, mission: str, robot: str) -> None:
+        self.pub = bus.reliable_publisher(session, bus.key(mission, "delta", robot))
+
+    def put(self, payload: bytes) -> None:
+        self.pub.put(payload)
+
+
 def publishers(session, mission: str, robots, grants: dict | None = None) -> dict:
-    """A :class:`SignedPublisher` per robot, under ``grants`` or epochs the server issues now."""
+    """A :class:`SignedPublisher` per robot, under ``grants`` or epochs the server issues now
+    (an :class:`UnsignedPublisher` for a robot it refuses an epoch)."""
     if grants is None:
-        grants = {rid: wait_for_epoch(session, mission, rid, 30) for rid in robots}
-    pubs = {rid: SignedPublisher(session, mission, grants[rid]) for rid in robots}
+        grants = {}
+        for rid in robots:
+            try:
+                grants[rid] = wait_for_epoch(session, mission, rid, 30)
+            except EpochRefused:
+                pass
+    pubs = {
+        rid: SignedPublisher(session, mission, grants[rid])
+        if rid in grants
+        else UnsignedPublisher(session, mission, rid)
+        for rid in robots
+    }
     assert bus.wait_for_subscribers([p.pub for p in pubs.values()], timeout=10.0)
     return pubs
 
