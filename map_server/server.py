@@ -20,22 +20,21 @@ from pathlib import Path
 import zenoh
 
 from map_server.admission import Admission
-from map_server.contributions import Contributions
 from map_server.disk_pause import DiskPause
-from map_server.epochs import EpochFileError, EpochRegistry
 from map_server.inbox import Inbox
-from map_server.ledger import Ledger, Rejected, describe_grid, validate_delta
+from map_server.ledger import Rejected, describe_grid
 from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
 from map_server.query_gate import QueryGate
+from map_server.recovery import recover
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.store_files import OS_FILES, StoreFiles
-from map_server.team_map import TeamMap, parse_vector, region_of
+from map_server.team_map import parse_vector, region_of
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
-from swarm.protocol.codec import DELTA_VERSION, short
+from swarm.protocol.codec import short
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
@@ -64,49 +63,13 @@ class MapServer:
         self.store.log_reserve_bytes = self.options.log_reserve_bytes
         #: acks paused while the store cannot write, resumed when it can (map_server.disk_pause)
         self._disk = DiskPause(log)
-        ledger = Ledger.from_json(recovered.ledger_json)
-        ledger.restore_compaction(recovered.counters.get("ledger", {}))
         try:
-            contributions = Contributions.from_arrays(recovered.arrays, grid.size)
-        except ValueError as exc:
-            raise StoreError(f"{self.store.path}: snapshot contributions unreadable: {exc}") from exc
-        quarantined = recovered.counters.get("quarantined", [])
-        self.team = TeamMap(
-            grid,
-            sensor,
-            recovered.lam,
-            recovered.eta,
-            ledger,
-            contributions=contributions,
-            quarantined=quarantined,
-        )
-        if self.team.repaired:
-            log.error(
-                "%d voxels of the stored map held impossible values: reset to the prior", self.team.repaired
+            self.team, registry, self.recovered = recover(
+                self.store, recovered, grid, sensor, self.options.max_epochs, files
             )
-        self.team.updates.update(recovered.counters.get("updates", {}))
-        from_snapshot = len(self.team.ledger)
-        for payload in recovered.wal_payloads:  # checked when logged: epochs, MACs, budgets
-            try:
-                msg = validate_delta(payload, grid, increments=False, versions=(1, DELTA_VERSION))
-                if self.team.admit(msg):
-                    self.team.apply(msg)
-            except Rejected as exc:
-                log.warning("WAL record refused on replay (%s): %s", exc.kind, exc)
-        self.team.duplicates = 0
-        self.team.rejected.clear()
-        self.recovered = (from_snapshot, len(self.team.ledger) - from_snapshot, recovered.torn_bytes)
-        try:
-            registry = EpochRegistry.load(
-                self.store.path,
-                files,
-                self.options.max_epochs,
-                used=self.team.ledger.used(),
-                counters=recovered.counters.get("epochs", {}),
-            )
-        except EpochFileError as exc:
+        except StoreError:
             self.store.close()
-            raise StoreError(str(exc)) from exc
+            raise
         self.bounds = mission_bounds(mission, self.options.burst_s) if self.options.information_bound else {}
         self.max_payload = self.options.max_payload_bytes or max_payload_for(grid)
         self._lock = threading.Lock()
