@@ -130,26 +130,25 @@ class Admission:
                     "seq_gap", f"seq {msg.seq} of epoch {msg.epoch}: the next one taken is {expected}"
                 )
             information = float(msg.dlam.sum(dtype="float64"))
-            bucket = None
-            if bound is not None:
-                bucket = self._buckets.get(robot)
-                if bucket is None:
-                    bucket = self._buckets[robot] = InformationBucket(bound, time.monotonic())
-                why = bucket.refusal(information, time.monotonic())
-                if why is not None:
-                    self.breaches[robot] += 1
-                    breaches = self.breaches[robot]
-                    why = f"delta of {robot}: {why} (breach {breaches} of {self.quarantine_after})"
-                    bucket = None
-            if bucket is not None or bound is None:
-                self.team.admit(msg)
-                if bucket is not None:
-                    bucket.charge(information)
+            why = None if bound is None else self._bucket(robot, bound).refusal(information, time.monotonic())
+            if why is None:
+                self.team.admit(msg)  # map_overflow, mean_outside_unit: nothing charged
+                if bound is not None:
+                    self._buckets[robot].charge(information)
                 return msg
+            self.breaches[robot] += 1
+            breaches = self.breaches[robot]
+        why = f"delta of {robot}: {why} (breach {breaches} of {self.quarantine_after})"
         if 0 < self.quarantine_after <= breaches and robot not in self.team.quarantined:
-            self._quarantine(robot)
+            self._quarantine(robot)  # outside the lock: it rebuilds the map under it
             why += ": quarantined"
         raise Rejected("too_much_information", why)
+
+    def _bucket(self, robot: str, bound: InformationBound) -> InformationBucket:
+        bucket = self._buckets.get(robot)
+        if bucket is None:
+            bucket = self._buckets[robot] = InformationBucket(bound, time.monotonic())
+        return bucket
 
     def release(self, msg: DeltaMessage) -> None:
         """Forget an admitted delta that could not be made durable or applied; its information

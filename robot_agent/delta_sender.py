@@ -93,7 +93,10 @@ class DeltaSender:
         return None if self.grant is None else self.grant.epoch
 
     def drain(self, timeout: float) -> bool:
-        """Wait until every handed-over delta is put (True), or ``timeout`` s (False)."""
+        """Wait until every handed-over delta is put (True), or ``timeout`` s (False); False at
+        once without an epoch (no server issued one: the deltas stay in the outbox)."""
+        if self.grant is None:
+            return not self._queued
         deadline = time.monotonic() + timeout
         with self._idle:
             while self._queued:
