@@ -166,9 +166,9 @@ class Admission:
     def issue(self, robot: str) -> EpochGrant:
         """A new epoch of ``robot``, durable on return (OSError when the store cannot write);
         the epochs it fences leave the ledger (their deltas stay in the map)."""
-        with self._issue_lock:
+        with self._issue_lock:  # one issue at a time; the worker reads on meanwhile (not its fsync)
+            epoch, key, fenced = self.registry.issue(robot)
             with self._lock:
-                epoch, key, fenced = self.registry.issue(robot)
                 for old in fenced:
                     self.team.ledger.drop(robot, old)
                 self.epochs_issued += 1

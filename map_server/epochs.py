@@ -48,8 +48,9 @@ class _Robot:
 
 
 class EpochRegistry:
-    """Issued epochs per robot; :meth:`issue` persists before it returns. The caller serialises
-    :meth:`issue` with the readers (map_server.admission holds the server's lock)."""
+    """Issued epochs per robot; :meth:`issue` persists before it returns. One :meth:`issue` at a
+    time (the caller serialises them); the readers (:meth:`key_of`, :meth:`refusal`,
+    :meth:`touch`) may run meanwhile on another thread: each reads or sets one dict entry."""
 
     def __init__(
         self, folder: Path | None, files: StoreFiles = OS_FILES, max_live: int = MAX_LIVE_EPOCHS

@@ -1,7 +1,8 @@
 """The map server role over Zenoh (``swarm server``; docs/protocol.md).
 
-Subscribes ``swarm/<mission>/delta/*``. Zenoh callbacks only enqueue; one worker thread
-validates each payload, drops duplicates, appends the new ones to the write-ahead log and
+Subscribes ``swarm/<mission>/delta/*`` and answers ``map/epoch/<rid>`` with the epochs it
+issues (map_server.admission, map_server.epochs). Zenoh callbacks only enqueue; one worker
+thread admits each payload (epoch, MAC, next seq, information budget), drops duplicates, appends the new ones to the write-ahead log and
 fsyncs (a group commit per batch), applies them to the team map exactly once, and
 republishes each payload unchanged on ``swarm/<mission>/merged``. The acks of
 ``map/acks`` therefore only ever cover durable deltas. Queryables ``map/stats``,

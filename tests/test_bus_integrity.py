@@ -206,12 +206,12 @@ def _p99(latencies: list[float]) -> float:
 def test_honest_ack_latency_is_unchanged_by_the_attacks_and_the_map_is_their_fusion(tmp_path: Path):
     m = mission()
     grid, sensor = m.workspace.grid(), m.sensor.model()
-    batches = robot_batches(grid, sensor, robots=2, per_robot=60, rays=40, seed=25)
+    batches = robot_batches(grid, sensor, robots=2, per_robot=120, rays=40, seed=25)
     honest = batches["r1"]
     with running_server(m, tmp_path / "store") as (_server, endpoint), client_session(endpoint) as s:
         client = MapClient(s, m.mission, timeout=5.0)
         r1 = Robot(s, m.mission, "r1")
-        quiet = send_in_order(r1, client, grid, honest[:30])
+        quiet = send_in_order(r1, client, grid, honest[:60])
         stop = threading.Event()
 
         def attack() -> None:
@@ -236,8 +236,11 @@ def test_honest_ack_latency_is_unchanged_by_the_attacks_and_the_map_is_their_fus
         attacker = threading.Thread(target=attack)
         attacker.start()
         try:
+            # under way, and the liar quarantined (a one-off rebuild and snapshot of the map)
             wait_until(lambda: client.stats()["rejected"]["bad_mac"] > 100, 10, "the attack")
-            noisy = send_in_order(r1, client, grid, honest[30:], first_seq=31)
+            wait_until(lambda: client.stats()["quarantined"] == ["r2"], 20, "the liar quarantined")
+            wait_until(lambda: client.stats()["snapshots_written"] >= 1, 20, "the quarantine's snapshot")
+            noisy = send_in_order(r1, client, grid, honest[60:], first_seq=61)
         finally:
             stop.set()
             attacker.join()
@@ -245,5 +248,5 @@ def test_honest_ack_latency_is_unchanged_by_the_attacks_and_the_map_is_their_fus
     print(f"ack p99: {_p99(quiet):.1f} ms quiet, {_p99(noisy):.1f} ms under attack "
           f"({stats['rejected']['bad_mac']} forged refused)")  # fmt: skip
     assert _p99(noisy) <= _p99(quiet) + 50.0
-    assert stats["robots"]["r1"]["acked_seq"] == 60 and stats["quarantined"] == ["r2"]
+    assert stats["robots"]["r1"]["acked_seq"] == 120 and stats["quarantined"] == ["r2"]
     assert_maps_equal(snap.lam, snap.eta, central_fusion(grid, sensor, {"r1": honest}))
