@@ -2,13 +2,14 @@
 
 Subscribes ``swarm/<mission>/delta/*`` and answers ``map/epoch/<rid>`` with the epochs it
 issues (map_server.admission, map_server.epochs). Zenoh callbacks only enqueue; one worker
-thread admits each payload (epoch, MAC, next seq, information budget), drops duplicates, appends the new ones to the write-ahead log and
-fsyncs (a group commit per batch), applies them to the team map exactly once, and
-republishes each payload unchanged on ``swarm/<mission>/merged``. The acks of
-``map/acks`` therefore only ever cover durable deltas. Queryables ``map/stats``,
-``map/acks``, ``map/snapshot`` and ``map/region`` read the map under a lock, so they never
-see a half-applied delta. The worker compacts the store when its log grows past the
-configured size, and :meth:`MapServer.stop` drains the queue and compacts once more.
+thread admits each payload (epoch, MAC, next seq, information budget), drops duplicates,
+appends the new ones to the write-ahead log and fsyncs (a group commit per batch), applies
+them to the team map exactly once, and republishes each payload unchanged on
+``swarm/<mission>/merged``. The acks of ``map/acks`` therefore only ever cover durable
+deltas. Queryables ``map/stats``, ``map/acks``, ``map/snapshot`` and ``map/region`` read the
+map under a lock, so they never see a half-applied delta. The worker compacts the store when
+its log grows past the configured size, and :meth:`MapServer.stop` drains the queue and
+compacts once more.
 """
 
 from __future__ import annotations
