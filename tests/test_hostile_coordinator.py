@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from coordinator.assignment import CoordinationParams
-from coordinator.requests import RequestQueue
 from coordinator.role import Coordinator
 from swarm.protocol import bus
 from swarm.protocol.coord_client import ask_for_target, assign_key, coordinator_stats
@@ -144,16 +143,6 @@ def test_a_robot_asking_in_a_loop_does_not_hold_back_the_others(coordinated):
     assert len(answers) >= 1 and len(answers) + len(superseded) == 200
     stats = coordinator_stats(client, m.mission, timeout=5.0)
     assert stats["counts"]["requests_superseded"] >= len(superseded)
-
-
-def test_request_queue_keeps_one_request_per_robot_in_turn():
-    waiting = RequestQueue(max_robots=2)
-    assert waiting.offer("r1", "a") == (None, True)
-    assert waiting.offer("r2", "b") == (None, True)
-    assert waiting.offer("r1", "c") == ("a", True)  # r1's newer request, r1 keeps its place
-    assert waiting.offer("r3", "d") == (None, False)  # two robots wait already
-    assert waiting.take(0.1) == ("r1", "c") and waiting.take(0.1) == ("r2", "b")
-    assert waiting.take(0.01) is None and len(waiting) == 0
 
 
 def test_a_status_on_another_robots_key_is_refused(coordinated):
