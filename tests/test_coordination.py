@@ -18,7 +18,7 @@ from coordinator.assignment import (
 )
 from coordinator.assignment_book import AssignmentBook
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import choose_target, rank_entropy_targets
+from swarm.navigation.exploration import SearchContext, SearchOptions, choose_target, rank_entropy_targets
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.standing_points import ViewGeometry
 from swarm.navigation.traversability import build_traversability
@@ -283,10 +283,10 @@ def test_ranked_targets_start_with_choose_target_and_carry_their_costs(seed):
         xy = trav.centre(cell)
         cost = planner.cost_map(tuple(cell))
         pose = (xy[0], xy[1], 0.0)
-        args = (scene.cmap, H, pose, SENSOR_Z, trav, cost)
-        view = ViewGeometry(0.3, 1.0)
-        ranked = rank_entropy_targets(*args, 1.0, view=view)
-        first = choose_target("entropy", *args[:6], 1.0, np.random.default_rng(0), view=view)
+        ctx = SearchContext.build(scene.cmap, H, pose, SENSOR_Z, trav, cost)
+        options = SearchOptions(radius=1.0, view=ViewGeometry(0.3, 1.0))
+        ranked = rank_entropy_targets(ctx, options)
+        first = choose_target("entropy", ctx, options, np.random.default_rng(0))
         if ranked:
             assert first.kind == "entropy"
             assert first.voxel == ranked[0].voxel and np.allclose(first.xy, ranked[0].xy)
@@ -294,7 +294,9 @@ def test_ranked_targets_start_with_choose_target_and_carry_their_costs(seed):
         else:
             assert first is None or first.kind == "wander"
         # the whole map in one ring: utilities never increase; spacing and limit respected
-        whole = rank_entropy_targets(*args, 100.0, limit=30, min_separation=0.5, max_rejects=100)
+        whole = rank_entropy_targets(
+            ctx, SearchOptions(radius=100.0), limit=30, min_separation=0.5, max_rejects=100
+        )
         assert len(whole) <= 30
         u = [c.utility for c in whole]
         assert u == sorted(u, reverse=True)
@@ -307,4 +309,4 @@ def test_ranked_targets_start_with_choose_target_and_carry_their_costs(seed):
             assert np.isfinite(c.path_cost)
             assert 0.3 - 1e-9 <= np.linalg.norm(c.point[:2] - c.xy) <= 1.0 + 1e-9
     with pytest.raises(ValueError):
-        rank_entropy_targets(*args, 1.0, limit=0)
+        rank_entropy_targets(ctx, options, limit=0)

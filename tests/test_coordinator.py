@@ -26,7 +26,7 @@ from map_server.team_map import TeamMap as ServerTeamMap
 from swarm.config import mission_from_dict
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import wander_target
+from swarm.navigation.exploration import SearchContext, wander_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import build_traversability
 from swarm.protocol import bus
@@ -161,22 +161,24 @@ def test_wander_keeps_off_teammates_ground_and_stops_when_nothing_is_unknown():
     theirs = np.zeros(trav.shape, dtype=bool)
     theirs[:40] = True  # x < 4 m: teammates' ground
     rng = np.random.default_rng(0)
+    ctx = SearchContext.build(cmap, np.zeros(cmap.grid.size), here, 0.4, trav, cost)
     xs = []
     for _ in range(40):
-        t = wander_target(cmap, here, 0.4, trav, cost, 3.0, rng, avoid=theirs)
+        t = wander_target(ctx, 3.0, rng, avoid=theirs)
         assert t.kind == "wander" and trav.is_free(trav.cell_of(t.xy))
         assert math.dist(t.xy, here[:2]) <= 3.0 + 1e-9
         xs.append(t.xy[0])
     assert min(xs) >= 4.0
-    unconstrained = [wander_target(cmap, here, 0.4, trav, cost, 3.0, rng).xy[0] for _ in range(40)]
+    unconstrained = [wander_target(ctx, 3.0, rng).xy[0] for _ in range(40)]
     assert min(unconstrained) < 4.0  # the rule, not chance, kept it east
     # when every reachable cell is teammates' ground, it still wanders
-    assert wander_target(cmap, here, 0.4, trav, cost, 3.0, rng, avoid=~theirs | theirs) is not None
+    assert wander_target(ctx, 3.0, rng, avoid=~theirs | theirs) is not None
     # nothing unknown in view of reachable space: nothing to wander for
     known = known_everywhere(m)
     trav_k = build_traversability(known, robot_height=0.5, robot_radius=m.robot.radius)
     cost_k = GridPlanner(trav_k).cost_map(tuple(int(c) for c in trav_k.cell_of(np.array(here[:2]))))
-    assert wander_target(known, here, 0.4, trav_k, cost_k, 3.0, rng) is None
+    known_ctx = SearchContext.build(known, np.zeros(known.grid.size), here, 0.4, trav_k, cost_k)
+    assert wander_target(known_ctx, 3.0, rng) is None
 
 
 def test_a_robot_whose_only_targets_are_taken_wanders_and_one_with_nothing_unknown_is_told_so():

@@ -12,7 +12,13 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import ExplorationTarget, choose_target, frontier_cells
+from swarm.navigation.exploration import (
+    ExplorationTarget,
+    SearchContext,
+    SearchOptions,
+    choose_target,
+    frontier_cells,
+)
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 
@@ -48,13 +54,15 @@ class Scene:
         trav = build_traversability(self.cmap, robot_radius=0.18)
         return trav, GridPlanner(trav).cost_map(tuple(trav.cell_of(np.array(xy))))
 
-    def choose(self, strategy: str, xy, radius: float, seed: int = 0, **kw) -> ExplorationTarget | None:
+    def choose(
+        self, strategy: str, xy, radius: float, seed: int = 0, exclude=(), **options
+    ) -> ExplorationTarget | None:
+        """``strategy``'s target from ``xy`` (yaw 0.3), ``options`` those of SearchOptions."""
         trav, cost = self.plan(xy)
         pose = (xy[0], xy[1], 0.3)
+        ctx = SearchContext.build(self.cmap, self.entropy(), pose, SENSOR_Z, trav, cost, exclude=exclude)
         rng = np.random.default_rng(seed)
-        return choose_target(
-            strategy, self.cmap, self.entropy(), pose, SENSOR_Z, trav, cost, radius, rng, **kw
-        )
+        return choose_target(strategy, ctx, SearchOptions(radius=radius, **options), rng)
 
 
 def brute_scores(scene: Scene) -> np.ndarray:
@@ -231,12 +239,17 @@ def test_bad_inputs_are_rejected():
     trav, cost = scene.plan((0.5, 0.5))
     rng = np.random.default_rng(0)
     args = (scene.cmap, scene.entropy(), (0.5, 0.5, 0.0))
-    with pytest.raises(ValueError):
-        choose_target("spiral", *args, SENSOR_Z, trav, cost, 1.0, rng)
-    with pytest.raises(ValueError):
-        choose_target("entropy", *args, 5.0, trav, cost, 1.0, rng)  # sensor above the map
-    with pytest.raises(ValueError):
-        choose_target("entropy", *args, SENSOR_Z, trav, cost[:-1], 1.0, rng)
+    ctx = SearchContext.build(*args, SENSOR_Z, trav, cost)
+    with pytest.raises(ValueError, match="unknown exploration strategy 'spiral'"):
+        choose_target("spiral", ctx, SearchOptions(radius=1.0), rng)
+    with pytest.raises(ValueError, match="sensor height"):
+        SearchContext.build(*args, 5.0, trav, cost)  # sensor above the map
+    with pytest.raises(ValueError, match="planner_cost"):
+        SearchContext.build(*args, SENSOR_Z, trav, cost[:-1])
+    with pytest.raises(ValueError, match="entropy"):
+        SearchContext.build(scene.cmap, scene.entropy()[:-1], (0.5, 0.5, 0.0), SENSOR_Z, trav, cost)
+    with pytest.raises(ValueError, match="radius"):
+        SearchOptions(radius=0.0)
 
 
 # ---------------------------------------------------------------------------------------
@@ -250,13 +263,12 @@ def blob_world(seed: int, shape=(40, 30), radius: float = 0.0) -> tuple[Scene, T
     return Scene(*shape), trav
 
 
-def choose_on(scene: Scene, trav: TraversabilityGrid, strategy: str, xy, radius=1.0, seed=0, **kw):
+def choose_on(scene: Scene, trav: TraversabilityGrid, strategy: str, xy, radius=1.0, seed=0, exclude=()):
     cost = GridPlanner(trav).cost_map(tuple(trav.cell_of(np.array(xy))))
     rng = np.random.default_rng(seed)
     pose = (xy[0], xy[1], 0.0)
-    target = choose_target(
-        strategy, scene.cmap, scene.entropy(), pose, SENSOR_Z, trav, cost, radius, rng, **kw
-    )
+    ctx = SearchContext.build(scene.cmap, scene.entropy(), pose, SENSOR_Z, trav, cost, exclude=exclude)
+    target = choose_target(strategy, ctx, SearchOptions(radius=radius), rng)
     return target, cost
 
 

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_agent.explorer import TEAM_SPREAD_RADIUS, Explorer
+from robot_agent.choosers import TEAM_SPREAD_RADIUS
+from robot_agent.decision import ExplorerState, TeamAdvice
+from robot_agent.explorer import Explorer
 from swarm.config import load_mission, mission_from_dict
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.navigation.path_follower import NO_PROGRESS_FRAMES
@@ -24,7 +26,7 @@ def known_below_1m(explorer: Explorer) -> Explorer:
     low = explorer.grid.centres().reshape(-1, 3)[:, 2] < 1.0
     cmap.lam[low] = 400.0
     cmap.eta[low] = 0.0
-    explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+    explorer.local.recompute_entropy()
     return explorer
 
 
@@ -32,7 +34,7 @@ def gazing_explorer(tilt_range_deg: float) -> Explorer:
     mission = load_mission(CONFIGS / "lab.yaml")
     mission.rig.tilt_range_deg = tilt_range_deg
     explorer = Explorer(mission, "r1")
-    explorer.state = "gaze"
+    explorer.state = ExplorerState.GAZE
     explorer.target = ExplorationTarget(np.array([1.0, 1.0]), 0.3, 1.0, None, "entropy")
     return explorer
 
@@ -67,8 +69,8 @@ def test_a_robot_boxed_in_by_unseen_floor_steps_out_to_the_free_area_beyond():
     free = ~near & (centres[:, 2] < 1.0)
     cmap.lam[free] = 400.0  # a sure, empty belief: mu = 0, sigma = 0.05
     cmap.eta[free] = 0.0
-    explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
-    explorer.state = "choose"
+    explorer.local.recompute_entropy()
+    explorer.state = ExplorerState.CHOOSE
     decision = explorer.decide(robot[0], robot[1], 0.0)
     assert explorer.state == "drive" and decision.target is not None
     path = explorer.follower.remaining_path()
@@ -81,14 +83,15 @@ def test_a_target_at_the_robots_own_cell_is_avoided_after_two_looks():
     # answer keeps coming back, looking has not settled it and the spot is avoided.
     explorer = gazing_explorer(0.0)
     here = np.array([1.0, 1.0])
-    explorer.assigner = lambda: ExplorationTarget(here + 0.05, 0.3, 1.0, None, "entropy")
-    explorer.state = "choose"
+    advice = TeamAdvice(ExplorationTarget(here + 0.05, 0.3, 1.0, None, "entropy"))
+    explorer.state = ExplorerState.CHOOSE
     states = []
     for _ in range(3):
-        decision = explorer.decide(here[0], here[1], 0.3)  # facing the gaze already
+        assert explorer.wants_target  # the agent would ask the coordinator now
+        decision = explorer.decide(here[0], here[1], 0.3, advice=advice)  # facing the gaze already
         states.append(decision.state)
     assert states == ["gaze", "gaze", "choose"]
-    assert len(explorer.failed) == 1 and np.allclose(explorer.failed[0], here + 0.05)
+    assert len(explorer.memory.failed) == 1 and np.allclose(explorer.memory.failed[0], here + 0.05)
 
 
 def test_a_coordinator_target_the_robot_gave_up_is_declined_and_the_robot_chooses_alone():
@@ -98,11 +101,11 @@ def test_a_coordinator_target_the_robot_gave_up_is_declined_and_the_robot_choose
     # declines it and takes its own target (here a 3-D view of the unknown air above 1 m).
     explorer = known_below_1m(gazing_explorer(0.0))
     here = np.array([1.0, 1.0])
-    explorer.assigner = lambda: ExplorationTarget(here + 0.05, 0.3, 1.0, None, "assigned")
-    explorer.state = "choose"
-    states = [explorer.decide(here[0], here[1], 0.3).state for _ in range(3)]
+    advice = TeamAdvice(ExplorationTarget(here + 0.05, 0.3, 1.0, None, "assigned"))
+    explorer.state = ExplorerState.CHOOSE
+    states = [explorer.decide(here[0], here[1], 0.3, advice=advice).state for _ in range(3)]
     assert states == ["gaze", "gaze", "choose"]  # looked twice, then gave the spot up
-    decision = explorer.decide(here[0], here[1], 0.3)
+    decision = explorer.decide(here[0], here[1], 0.3, advice=advice)
     assert explorer.target is not None and explorer.target.kind != "assigned"
     assert decision.state == "drive" and np.hypot(*(explorer.target.xy - here)) >= 0.15
     assert explorer.declined_assignments == 1
@@ -152,15 +155,15 @@ def test_a_frontier_robot_forgets_the_spots_it_gave_up_before_concluding_it_is_d
     spots = [np.array([x, y]) for x in (0.5, 1.5, 2.5, 3.5) for y in (0.5, 1.5)]
     for strategy in ("frontier", "entropy"):
         explorer = known_below_1m(Explorer(mission, "r1", strategy=strategy))
-        explorer.failed = list(spots)
+        explorer.memory.failed = list(spots)
         explorer.looked_before_done = True
-        explorer.state = "choose"
+        explorer.state = ExplorerState.CHOOSE
         decision = explorer.decide(1.05, 1.05, 0.0)
         if strategy == "frontier":
             assert explorer.target_kinds == {"frontier3d": 1}
-            assert explorer.failed == [] and decision.state in ("gaze", "drive")
+            assert explorer.memory.failed == [] and decision.state in ("gaze", "drive")
         else:
-            assert not explorer.target_kinds and len(explorer.failed) == len(spots)
+            assert not explorer.target_kinds and len(explorer.memory.failed) == len(spots)
             assert decision.state == "done"
 
 
@@ -172,9 +175,8 @@ def test_an_entropy_robot_does_not_choose_a_column_its_teammates_went_to_look_at
 
     def chosen(team_views):
         explorer = known_below_1m(Explorer(mission, "r1", strategy="entropy"))
-        explorer.team_views = [np.asarray(v) for v in team_views]
-        explorer.state = "choose"
-        explorer.decide(1.05, 1.05, 0.0)
+        explorer.state = ExplorerState.CHOOSE
+        explorer.decide(1.05, 1.05, 0.0, advice=TeamAdvice(views=[np.asarray(v) for v in team_views]))
         assert explorer.target_kinds == {"view": 1}
         return explorer.view_point()
 
@@ -192,9 +194,10 @@ def test_a_robot_choosing_alone_keeps_away_from_where_its_teammates_head():
 
     def stand(team_goals):
         explorer = known_below_1m(Explorer(mission, "r1", strategy="entropy"))
-        explorer.team_goals = [np.asarray(g, dtype=np.float64) for g in team_goals]
-        explorer.state = "choose"
-        explorer.decide(1.05, 1.05, 0.0)
+        explorer.state = ExplorerState.CHOOSE
+        explorer.decide(
+            1.05, 1.05, 0.0, advice=TeamAdvice(goals=[np.asarray(g, dtype=np.float64) for g in team_goals])
+        )
         assert explorer.target_kinds == {"view": 1}
         return np.asarray(explorer.target.xy)
 
@@ -217,7 +220,7 @@ def test_a_robot_that_rocks_to_and_fro_gives_its_target_up():
         explorer = known_below_1m(Explorer(mission, "r1", strategy="entropy"))
         explorer.target = ExplorationTarget(np.array([3.05, 1.05]), 0.0, 1.0, None, "entropy")
         explorer.follower.set_path(np.array([[1.05, 1.05], [2.05, 1.05], [3.05, 1.05]]))
-        explorer.state = "drive"
+        explorer.state = ExplorerState.DRIVE
         return explorer
 
     steady = driving()
@@ -228,7 +231,7 @@ def test_a_robot_that_rocks_to_and_fro_gives_its_target_up():
     states = [rocking.decide(1.05 + 0.04 * (n % 4), 1.05, 0.0).state for n in range(NO_PROGRESS_FRAMES + 6)]
     assert "choose" in states and states.index("choose") <= NO_PROGRESS_FRAMES + 4
     assert rocking.give_ups == {"no progress": 1}
-    assert len(rocking.failed) == 1 and np.allclose(rocking.failed[0], [3.05, 1.05])
+    assert len(rocking.memory.failed) == 1 and np.allclose(rocking.memory.failed[0], [3.05, 1.05])
 
 
 def test_an_entropy_robot_looks_at_what_is_still_uncertain_before_it_stops():
@@ -247,15 +250,15 @@ def test_an_entropy_robot_looks_at_what_is_still_uncertain_before_it_stops():
         if faint:
             cmap.lam[~low] = 4.0
             cmap.eta[~low] = 2.0
-        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.local.recompute_entropy()
         explorer.looked_before_done = True
-        explorer.state = "choose"
+        explorer.state = ExplorerState.CHOOSE
         explorer.decide(1.05, 1.05, 0.0)
         return explorer
 
     looking = after_last_turn(faint=True)
     assert looking.target_kinds == {"last look": 1} and looking.state in ("gaze", "drive")
     assert looking.view_point() is not None and looking.view_point()[2] >= 1.0
-    assert looking.entropy.values[looking.target.voxel] > looking.last_look_bits
+    assert looking.entropy.values[looking.target.voxel] > looking.search.last_look_bits
     settled = after_last_turn(faint=False)
     assert not settled.target_kinds and settled.state == "done"

@@ -7,7 +7,7 @@ import numpy as np
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import expected_coverage
 from swarm.map.grid import Grid
-from swarm.navigation.exploration import choose_target
+from swarm.navigation.exploration import SearchContext, SearchOptions, choose_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.probing import SURE_COVERAGE, open_swept, optimistic_traversability
 from swarm.navigation.traversability import build_traversability
@@ -45,8 +45,9 @@ def _choose(cmap: CoverageMap, optimistic: bool):
     opt = optimistic_traversability(cmap, trav, ROBOT_HEIGHT) if optimistic else None
     cost = GridPlanner(trav).cost_map(tuple(int(c) for c in trav.cell_of(np.array(START[:2]))))
     entropy = np.zeros(GRID.size)  # no eq. 35 gradient anywhere: the fallbacks decide
+    ctx = SearchContext.build(cmap, entropy, START, CAMERA_Z, trav, cost)
     target = choose_target(
-        "entropy", cmap, entropy, START, CAMERA_Z, trav, cost, 1.5, np.random.default_rng(0), optimistic=opt
+        "entropy", ctx, SearchOptions(radius=1.5), np.random.default_rng(0), optimistic=opt
     )
     return target, trav, opt
 

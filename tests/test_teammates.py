@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from robot_agent.decision import ExplorerState
 from robot_agent.explorer import REPLAN_EVERY, Explorer
 from robot_agent.teammate_avoidance import YIELD_FRAMES, robot_rank
 from swarm.config import load_mission
@@ -87,10 +88,10 @@ def two_robots(free_band: tuple[float, float] = (0.0, 2.0)) -> dict[str, Explore
         inside = (centres[:, 1] > free_band[0]) & (centres[:, 1] < free_band[1])
         cmap.lam[low] = 400.0
         cmap.eta[low] = np.where(inside[low], 0.0, 400.0)  # mu = 0 free, mu = 1 a wall
-        explorer.entropy = type(explorer.entropy).from_information(cmap.lam, cmap.eta, table=explorer.table)
+        explorer.local.recompute_entropy()
         explorer.target = ExplorationTarget(np.array([goal, 1.05]), 0.0, 1.0, None, "entropy")
         explorer.follower.set_path(np.array([[start, 1.05], [goal, 1.05]]))
-        explorer.state = "drive"
+        explorer.state = ExplorerState.DRIVE
         explorer.swept = [(start, 1.05)]
         robots[rid] = explorer
     return robots
@@ -136,8 +137,9 @@ def test_in_a_corridor_the_later_robot_yields_and_sets_its_target_aside_for_a_wh
     least, states = drive(robots, 4 + YIELD_FRAMES + 4)
     assert least > 2 * RADIUS + 0.05
     assert robots["r2"].give_ups == {"teammate": 1}
-    assert not any(np.allclose(xy, [1.05, 1.05]) for xy in robots["r2"].failed)
-    assert len(robots["r2"].deferred) == 1 and np.allclose(robots["r2"].deferred[0][0], [1.05, 1.05])
+    assert not any(np.allclose(xy, [1.05, 1.05]) for xy in robots["r2"].memory.failed)
+    deferred = robots["r2"].giving_way.deferred
+    assert len(deferred) == 1 and np.allclose(deferred[0][0], [1.05, 1.05])
     assert not robots["r1"].give_ups and "choose" not in states["r1"]
 
 
@@ -196,8 +198,8 @@ def test_a_teammate_beyond_the_missions_list_ranks_after_it_and_crashes_nothing(
     ids = ["r1", "r2"]
     assert robot_rank(ids, "r1") < robot_rank(ids, "r2") < robot_rank(ids, "a0") < robot_rank(ids, "r9")
     robots = two_robots()
-    assert robots["r1"].priority < robots["r2"].priority
+    assert robots["r1"].giving_way.priority < robots["r2"].giving_way.priority
     r1 = robots["r1"]
     r1.teammates.update("x7", 0.0, 1.6, 1.05)  # on r1's path, 0.55 m ahead
     decision = r1.decide(1.05, 1.05, 0.0, 0.0)
-    assert decision.state in ("wait", "drive") and r1.waited == 1
+    assert decision.state in ("wait", "drive") and r1.giving_way.waited == 1

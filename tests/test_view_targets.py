@@ -11,7 +11,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.grid import Grid
 from swarm.navigation import planner
-from swarm.navigation.exploration import choose_target, last_look_target
+from swarm.navigation.exploration import SearchOptions, choose_target, last_look_target
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.traversability import build_traversability
@@ -39,7 +39,8 @@ def _choose(strategy, cmap, camera, tried=(), pose=(1.0, 1.0, 0.0)):
     cost = GridPlanner(trav).cost_map(cell)
     entropy = np.zeros(GRID.size)  # no eq. 35 gradient to follow
     rng = np.random.default_rng(0)
-    return choose_target(strategy, cmap, entropy, pose, 0.4, trav, cost, 1.5, rng, camera=camera, tried=tried)
+    ctx = SearchContext.build(cmap, entropy, pose, 0.4, trav, cost)
+    return choose_target(strategy, ctx, SearchOptions(radius=1.5, camera=camera), rng, tried=tried)
 
 
 @pytest.mark.parametrize(
@@ -99,10 +100,9 @@ def _choose_frontier(cmap, camera, tried, stands, max_looks, pose=(1.0, 1.0, 0.0
     cost = GridPlanner(trav).cost_map(cell)
     entropy = np.zeros(GRID.size)
     rng = np.random.default_rng(0)
-    return choose_target(
-        "frontier", cmap, entropy, pose, 0.4, trav, cost, 1.5, rng, camera=camera,
-        tried=tried, stands=stands, max_looks=max_looks,
-    )  # fmt: skip
+    ctx = SearchContext.build(cmap, entropy, pose, 0.4, trav, cost)
+    options = SearchOptions(radius=1.5, camera=camera, max_looks=max_looks)
+    return choose_target("frontier", ctx, options, rng, tried=tried, stands=stands)
 
 
 def test_a_frontier_column_left_unknown_is_looked_at_again_from_other_cells_then_given_up():
@@ -178,17 +178,17 @@ def test_last_looks_go_to_uncertain_known_voxels_and_only_to_those_with_bits_lef
     faint = float(entropy.reshape(GRID.shape)[0, 0, 10])
     sure = float(entropy.reshape(GRID.shape)[0, 0, 0])
     assert sure < 3.5 < faint
-    target = last_look_target(cmap, entropy, pose, 0.4, trav, cost, camera, min_bits=3.5)
+    ctx = SearchContext.build(cmap, entropy, pose, 0.4, trav, cost)
+    target = last_look_target(ctx, camera, min_bits=3.5)
     assert target is not None and target.kind == "last look"
     i, j, k = np.unravel_index(target.voxel, GRID.shape)
     assert k == 10  # the lowest uncertain voxel of its column, on the free air below
     assert np.linalg.norm(target.xy - np.array(pose[:2])) < 0.6
     # the same column is not looked at twice; nothing holds more than ``faint`` bits
     column = GRID.lo[:2] + (np.array([i, j]) + 0.5) * GRID.voxel
-    again = last_look_target(cmap, entropy, pose, 0.4, trav, cost, camera, 3.5, tried=[column])
+    again = last_look_target(ctx, camera, 3.5, tried=[column])
     assert again is not None and again.voxel != target.voxel
-    assert last_look_target(cmap, entropy, pose, 0.4, trav, cost, camera, min_bits=faint + 0.1) is None
-    ctx = SearchContext.build(cmap, pose, 0.4, trav, cost, (), 1.0)
+    assert last_look_target(ctx, camera, min_bits=faint + 0.1) is None
     voxels = uncertain_voxels(ctx, entropy, 3.5)
     assert voxels[:, :, 10].all() and not voxels[:, :, :10].any()
     with pytest.raises(ValueError, match="shape"):
