@@ -8,20 +8,16 @@ entropy is below H_th (eq. 36) or nothing reachable is informative. The robot st
 turning once on the spot, since a forward camera sees nothing of its sides. Its states are
 :class:`robot_agent.decision.ExplorerState`.
 
-A robot whose camera sits on a tilt head (``rig.tilt_range_deg`` > 0) also looks up on
-arrival, one frame with the head raised to its limit after the gaze, and makes its last
-turn before giving up with the head raised: a level camera low on a robot sees the upper
-part of a room only from afar, and eq. 30 chooses targets in the sensor's slab alone.
+A robot whose camera sits on a tilt head (``rig.tilt_range_deg`` > 0) also looks up for one
+frame after each gaze, and makes its last turn before giving up with the head raised: a level
+camera low on a robot sees the upper part of a room only from afar. The entropy strategy
+drives through unknown floor only towards a probe (a room behind a door whose floor it has not
+seen; ``swarm.navigation.probing``), planned on the optimistic grid.
 
-The entropy strategy drives through unknown or ambiguous floor only towards a probe (a room
-whose floor it has not seen, behind a door; ``swarm.navigation.probing``), planning and
-replanning it on the optimistic grid; every other target is reached on known free floor.
-
-A new target comes from the fallback ladder (:mod:`robot_agent.choosers`): the coordinator's
-target, which the agent asks for before the decision when :attr:`Explorer.wants_target` and
-passes in as :class:`robot_agent.decision.TeamAdvice`; then the robot's own choices; then its
-last looks. The explorer owns its parts: the :class:`LocalMap`, the :class:`GivingWay` to
-teammates, the :class:`TargetMemory` and the ladder.
+A new target comes from the fallback ladder (:mod:`robot_agent.choosers`), the coordinator's
+target first: the agent asks for it when :attr:`Explorer.wants_target` and passes it in
+(:class:`robot_agent.decision.TeamAdvice`). The explorer owns its parts: the
+:class:`LocalMap`, the :class:`GivingWay` to teammates, the :class:`TargetMemory`, the ladder.
 """
 
 from __future__ import annotations
@@ -34,6 +30,7 @@ import numpy as np
 
 from robot_agent.choosers import VIEW_KINDS, AssignedTarget, Situation, TargetMemory, TargetSearch, ladder
 from robot_agent.decision import Decision, ExplorerState, TeamAdvice
+from robot_agent.ground import Ground
 from robot_agent.kernels import load_kernels
 from robot_agent.local_map import LocalMap
 from robot_agent.stereo import matcher_for_rig
@@ -47,10 +44,8 @@ from swarm.map.grid import Grid
 from swarm.navigation.exploration import ExplorationTarget, SearchOptions
 from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free_cell
-from swarm.navigation.probing import open_swept, optimistic_traversability
 from swarm.navigation.strategies import check_strategy
 from swarm.navigation.teammates import Teammates, block_teammates, blocking_teammate
-from swarm.navigation.traversability import TraversabilityGrid, build_traversability, robot_band_top
 from swarm.navigation.view_targets import CameraReach
 from swarm.protocol.wire import Frame
 
@@ -85,16 +80,13 @@ class Explorer:
         self.follower = PathFollower(
             FollowerLimits(max_speed=body.max_speed, max_turn_rate=body.max_turn_rate)
         )
-        self.robot_height = robot_band_top(self.rig.camera_height)
         self._state = ExplorerState.LOOK_AROUND
         self.turned = 0.0
         self.last_yaw: float | None = None
         self.target: ExplorationTarget | None = None
-        self.swept: list[tuple[float, float]] = []
+        self.ground = Ground(self.rig.camera_height, body.radius, probes=self.strategy == "entropy")
         self.progress = DriveWatch()
         self.frames = 0
-        self.trav: TraversabilityGrid | None = None
-        self.optimistic: TraversabilityGrid | None = None  # probes' grid (entropy strategy)
         self.failures_in_a_row = 0
         self.looked_before_done = False  # made the last turn before concluding
         self.looks_in_place = 0  # targets in a row at the robot's own cell
@@ -164,16 +156,13 @@ class Explorer:
         """Coordinator targets declined, near a spot given up (printed at exit)."""
         return sum(c.declined for c in self.choosers if isinstance(c, AssignedTarget))
 
-    def fuse(self, frame: Frame) -> Delta:
-        """Fuse a frame into the local map (``LocalMap.fuse``); returns the information added."""
+    def fuse(self, frame: Frame) -> Delta:  # the local map's (see LocalMap)
         return self.local.fuse(frame)
 
     def apply_external(self, delta: Delta) -> None:
-        """Add information another robot gathered (``LocalMap.apply_external``)."""
         self.local.apply_external(delta)
 
     def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
-        """Start from the team map (``LocalMap.load_team_map``); before any frame."""
         self.local.load_team_map(grid, lam, eta)
 
     # -- decisions -----------------------------------------------------------------------
@@ -203,8 +192,7 @@ class Explorer:
     def _decide(self, x: float, y: float, yaw: float) -> Decision:
         self.frames += 1
         here = np.array([x, y])
-        if not self.swept or np.hypot(*(here - self.swept[-1])) > 0.05:
-            self.swept.append((x, y))
+        self.ground.note_position(x, y)
         if self.map_entropy <= self.threshold:
             self._state = ExplorerState.DONE
         state = self._state
@@ -244,26 +232,9 @@ class Explorer:
         limit = self.mission.robot.max_turn_rate
         return Decision(0.0, float(np.clip(2.0 * error, -limit, limit)), "gaze", self._target_xy())
 
-    def _refresh_traversability(self) -> TraversabilityGrid:
-        swept = np.asarray(self.swept)
-        trav = build_traversability(
-            self.map, robot_height=self.robot_height, robot_radius=self.mission.robot.radius, swept=swept
-        )
-        if self.strategy == "entropy":  # probes, and the way back through their doors
-            self.optimistic = optimistic_traversability(self.map, trav, self.robot_height)
-            trav = open_swept(trav, self.optimistic, swept)
-        self.trav = trav
-        return self.trav
-
-    def _grid_for(self, target: ExplorationTarget) -> TraversabilityGrid:
-        """The grid a path to ``target`` is planned on: the optimistic one for a probe."""
-        if self.trav is None:
-            self._refresh_traversability()
-        return self.optimistic if target.kind == "probe" else self.trav
-
     def _choose(self, here: np.ndarray, yaw: float) -> Decision:
         discs = self.giving_way.discs(here)
-        trav = block_teammates(self._refresh_traversability(), discs)
+        trav = block_teammates(self.ground.refresh(self.map), discs)
         planner = GridPlanner(trav)
         cell = tuple(int(c) for c in trav.cell_of(here))
         start = here
@@ -290,7 +261,7 @@ class Explorer:
             self.memory.take_advice(self._advice)
         exclude = self.memory.failed[-FAILED_MEMORY:] + self.giving_way.set_aside_points()
         situation = Situation(
-            here, yaw, trav, cost, exclude, self.optimistic, self.looked_before_done, self._advice
+            here, yaw, trav, cost, exclude, self.ground.optimistic, self.looked_before_done, self._advice
         )
         target = next((t for c in self.choosers if (t := c.choose(situation)) is not None), None)
         if target is None:
@@ -328,12 +299,14 @@ class Explorer:
             self.memory.failed.append(np.asarray(target.xy))
             return Decision(0.0, 0.0, "choose")
         if target.kind == "probe":
-            planner = GridPlanner(block_teammates(self.optimistic, discs))
+            planner = GridPlanner(block_teammates(self.ground.optimistic, discs))
         path = planner.plan(start, target.xy)
         if start is not here and path is not None and len(path) < 2:
             path = np.vstack([here, start])  # the target is where the robot leaves from
         if path is None or len(path) < 2:
-            if discs and reachable_without_teammates(self._grid_for(target), start, target.xy):
+            if discs and reachable_without_teammates(
+                self.ground.grid_for(target, self.map), start, target.xy
+            ):
                 self.giving_way.set_aside(target)  # teammates in the way: later again
                 return Decision(0.0, 0.0, "choose")
             self.memory.failed.append(np.asarray(target.xy))
@@ -355,8 +328,8 @@ class Explorer:
             self.give_ups[reason] += 1
             return self._give_up()
         if self.frames % REPLAN_EVERY == 0:
-            self._refresh_traversability()
-            trav = self._grid_for(self.target)
+            self.ground.refresh(self.map)
+            trav = self.ground.grid_for(self.target, self.map)
             if needs_replan(self.follower.remaining_path(), trav):
                 path = GridPlanner(trav).plan(here, self.target.xy)
                 if path is None or len(path) < 2:
@@ -383,7 +356,9 @@ class Explorer:
         """A teammate in the way: what :meth:`GivingWay.make_way` says, done."""
         self.progress = DriveWatch(here)  # waiting is not being stuck
         target = self.target
-        way, path = self.giving_way.make_way(here, discs, mate, target, lambda: self._grid_for(target))
+        way, path = self.giving_way.make_way(
+            here, discs, mate, target, lambda: self.ground.grid_for(target, self.map)
+        )
         if way is Way.AROUND:
             self.follower.set_path(path)
             command = self.follower.command(here[0], here[1], yaw)

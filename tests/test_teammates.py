@@ -92,7 +92,7 @@ def two_robots(free_band: tuple[float, float] = (0.0, 2.0)) -> dict[str, Explore
         explorer.target = ExplorationTarget(np.array([goal, 1.05]), 0.0, 1.0, None, "entropy")
         explorer.follower.set_path(np.array([[start, 1.05], [goal, 1.05]]))
         explorer.state = ExplorerState.DRIVE
-        explorer.swept = [(start, 1.05)]
+        explorer.ground.swept = [(start, 1.05)]
         robots[rid] = explorer
     return robots
 
