@@ -194,7 +194,21 @@ class OwnTarget:
 
 
 @dataclass
-class LookAgain:
+class WhenConcluding:
+    """A rung that joins in only where the robot would conclude (after its last turn), and
+    stays in once it has: ``active``."""
+
+    search: TargetSearch
+    active: bool = False
+
+    def joins(self, s: Situation) -> bool:
+        """Whether this rung offers a target for ``s`` (and from now on)."""
+        self.active = self.active or s.concluding
+        return self.active
+
+
+@dataclass
+class LookAgain(WhenConcluding):
     """Frontier strategy, where the robot would conclude (after its last turn): look again at
     3-D frontier columns one look left unknown, each from another cell, then forget the spots
     it gave up: 1 m around each, they can cover all the reachable floor of a small room while
@@ -202,13 +216,9 @@ class LookAgain:
     as every 3-D view uses up one of a column's FRONTIER_LOOKS. Once started, it goes on without
     a turn before each (new frontier still comes first)."""
 
-    search: TargetSearch
-    active: bool = False
-
     def choose(self, s: Situation) -> ExplorationTarget | None:
-        if not (s.concluding or self.active):
+        if not self.joins(s):
             return None
-        self.active = True
         target = self.search.own(s, s.exclude, max_looks=FRONTIER_LOOKS)
         if target is None and s.exclude:
             self.search.memory.failed.clear()
@@ -217,17 +227,13 @@ class LookAgain:
 
 
 @dataclass
-class LastLook:
+class LastLook(WhenConcluding):
     """Entropy strategy, where the robot would conclude (after its last turn): a view of what
     is still uncertain in view of a reachable cell (known voxels too), each column once."""
 
-    search: TargetSearch
-    active: bool = False
-
     def choose(self, s: Situation) -> ExplorationTarget | None:
-        if not (s.concluding or self.active):
+        if not self.joins(s):
             return None
-        self.active = True
         search, memory = self.search, self.search.memory
         camera = search.options.camera
         if camera is None:
