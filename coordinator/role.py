@@ -52,12 +52,9 @@ log = logging.getLogger("coordinator")
 #: The answer times ``coord/stats`` summarises: the most recent this many.
 ANSWER_TIMES_KEPT = 10_000
 
-#: Robots whose requests may wait at once (one request each); more are refused as busy. An
-#: answer takes tens of milliseconds: a robot asking faster than that (a loop, a flood) has its
-#: older request refused as superseded, and the others are served in the order they first asked.
-MAX_WAITING_ROBOTS = 256
-#: Status keys waiting for the worker at once (the newest status of each); more are dropped.
-MAX_WAITING_STATUSES = 256
+#: Robots whose latest request (an older one is refused as superseded), or whose newest status,
+#: may wait at once, served in the order they first came; more are refused (busy) or dropped.
+MAX_WAITING_ROBOTS = MAX_WAITING_STATUSES = 256
 
 #: The largest ``coord/assign`` payload read (a request is about 100 bytes; up to 256 robots'
 #: requests wait at once, each holding its payload).
