@@ -262,3 +262,36 @@ def test_an_entropy_robot_looks_at_what_is_still_uncertain_before_it_stops():
     assert looking.entropy.values[looking.target.voxel] > looking.search.last_look_bits
     settled = after_last_turn(faint=False)
     assert not settled.target_kinds and settled.state == "done"
+
+
+def test_the_explorer_wants_a_target_only_when_it_is_about_to_choose_one():
+    # The agent asks the coordinator only then; the answer comes in with the decision, and a
+    # decision without one never asks anyone (there is no callback into the agent).
+    explorer = gazing_explorer(0.0)
+    assert not explorer.wants_target  # gazing
+    explorer.decide(1.0, 1.0, 0.3)  # on the gaze: choose next
+    assert explorer.state is ExplorerState.CHOOSE and explorer.wants_target
+    explorer.failures_in_a_row = 6  # MAX_FAILURES: it turns on the spot instead of choosing
+    assert not explorer.wants_target
+    explorer.failures_in_a_row = 0
+    explorer.threshold = explorer.map_entropy + 1.0  # below H_th: done, nothing to choose
+    assert not explorer.wants_target
+    assert explorer.decide(1.0, 1.0, 0.3).state == "done" and explorer.state is ExplorerState.DONE
+
+
+@pytest.mark.parametrize(
+    ("strategy", "rungs"),
+    [
+        ("entropy", ["AssignedTarget", "SpreadFromTeam", "OwnTarget", "LastLook"]),
+        ("frontier", ["AssignedTarget", "SpreadFromTeam", "OwnTarget", "LookAgain"]),
+        ("random", ["AssignedTarget", "SpreadFromTeam", "OwnTarget"]),
+    ],
+)
+def test_the_fallback_ladder_is_one_ordered_list_per_strategy(strategy, rungs):
+    explorer = Explorer(load_mission(CONFIGS / "lab.yaml"), "r1", strategy=strategy)
+    assert [type(c).__name__ for c in explorer.choosers] == rungs
+
+
+def test_an_unknown_strategy_is_refused_naming_the_strategies():
+    with pytest.raises(ValueError, match=r"unknown exploration strategy 'spiral'.*entropy"):
+        Explorer(load_mission(CONFIGS / "lab.yaml"), "r1", strategy="spiral")
