@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
+from tests.support.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
 
 
 @pytest.fixture(scope="session")

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from tests.architecture_rules import PACKAGES, cycles, module_imports, violations
+from tests.support.architecture_rules import PACKAGES, cycles, module_imports, violations
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = ROOT
 
 
 def test_the_house_keeps_its_import_rules():

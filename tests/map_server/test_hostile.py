@@ -20,8 +20,8 @@ from swarm.config import mission_from_dict
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import Region
-from tests.test_server_hostile import honest_stream, oracle, strict_json
-from tests.test_server_merge import (
+from tests.map_server.test_hostile_deltas import honest_stream, oracle, strict_json
+from tests.map_server.test_merge import (
     EPOCH,
     all_acked,
     client_session,
@@ -30,7 +30,7 @@ from tests.test_server_merge import (
     small_mission,
     wait_until,
 )
-from tests.test_server_rejects import good, tamper
+from tests.map_server.test_rejects import good, tamper
 
 ROBOTS = ("r1", "r2", "r3", "r4")  # r4: the attacker, a robot the server takes
 OPTIONS = ServerOptions(robots=ROBOTS)

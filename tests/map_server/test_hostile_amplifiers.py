@@ -16,8 +16,8 @@ from map_server.options import ServerOptions
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
-from tests.test_server_hostile import oracle
-from tests.test_server_merge import (
+from tests.map_server.test_hostile_deltas import oracle
+from tests.map_server.test_merge import (
     EPOCH,
     client_session,
     publishers,
@@ -25,7 +25,8 @@ from tests.test_server_merge import (
     small_mission,
     wait_until,
 )
-from tests.test_server_rejects import good
+from tests.map_server.test_rejects import good
+from tests.support.paths import CONFIGS
 
 ROBOTS = ("r1", "r2", "r3", "r4")  # r4: the attacker, a robot the server takes
 OPTIONS = ServerOptions(robots=ROBOTS)
@@ -195,7 +196,7 @@ def test_the_coordinator_and_server_bounds_fit_the_largest_legitimate_messages(t
     from swarm.config import load_mission
     from swarm.protocol.message_size import delta_bytes, frame_bytes, snapshot_bytes
 
-    office = load_mission(Path(__file__).parents[1] / "configs" / "office.yaml")
+    office = load_mission(CONFIGS / "office.yaml")
     grid = office.workspace.grid()
     coordinator = message_limit_of(office)
     assert coordinator >= 2 * snapshot_bytes(grid, len(office.robot_ids) + 64) >= 2 * delta_bytes(grid)
@@ -269,8 +270,8 @@ def test_a_flood_of_malformed_assign_requests_logs_a_line_per_reason():
     from coordinator.role import Coordinator
     from swarm.protocol.coord_client import assign_key
     from swarm.protocol.wire import Snapshot
-    from tests.test_coordinator import MapServerStandIn, corridor_map
-    from tests.test_coordinator import mission as coordinated_mission
+    from tests.coordinator.test_role import MapServerStandIn, corridor_map
+    from tests.coordinator.test_role import mission as coordinated_mission
 
     m = coordinated_mission()
     full = corridor_map(m)
@@ -352,8 +353,8 @@ def test_deltas_of_invented_robots_on_merged_cost_the_coordinator_a_bounded_amou
     from swarm.protocol.coord_client import assign_key
     from swarm.protocol.message_size import PATTERN_ROBOTS
     from swarm.protocol.wire import AssignRequest, Snapshot
-    from tests.test_coordinator import MapServerStandIn, corridor_map, pose
-    from tests.test_coordinator import mission as coordinated_mission
+    from tests.coordinator.test_role import MapServerStandIn, corridor_map, pose
+    from tests.coordinator.test_role import mission as coordinated_mission
 
     m = coordinated_mission()
     grid = m.workspace.grid()
@@ -426,8 +427,8 @@ def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
     that moment) made it start from the prior and never see the map built so far."""
     from coordinator.role import Coordinator
     from swarm.protocol.wire import Snapshot
-    from tests.test_coordinator import corridor_map
-    from tests.test_coordinator import mission as coordinated_mission
+    from tests.coordinator.test_role import corridor_map
+    from tests.coordinator.test_role import mission as coordinated_mission
 
     m = coordinated_mission()
     full = corridor_map(m)
@@ -466,8 +467,8 @@ def test_a_flood_on_merged_faster_than_the_coordinator_applies_is_bounded():
     bytes waiting are bounded (here 1 MiB); beyond, a payload is dropped and counted."""
     from coordinator.role import Coordinator
     from swarm.protocol.wire import Snapshot
-    from tests.test_coordinator import MapServerStandIn, corridor_map
-    from tests.test_coordinator import mission as coordinated_mission
+    from tests.coordinator.test_role import MapServerStandIn, corridor_map
+    from tests.coordinator.test_role import mission as coordinated_mission
 
     m = coordinated_mission()
     grid = m.workspace.grid()

@@ -16,7 +16,7 @@ from map_server.team_map import TeamMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, MapQueryError
 from swarm.protocol.wire import DeltaMessage
-from tests.test_server_merge import (
+from tests.map_server.test_merge import (
     EPOCH,
     all_acked,
     client_session,
@@ -27,7 +27,7 @@ from tests.test_server_merge import (
     small_mission,
     wait_until,
 )
-from tests.test_server_rejects import good, tamper
+from tests.map_server.test_rejects import good, tamper
 
 
 def strict_json(text: bytes) -> dict:

@@ -13,8 +13,8 @@ import pytest
 import map_server.store as store_module
 from map_server.server import MapServer
 from map_server.store_files import StoreFiles
-from tests.test_server_hostile import oracle
-from tests.test_server_merge import EPOCH, encode_all, robot_batches, small_mission
+from tests.map_server.test_hostile_deltas import oracle
+from tests.map_server.test_merge import EPOCH, encode_all, robot_batches, small_mission
 
 
 class Killed(BaseException):

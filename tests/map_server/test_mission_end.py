@@ -8,7 +8,6 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -18,8 +17,9 @@ from swarm.protocol import bus
 from swarm.protocol.mission_listener import MissionDoneListener
 from swarm.protocol.mission_messages import MissionDone
 from swarm.protocol.wire import Pose, Status, WireError
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = ROOT
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from swarm.map.grid import Grid
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, MapQueryError
 from swarm.protocol.wire import DeltaMessage
-from tests.test_server_merge import (
+from tests.map_server.test_merge import (
     EPOCH,
     client_session,
     publishers,

@@ -17,7 +17,7 @@ from map_server.team_map import TeamMap
 from map_server.wal_file import RECORD_HEADER, WAL_HEADER, encode_records, read_wal
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from tests.test_server_merge import (
+from tests.map_server.test_merge import (
     EPOCH,
     assert_maps_equal,
     central_fusion,

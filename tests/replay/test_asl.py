@@ -12,7 +12,7 @@ import pytest
 from swarm.map.rotation import rotation_zyx
 from swarm.streams.matching import match_stamps
 from swarm.streams.poses import camera_from_body, quaternion_matrix, wire_pose
-from tests.euroc_replay import EUROC_MINI as EUROC  # four real pairs (its README)
+from tests.support.euroc_replay import EUROC_MINI as EUROC  # four real pairs (its README)
 
 
 def test_matching_drops_a_missing_right_frame_and_counts_it():
@@ -155,7 +155,7 @@ def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_
     import csv
 
     from swarm.formats.map_file import load_map
-    from tests.euroc_replay import REPLAY_FRAMES, swarm_replay
+    from tests.support.euroc_replay import REPLAY_FRAMES, swarm_replay
 
     out = tmp_path / "realtime"
     swarm_replay(["asl", str(EUROC), "--frames", str(REPLAY_FRAMES), "--realtime"], out)

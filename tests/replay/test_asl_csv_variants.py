@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from replay.asl import AslRecording, RecordingError
+from tests.support.paths import TEST_DATA
 
-MINI = Path(__file__).parent / "data" / "euroc_mini"
+MINI = TEST_DATA / "euroc_mini"
 CSVS = ("cam0/data.csv", "cam1/data.csv", "cam0_groundtruth/data.csv")
 
 

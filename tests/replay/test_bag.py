@@ -13,11 +13,12 @@ from replay.asl import RecordingError
 from replay.bag import BagRecording
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.streams.frames import make_frame, rectified_camera
+from tests.support.paths import TEST_DATA
 
 pytest.importorskip("rosbags")
-from tests.rosbag_writer import BagWriter  # noqa: E402
+from tests.support.rosbag_writer import BagWriter  # noqa: E402
 
-EUROC = Path(__file__).resolve().parent / "data" / "euroc_mini"  # four real pairs (its README)
+EUROC = TEST_DATA / "euroc_mini"  # four real pairs (its README)
 
 
 @pytest.mark.parametrize("ros", [1, 2])
@@ -105,7 +106,7 @@ def test_euroc_bags_replayed_give_the_asl_map(tmp_path, euroc_asl_run):
     """ROS 1 bag (calibration from the sensor.yaml files) and ROS 2 bag (from its CameraInfo topics)
     through ``swarm replay bag``: the same map as ``swarm replay asl`` of the same pairs."""
     from swarm.formats.map_file import load_map
-    from tests.euroc_replay import REPLAY_FRAMES, swarm_replay
+    from tests.support.euroc_replay import REPLAY_FRAMES, swarm_replay
 
     topics = ["--left", "/cam0/image_raw", "--right", "/cam1/image_raw", "--pose", "/cam0/pose"]
     runs = {

@@ -13,9 +13,10 @@ from replay.bag import BagRecording
 from swarm.formats.errors import InputError
 from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.streams.frames import to_gray8
+from tests.support.paths import TEST_DATA
 
 pytest.importorskip("rosbags")
-from tests.rosbag_writer import BagWriter  # noqa: E402
+from tests.support.rosbag_writer import BagWriter  # noqa: E402
 
 H, W = 12, 16
 # a rectified rig that states no image size: it takes the images' (these tests read images, stamps, poses)
@@ -313,7 +314,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
     from swarm.formats.calibration_formats import load_stereo_calibration
     from swarm.formats.stereo_calibration import CalibrationError
 
-    euroc = Path(__file__).resolve().parent / "data" / "euroc_mini" / "mav0"
+    euroc = TEST_DATA / "euroc_mini" / "mav0"
     calib = load_stereo_calibration(euroc / "cam0/sensor.yaml", euroc / "cam1/sensor.yaml")
     path = _bag(tmp_path, 1)
     with DriverBag(path, 1) as bag:
@@ -456,7 +457,7 @@ def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, r
     binning_x = binning_y = 2 (REP-104): it was refused as 'images are 376x240, the calibration is
     for 752x480'. K and P are now scaled by the binning; a region of interest is refused by name."""
     from swarm.streams.frames import make_frame, rectified_camera
-    from tests.test_replay_bag import _euroc_camera_infos
+    from tests.replay.test_bag import _euroc_camera_infos
 
     size, left, right = _euroc_camera_infos()
     half = (size[0] // 2, size[1] // 2)

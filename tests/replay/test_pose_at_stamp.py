@@ -12,7 +12,7 @@ from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.streams.trajectory import MAX_GAP_S, Trajectory
 
 pytest.importorskip("rosbags")
-from tests.rosbag_writer import BagWriter  # noqa: E402
+from tests.support.rosbag_writer import BagWriter  # noqa: E402
 
 CALIB = StereoCalibration(100.0, 100.0, 4.0, 4.0, 0.1, source="rectified test rig")  # sized by the images
 TOL = 0.01

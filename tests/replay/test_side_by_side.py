@@ -19,8 +19,8 @@ from swarm.formats.stereo_calibration import StereoCalibration
 from swarm.streams.frames import make_frame, rectified_camera
 
 pytest.importorskip("rosbags")
-from tests.euroc_replay import EUROC_MINI  # noqa: E402
-from tests.rosbag_writer import BagWriter  # noqa: E402
+from tests.support.euroc_replay import EUROC_MINI  # noqa: E402
+from tests.support.rosbag_writer import BagWriter  # noqa: E402
 
 
 def _micro() -> Path | None:
@@ -91,7 +91,7 @@ def test_swarm_replay_bag_side_by_side_gives_the_asl_map(tmp_path):
     """``swarm replay bag --side-by-side`` through a real server and agent: the map of ``swarm replay
     asl`` of the same two pairs, bit for bit (lockstep replays are deterministic)."""
     from swarm.formats.map_file import load_map
-    from tests.euroc_replay import swarm_replay
+    from tests.support.euroc_replay import swarm_replay
 
     bag = tmp_path / "zed.bag"
     _write_side_by_side(bag, 1, 2, MICRO)

@@ -14,13 +14,14 @@ from scipy.spatial.transform import Rotation, Slerp
 from replay.asl import RecordingError
 from replay.bag import BagRecording
 from swarm.formats.stereo_calibration import StereoCalibration
+from tests.support.paths import TEST_DATA
 
 pytest.importorskip("rosbags")
-from tests.rosbag_writer import BagWriter  # noqa: E402
+from tests.support.rosbag_writer import BagWriter  # noqa: E402
 
 # a rectified rig that states no image size: it takes the images' (these tests read images, stamps, poses)
 CALIB = StereoCalibration(100.0, 100.0, 8.0, 6.0, 0.1, source="rectified test rig")
-EUROC = Path(__file__).resolve().parent / "data" / "euroc_mini"
+EUROC = TEST_DATA / "euroc_mini"
 OPTICAL = (0.5, -0.5, 0.5, -0.5)  # camera_link -> optical frame: z forward, x right, y down (w, x, y, z)
 
 

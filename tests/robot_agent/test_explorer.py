@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +12,9 @@ from swarm.config import load_mission, mission_from_dict
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.navigation.path_follower import NO_PROGRESS_FRAMES
 from swarm.protocol.wire import Frame, Pose
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 
 
 def known_below_1m(explorer: Explorer) -> Explorer:

@@ -21,7 +21,7 @@ from swarm.protocol import bus
 from swarm.ros2 import messages as rm
 from swarm.ros2.messages import Stamp
 from swarm.streams.frames import make_frame, rectified_camera
-from tests.euroc_replay import EUROC_MINI
+from tests.support.euroc_replay import EUROC_MINI
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def recording():
 def bag_recording(tmp_path_factory):
     """The same pairs in a ROS 2 bag whose calibration is its CameraInfo topics."""
     from replay.bag import BagRecording
-    from tests.test_replay_bag import _write_euroc_bag
+    from tests.replay.test_bag import _write_euroc_bag
 
     path = tmp_path_factory.mktemp("bag") / "euroc"
     _write_euroc_bag(path, 2)

@@ -22,7 +22,8 @@ from swarm.mission.replay_run import default_mission
 from swarm.protocol import bus
 from swarm.ros2.messages import Stamp, quaternion_of
 from swarm.streams.frames import make_frame, rectified_camera
-from tests.euroc_replay import EUROC_MINI
+from tests.support.euroc_replay import EUROC_MINI
+from tests.support.paths import SUPPORT, TEST_DATA
 
 pytest.importorskip("zenoh_ros2_sdk")
 
@@ -65,8 +66,8 @@ def test_an_independent_ros2_implementation_feeds_our_agent(tmp_path):
     worker.start()
     try:
         done = subprocess.run(
-            [sys.executable, str(HERE / "ros2_sdk_robot.py"), str(port), str(tmp_path / "pairs.npz"),
-             str(HERE / "data" / "ros2_msgs"), "/r1", "map"],
+            [sys.executable, str(SUPPORT / "ros2_sdk_robot.py"), str(port), str(tmp_path / "pairs.npz"),
+             str(TEST_DATA / "ros2_msgs"), "/r1", "map"],
             capture_output=True, text=True, timeout=240,
         )  # fmt: skip
     finally:

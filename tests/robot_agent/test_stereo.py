@@ -27,7 +27,7 @@ from swarm.formats.stereo_calibration import (
     calibration_from_dict,
     load_calibration,
 )
-from tests.stereo_oracle import reference_depth, reference_valid_disparity
+from tests.support.stereo_oracle import reference_depth, reference_valid_disparity
 
 W, H = 160, 120
 FX = 0.5 * W / math.tan(math.radians(30))  # 60 deg horizontal field of view

@@ -40,8 +40,8 @@ from swarm.ros2.map_messages import (
     register_map_msgs,
 )
 from swarm.ros2.types import Ros2Types
-from tests.ros2_map_oracle import apply_update, oracle_cloud, oracle_grid, sort_rows
-from tests.test_server_merge import EPOCH, robot_batches
+from tests.map_server.test_merge import EPOCH, robot_batches
+from tests.support.ros2_map_oracle import apply_update, oracle_cloud, oracle_grid, sort_rows
 
 GRID = Grid((-0.5, 0.2, 0.0), 0.1, (24, 17, 9))
 SENSOR = SensorModel()

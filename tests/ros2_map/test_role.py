@@ -11,8 +11,7 @@ from ros2_map.options import Ros2MapOptions
 from ros2_map.role import TeamMapTopics
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, export_map
-from tests.ros2_map_oracle import oracle_grid
-from tests.test_server_merge import (
+from tests.map_server.test_merge import (
     all_acked,
     client_session,
     encode_all,
@@ -22,6 +21,7 @@ from tests.test_server_merge import (
     small_mission,
     wait_until,
 )
+from tests.support.ros2_map_oracle import oracle_grid
 
 
 def test_dropped_merged_deltas_make_the_role_start_again_from_a_snapshot(tmp_path, monkeypatch):

@@ -3,7 +3,7 @@
 subscribes to the team map's topics as a late joiner and decodes the same map as
 ``swarm map export``; its discovery finds our node and publishers with the right topics, types
 and QoS. A real map server runs in this process; the message definitions the SDK needs are in
-tests/data/ros2_map_msgs (no network: the SDK would otherwise clone them from GitHub).
+tests/data/ros2_msgs (no network: the SDK would otherwise clone them from GitHub).
 """
 
 from __future__ import annotations
@@ -11,10 +11,11 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+
+from tests.support.paths import TEST_DATA
 
 sdk = pytest.importorskip("zenoh_ros2_sdk", reason="the conformance tests need zenoh-ros2-sdk (test extras)")
 from zenoh_ros2_sdk import _cache, message_registry, utils  # noqa: E402
@@ -28,8 +29,7 @@ from swarm.map.fusion import batch_information  # noqa: E402
 from swarm.protocol import bus  # noqa: E402
 from swarm.protocol.map_client import MapClient, export_map  # noqa: E402
 from swarm.protocol.wire import DeltaMessage  # noqa: E402
-from tests.ros2_map_oracle import apply_update, oracle_cloud, oracle_grid, sort_rows  # noqa: E402
-from tests.test_server_merge import (  # noqa: E402
+from tests.map_server.test_merge import (  # noqa: E402
     EPOCH,
     all_acked,
     client_session,
@@ -40,8 +40,9 @@ from tests.test_server_merge import (  # noqa: E402
     small_mission,
     wait_until,
 )
+from tests.support.ros2_map_oracle import apply_update, oracle_cloud, oracle_grid, sort_rows  # noqa: E402
 
-MSG_DIR = Path(__file__).parent / "data" / "ros2_map_msgs"
+MSG_DIR = TEST_DATA / "ros2_msgs"
 GRID_TYPE, CLOUD_TYPE = "nav_msgs/msg/OccupancyGrid", "sensor_msgs/msg/PointCloud2"
 UPDATE_TYPE = "map_msgs/msg/OccupancyGridUpdate"
 LATCHED = QosProfile(durability=QosDurability.TRANSIENT_LOCAL, history_depth=1)

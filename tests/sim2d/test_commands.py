@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,8 +12,9 @@ from sim2d.render import Renderer, camera_pose
 from swarm.config import RigConfig
 from swarm.formats.depth_picture import BAR_WIDTH
 from swarm.formats.floor_plan import load_floor_plan
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 
 
 def render(*argv: str) -> int:

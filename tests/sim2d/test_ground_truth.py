@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -11,8 +9,9 @@ from sim2d.ground_truth import coverage
 from swarm.config import load_mission
 from swarm.formats.floor_plan import FloorPlan, load_floor_plan, rectangle
 from swarm.map.grid import Grid
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 
 
 def test_voxel_half_inside_a_wall():

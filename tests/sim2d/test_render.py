@@ -3,8 +3,6 @@ compiled renderer equal to the numpy renderer it replaced (the oracle, tests/ref
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -14,9 +12,10 @@ from sim2d.texture_sampling import texture_pyramid
 from swarm.config import RigConfig
 from swarm.formats.floor_plan import FloorPlan, load_floor_plan, rectangle, wall_segment
 from swarm.protocol.wire import Camera
-from tests import reference_render
+from tests.support import reference_render
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 CAMERA = RigConfig().camera()  # 160 x 120, 60 degrees, 9 cm
 
 

@@ -6,7 +6,6 @@ import math
 import queue
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -14,8 +13,9 @@ from sim2d.simulator import Simulator
 from swarm.config import Mission, mission_from_dict
 from swarm.protocol import bus
 from swarm.protocol.wire import Cmd, Frame, TruthPoses
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 
 
 def small_mission(agent_timeout_s: float, r1_rig: dict | None = None) -> Mission:

@@ -9,7 +9,9 @@ import sys
 import time
 from pathlib import Path
 
-EUROC_MINI = Path(__file__).resolve().parent / "data" / "euroc_mini"
+from tests.support.paths import TEST_DATA
+
+EUROC_MINI = TEST_DATA / "euroc_mini"
 REPLAY_FRAMES = 3  # the fewest pairs whose map still shows the floor (tests/test_replay.py)
 
 

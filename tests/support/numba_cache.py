@@ -4,9 +4,10 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support.paths import ROOT
+
+ROOT = ROOT
 
 
 def second_run_cache_statistics(setup: str, functions: str) -> dict[str, list[int]]:

@@ -7,8 +7,9 @@ import subprocess
 from pathlib import Path
 
 from swarm.child_command import child_environment, swarm_argv
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = ROOT
 
 
 def test_a_child_started_in_another_copys_folder_runs_this_copy(tmp_path: Path) -> None:

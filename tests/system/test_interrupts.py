@@ -19,8 +19,9 @@ import pytest
 from swarm.child_command import STOPPED_BY_RUNNER
 from swarm.mission.study.grid import Cell
 from swarm.mission.study.runner import _matches
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = ROOT
 
 
 def endless_lab(folder: Path) -> Path:

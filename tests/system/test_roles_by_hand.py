@@ -21,9 +21,10 @@ import pytest
 import yaml
 
 from swarm.config import load_mission
-from tests.test_server_merge import running_server
+from tests.map_server.test_merge import running_server
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = ROOT
 LAB = ROOT / "configs" / "lab.yaml"
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from swarm.bench.ros2_runs import map_difference
-from tests.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
+from tests.support.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
 
 PLAN = """
 name: two rooms

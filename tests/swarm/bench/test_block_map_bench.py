@@ -1,14 +1,13 @@
 """``swarm bench sparse``'s pieces: its ray streams and its comparison of the two maps."""
 
-from pathlib import Path
-
 import numpy as np
 
 from swarm.bench import block_map as bench
 from swarm.bench import ray_streams
 from swarm.config import load_mission
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = ROOT
 
 
 def test_the_comparison_finds_the_block_map_equal_to_the_dense_one_on_office_frames():

@@ -2,7 +2,6 @@
 
 import bz2
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +10,9 @@ from swarm.cli import main
 from swarm.formats.map_file import load_map
 from swarm.formats.point_cloud_file import read_point_cloud, write_ply_points
 from swarm.map.ingest import default_bounds
+from tests.support.paths import ROOT
 
-BUNDLED_SCAN = Path(__file__).resolve().parent.parent / "data" / "octomap" / "scan.dat.bz2"
+BUNDLED_SCAN = ROOT / "data" / "octomap" / "scan.dat.bz2"
 
 
 def wall_cloud() -> np.ndarray:

@@ -10,8 +10,9 @@ import pytest
 from swarm.cli import main
 from swarm.cli.common import endpoint_problem
 from swarm.protocol import bus
+from tests.support.paths import CONFIGS, TEST_DATA
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 
 
 @pytest.fixture
@@ -176,7 +177,7 @@ def test_an_infinite_default_stays_allowed():
 def test_an_out_folder_that_is_a_file_is_one_error_line(tmp_path, capsys) -> None:
     taken = tmp_path / "taken"
     taken.write_text("")
-    euroc = Path(__file__).resolve().parent / "data" / "euroc_mini"
+    euroc = TEST_DATA / "euroc_mini"
     code, err = run(capsys, "replay", "asl", str(euroc), "--out", str(taken))
     assert code == 2 and err.strip() == f"swarm: error: {taken}: File exists", err
 

@@ -16,8 +16,9 @@ from swarm.config import (
     mission_from_map,
 )
 from swarm.map.sensor_model import SensorModel
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 
 
 def write_mission(tmp_path: Path, data: dict, name: str = "m.yaml") -> Path:

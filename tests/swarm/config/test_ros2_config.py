@@ -3,15 +3,14 @@ per-robot overrides, names resolved under each robot's namespace, and errors nam
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 import yaml
 
 from swarm.cli import main
 from swarm.config import ConfigError, load_mission, mission_from_dict
+from tests.support.paths import CONFIGS
 
-OFFICE = Path(__file__).resolve().parents[1] / "configs" / "office.yaml"
+OFFICE = CONFIGS / "office.yaml"
 
 
 def _office(**changes) -> dict:

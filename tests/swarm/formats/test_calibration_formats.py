@@ -12,6 +12,7 @@ import yaml
 
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.stereo_calibration import CalibrationError, rectify_stereo
+from tests.support.paths import TEST_DATA
 
 SIZE = (320, 240)
 K1 = np.array([[300.0, 0, 161.0], [0, 301.0, 118.0], [0, 0, 1]])
@@ -350,7 +351,7 @@ def test_opencv_stereo_calib_sample_two_files(tmp_path):
 
 def test_stereo_depth_reads_the_two_stereo_calib_files(tmp_path, capsys):
     """``swarm stereo depth --calib intrinsics.yml --calib-right extrinsics.yml``: the size is the images'."""
-    from tests.test_stereo import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair
+    from tests.robot_agent.test_stereo import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair
 
     left, right, truth = synthetic_pair(6)
     cv2.imwrite(str(tmp_path / "left.png"), left)
@@ -600,7 +601,7 @@ def test_a_yaml_syntax_error_is_one_line_with_its_place(tmp_path):
 
 
 def test_a_misspelt_field_of_a_sensor_yaml_is_pointed_at(tmp_path):
-    euroc = Path(__file__).resolve().parent / "data" / "euroc_mini" / "mav0"
+    euroc = TEST_DATA / "euroc_mini" / "mav0"
     text = (euroc / "cam0/sensor.yaml").read_text().replace("intrinsics:", "intrinsic:")
     (tmp_path / "sensor.yaml").write_text(text)
     with pytest.raises(

@@ -18,8 +18,9 @@ from swarm.formats.floor_plan import (
 )
 from swarm.formats.map_image import read_map_image
 from swarm.formats.ros_map import RosMap
+from tests.support.paths import CONFIGS
 
-MAPS = Path(__file__).resolve().parent.parent / "configs" / "maps"
+MAPS = CONFIGS / "maps"
 
 
 def test_project_yaml_walls_and_boxes(tmp_path):

@@ -9,10 +9,11 @@ from swarm.formats.octomap_file import OctomapFileError, read_bt, write_bt
 from swarm.formats.octomap_map import coverage_to_leaves, leaves_to_states, states_to_prior
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
+from tests.support.paths import ROOT
 
 octomap = pytest.importorskip("octomap", reason="octomap-python (pip install '.[bench]') reads the files")
 
-_ROOT = Path(__file__).resolve().parents[1]
+_ROOT = ROOT
 #: the real OctoMap file bundled with the project (the OctoMap project's sample data, BSD)
 SHARED_BT = _ROOT / "data" / "octomap" / "geb079.bt"
 

@@ -12,10 +12,11 @@ import pytest
 
 from swarm.formats.octomap_file import OctomapFileError, read_bt, read_octree, read_ot
 from swarm.formats.octomap_map import leaves_to_states
+from tests.support.paths import ROOT
 
 octomap = pytest.importorskip("octomap", reason="octomap-python (pip install '.[bench]') writes the files")
 
-SHARED_BT = Path(__file__).resolve().parents[1] / "data" / "octomap" / "geb079.bt"
+SHARED_BT = ROOT / "data" / "octomap" / "geb079.bt"
 
 
 def _states(path: Path):

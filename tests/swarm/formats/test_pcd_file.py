@@ -3,7 +3,6 @@ liblzf: tests/data/pcd/README.md). A .pcd was read as 'x y z' text and refused a
 'line 2: expected x y z, got 2 value(s): VERSION 0.7'."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +10,9 @@ import pytest
 from swarm.cli import main
 from swarm.formats.pcd_file import lzf_decompress
 from swarm.formats.point_cloud_file import PointCloudError, read_point_cloud
+from tests.support.paths import TEST_DATA
 
-DATA = Path(__file__).resolve().parent / "data" / "pcd"
+DATA = TEST_DATA / "pcd"
 
 
 @pytest.mark.parametrize("name", ["xyzir_ascii.pcd", "xyzir_binary.pcd", "xyzir_binary_compressed.pcd"])

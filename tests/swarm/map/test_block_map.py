@@ -21,7 +21,7 @@ from swarm.map.gradient import entropy_gradient
 from swarm.map.grid import Grid
 from swarm.map.lattice import KEY_LIMIT, Lattice
 from swarm.map.sensor_model import SensorModel
-from tests.numba_cache import second_run_cache_statistics
+from tests.support.numba_cache import second_run_cache_statistics
 
 GRID = Grid((-2.0, -2.0, -1.0), 0.1, (40, 40, 20))
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])

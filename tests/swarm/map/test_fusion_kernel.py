@@ -10,8 +10,8 @@ from swarm.map.fusion import batch_information
 from swarm.map.fusion_kernel import LAM_MAX
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from tests.fusion_oracle import reference_batch_information
-from tests.numba_cache import second_run_cache_statistics
+from tests.support.fusion_oracle import reference_batch_information
+from tests.support.numba_cache import second_run_cache_statistics
 
 GRID = Grid((-2.0, -2.0, -1.0), 0.1, (40, 40, 20))
 # (hit precedence, discretize, weighted)

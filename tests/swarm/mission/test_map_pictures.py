@@ -4,7 +4,6 @@ map file, and ``swarm map stats``'s summary of a real map server's figures."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -17,8 +16,9 @@ from swarm.map.delta import Delta
 from swarm.map.grid import Grid
 from swarm.mission.map_pictures import PICTURES, plot_map_3d, write_map_pictures
 from swarm.mission.picture_style import path_colour
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = ROOT
 
 
 def _occupied_everywhere(grid: Grid) -> CoverageMap:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from swarm.cli import main
 from swarm.mission.role_processes import start_role, why_it_exited
+from tests.support.paths import CONFIGS
 
 
 def test_a_child_that_exits_is_explained_by_its_last_error_line(tmp_path) -> None:
@@ -18,7 +19,7 @@ def test_a_child_that_exits_is_explained_by_its_last_error_line(tmp_path) -> Non
 
 def test_a_negative_max_time_is_refused_before_anything_starts(tmp_path, capsys) -> None:
     out = tmp_path / "run"
-    lab = Path(__file__).resolve().parents[1] / "configs" / "lab.yaml"
+    lab = CONFIGS / "lab.yaml"
     assert main(["sim", str(lab), "--max-time", "-5", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.strip() == "swarm: error: --max-time -5: must be > 0 (simulated seconds)", err
@@ -36,7 +37,7 @@ def test_a_terminated_mission_stops_every_role_and_says_where_its_run_folder_is(
     import sys
     import time
 
-    from tests.test_interrupts import endless_lab
+    from tests.system.test_interrupts import endless_lab
 
     lab = endless_lab(tmp_path)  # it must not end by itself before the SIGTERM
     out = tmp_path / "run"
@@ -77,7 +78,7 @@ def test_the_stop_reason_says_which_end_the_world_reached() -> None:
     from swarm.config import load_mission
     from swarm.mission.runner import why_the_world_stopped
 
-    lab = load_mission(Path(__file__).resolve().parents[1] / "configs" / "lab.yaml")
+    lab = load_mission(CONFIGS / "lab.yaml")
     lab = lab.model_copy(update={"stop": lab.stop.model_copy(update={"max_time_s": 40.0})})
     ids = lab.robot_ids
 

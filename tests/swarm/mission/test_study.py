@@ -15,7 +15,8 @@ import pytest
 
 from swarm.mission import study
 from swarm.mission.study import Cell, Skipped, StudySpec, expand_grid, summarize
-from tests.test_mission_e2e import PLAN
+from tests.support.paths import CONFIGS
+from tests.system.test_mission_e2e import PLAN
 
 # The mission of tests/test_mission_e2e.py with a second robot.
 MISSION = """
@@ -101,7 +102,7 @@ def test_cell_name_and_sim_arguments(tmp_path: Path):
 
 
 def test_map_capacity_skips_teams_the_map_cannot_place(tmp_path: Path):
-    ros_map = Path(__file__).resolve().parent.parent / "configs" / "maps" / "tb3_sandbox.yaml"
+    ros_map = CONFIGS / "maps" / "tb3_sandbox.yaml"
     spec = StudySpec(maps=(ros_map,), robots=(1, 2, 200), seeds=(0,), out=tmp_path)
     capacity = study.mission_capacity(spec)
     assert 2 <= capacity[ros_map] < 200

@@ -15,7 +15,7 @@ from swarm.navigation.planner import GridPlanner
 from swarm.navigation.probing import optimistic_traversability
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 from swarm.navigation.view_kernels import clear_line, stand_for
-from tests.navigation_oracle import (
+from tests.support.navigation_oracle import (
     reference_build_traversability,
     reference_clear,
     reference_graph,
@@ -24,7 +24,7 @@ from tests.navigation_oracle import (
     reference_surely_occupied,
     reference_tree,
 )
-from tests.numba_cache import second_run_cache_statistics
+from tests.support.numba_cache import second_run_cache_statistics
 
 
 def random_map(rng: np.random.Generator, shape=(41, 29, 9), voxel: float = 0.1) -> CoverageMap:

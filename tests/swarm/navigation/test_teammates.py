@@ -4,7 +4,6 @@ statuses keep apart, and the one later in the robot list yields when they block 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +14,9 @@ from swarm.config import load_mission
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.navigation.teammates import MAX_TEAMMATES, Teammates, block_teammates, blocking_teammate
 from swarm.navigation.traversability import TraversabilityGrid
+from tests.support.paths import CONFIGS
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIGS
 RADIUS = 0.18
 PERIOD = 0.5  # s per frame, as the simulator's default
 

@@ -29,8 +29,8 @@ from swarm.protocol.wire import (
     TruthPoses,
     WireError,
 )
-from tests.test_server_merge import small_mission
-from tests.test_server_rejects import good
+from tests.map_server.test_merge import small_mission
+from tests.map_server.test_rejects import good
 
 GRID = small_mission().workspace.grid()
 POSE = Pose((1.0, 1.0, 0.4), (0.1, 0.0, 0.0))

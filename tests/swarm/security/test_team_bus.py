@@ -29,7 +29,7 @@ from swarm.protocol.wire import AssignReply, DeltaMessage, Pose
 from swarm.security.access_rules import access_control, agent_name
 from swarm.security.certificates import common_name
 from swarm.security.team_setup import init_team
-from tests.test_server_merge import EPOCH, small_mission, wait_until
+from tests.map_server.test_merge import EPOCH, small_mission, wait_until
 
 ROBOTS = ["r1", "r2", "r3"]
 
