@@ -6,6 +6,9 @@ import pytest
 
 from tests.support.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
 
+# Fixtures defined beside the helpers they serve (tests/support), offered to every test.
+pytest_plugins = ["tests.support.secure_team", "tests.support.stereo_scenes"]
+
 
 @pytest.fixture(scope="session")
 def euroc_asl_run(tmp_path_factory):

@@ -10,8 +10,6 @@ import pytest
 from tests.support.architecture_rules import PACKAGES, cycles, module_imports, violations
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 
 def test_the_house_keeps_its_import_rules():
     assert violations(ROOT) == []

@@ -22,7 +22,7 @@ from swarm.navigation.exploration import choose_target, rank_entropy_targets
 from swarm.navigation.planner import GridPlanner
 from swarm.navigation.standing_points import ViewGeometry
 from swarm.navigation.traversability import build_traversability
-from tests.swarm.navigation.test_exploration import SENSOR_Z, Scene
+from tests.support.exploration_scene import SENSOR_Z, Scene
 
 R = 3.0  # footprint radius of the hand-built cases
 

@@ -27,7 +27,7 @@ from swarm.protocol.wire import (
     assign_request_on_key,
     status_on_key,
 )
-from tests.coordinator.test_role import MapServerStandIn, corridor_map, mission, pose, query, wait_until
+from tests.support.coordinator_scene import MapServerStandIn, corridor_map, mission, pose, query, wait_until
 
 NAN, INF = float("nan"), float("inf")
 SCALARS = [

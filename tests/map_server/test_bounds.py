@@ -21,8 +21,8 @@ from swarm.config import load_mission
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
 from swarm.protocol.wire import DeltaMessage
-from tests.map_server.test_merge import EPOCH, encode_all, robot_batches, small_mission
-from tests.map_server.test_rejects import good
+from tests.support.malformed_deltas import good
+from tests.support.map_server_mission import EPOCH, encode_all, robot_batches, small_mission
 
 
 def test_ray_bound_covers_the_fusion_of_single_rays():
@@ -187,7 +187,7 @@ def test_a_previous_map_comes_on_delta_prior_only_when_the_mission_has_one(tmp_p
     from swarm.config import mission_from_dict
     from swarm.map.coverage_map import prior_information
     from swarm.protocol.map_messages import PRIOR_SOURCE
-    from tests.map_server.test_merge import MISSION_YAML
+    from tests.support.map_server_mission import MISSION_YAML
 
     plain = small_mission()
     (tmp_path / "previous.npz").write_bytes(b"")  # only its name matters to the server

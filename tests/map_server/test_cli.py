@@ -15,7 +15,7 @@ from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_table import default_table
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     MISSION_YAML,
     all_acked,
     central_fusion,

@@ -17,7 +17,7 @@ import pytest
 from map_server.options import ServerOptions
 from map_server.server import MapServer
 from map_server.store_files import StoreFiles
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     assert_maps_equal,
     central_fusion,
     encode_all,

@@ -16,8 +16,9 @@ from map_server.options import ServerOptions
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
-from tests.map_server.test_hostile_deltas import oracle
-from tests.map_server.test_merge import (
+from tests.support.hostile_oracle import oracle
+from tests.support.malformed_deltas import good
+from tests.support.map_server_mission import (
     EPOCH,
     client_session,
     publishers,
@@ -25,7 +26,6 @@ from tests.map_server.test_merge import (
     small_mission,
     wait_until,
 )
-from tests.map_server.test_rejects import good
 from tests.support.paths import CONFIGS
 
 ROBOTS = ("r1", "r2", "r3", "r4")  # r4: the attacker, a robot the server takes
@@ -270,8 +270,8 @@ def test_a_flood_of_malformed_assign_requests_logs_a_line_per_reason():
     from coordinator.role import Coordinator
     from swarm.protocol.coord_client import assign_key
     from swarm.protocol.wire import Snapshot
-    from tests.coordinator.test_role import MapServerStandIn, corridor_map
-    from tests.coordinator.test_role import mission as coordinated_mission
+    from tests.support.coordinator_scene import MapServerStandIn, corridor_map
+    from tests.support.coordinator_scene import mission as coordinated_mission
 
     m = coordinated_mission()
     full = corridor_map(m)
@@ -353,8 +353,8 @@ def test_deltas_of_invented_robots_on_merged_cost_the_coordinator_a_bounded_amou
     from swarm.protocol.coord_client import assign_key
     from swarm.protocol.message_size import PATTERN_ROBOTS
     from swarm.protocol.wire import AssignRequest, Snapshot
-    from tests.coordinator.test_role import MapServerStandIn, corridor_map, pose
-    from tests.coordinator.test_role import mission as coordinated_mission
+    from tests.support.coordinator_scene import MapServerStandIn, corridor_map, pose
+    from tests.support.coordinator_scene import mission as coordinated_mission
 
     m = coordinated_mission()
     grid = m.workspace.grid()
@@ -427,8 +427,8 @@ def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
     that moment) made it start from the prior and never see the map built so far."""
     from coordinator.role import Coordinator
     from swarm.protocol.wire import Snapshot
-    from tests.coordinator.test_role import corridor_map
-    from tests.coordinator.test_role import mission as coordinated_mission
+    from tests.support.coordinator_scene import corridor_map
+    from tests.support.coordinator_scene import mission as coordinated_mission
 
     m = coordinated_mission()
     full = corridor_map(m)
@@ -467,8 +467,8 @@ def test_a_flood_on_merged_faster_than_the_coordinator_applies_is_bounded():
     bytes waiting are bounded (here 1 MiB); beyond, a payload is dropped and counted."""
     from coordinator.role import Coordinator
     from swarm.protocol.wire import Snapshot
-    from tests.coordinator.test_role import MapServerStandIn, corridor_map
-    from tests.coordinator.test_role import mission as coordinated_mission
+    from tests.support.coordinator_scene import MapServerStandIn, corridor_map
+    from tests.support.coordinator_scene import mission as coordinated_mission
 
     m = coordinated_mission()
     grid = m.workspace.grid()

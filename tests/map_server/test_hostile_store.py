@@ -13,8 +13,8 @@ import pytest
 import map_server.store as store_module
 from map_server.server import MapServer
 from map_server.store_files import StoreFiles
-from tests.map_server.test_hostile_deltas import oracle
-from tests.map_server.test_merge import EPOCH, encode_all, robot_batches, small_mission
+from tests.support.hostile_oracle import oracle
+from tests.support.map_server_mission import EPOCH, encode_all, robot_batches, small_mission
 
 
 class Killed(BaseException):

@@ -19,8 +19,6 @@ from swarm.protocol.mission_messages import MissionDone
 from swarm.protocol.wire import Pose, Status, WireError
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 
 @pytest.fixture
 def sessions():

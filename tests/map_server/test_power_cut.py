@@ -15,7 +15,7 @@ from map_server.store import Store
 from map_server.wal_file import WAL_HEADER, read_wal
 from swarm.bench import durability
 from swarm.bench.crash_model import RecordingFiles, trees_after
-from tests.map_server.test_store import IDENTITY
+from tests.support.store_identity import IDENTITY
 
 
 @pytest.fixture(autouse=True)

@@ -18,7 +18,7 @@ from map_server.team_map import TeamMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     EPOCH,
     MISSION_YAML,
     all_acked,

@@ -14,7 +14,7 @@ from pathlib import Path
 from map_server.store import WAL_HEADER
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     EPOCH,
     MISSION_YAML,
     all_acked,

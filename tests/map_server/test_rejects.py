@@ -13,8 +13,8 @@ from map_server.ledger import REJECT_KINDS, Rejected, validate_delta
 from swarm.map.grid import Grid
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, MapQueryError
-from swarm.protocol.wire import DeltaMessage
-from tests.map_server.test_merge import (
+from tests.support.malformed_deltas import good, tamper
+from tests.support.map_server_mission import (
     EPOCH,
     client_session,
     publishers,
@@ -22,22 +22,6 @@ from tests.map_server.test_merge import (
     small_mission,
     wait_until,
 )
-
-
-def good(grid: Grid, robot: str = "r1", seq: int = 1, idx=(3, 40, 41)) -> bytes:
-    idx = np.asarray(idx, np.uint32)
-    dlam = np.full(len(idx), 50.0, np.float32)
-    return DeltaMessage(robot, EPOCH, seq, 1.0, grid, idx, dlam, dlam * 0.25).encode()
-
-
-def tamper(payload: bytes, **changes) -> bytes:
-    msg = msgpack.unpackb(payload, raw=False)
-    for k, v in changes.items():
-        if v is None:
-            del msg[k]
-        else:
-            msg[k] = v
-    return msgpack.packb(msg, use_bin_type=True)
 
 
 def bad_payloads(grid: Grid) -> list[tuple[str, str, bytes]]:

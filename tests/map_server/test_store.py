@@ -17,7 +17,7 @@ from map_server.team_map import TeamMap
 from map_server.wal_file import RECORD_HEADER, WAL_HEADER, encode_records, read_wal
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     EPOCH,
     assert_maps_equal,
     central_fusion,
@@ -25,9 +25,7 @@ from tests.map_server.test_merge import (
     robot_batches,
     small_mission,
 )
-
-GRID = Grid((0.0, 0.0, 0.0), 0.1, (30, 20, 10))
-IDENTITY = StoreIdentity("srvtest", GRID, SensorModel())
+from tests.support.store_identity import GRID, IDENTITY
 
 
 def payloads(n: int) -> list[bytes]:

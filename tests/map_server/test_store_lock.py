@@ -16,8 +16,8 @@ import pytest
 from map_server.server import MapServer
 from map_server.store import Store, StoreError
 from swarm import cli
-from tests.map_server.test_merge import EPOCH, MISSION_YAML, encode_all, robot_batches, small_mission
-from tests.map_server.test_store import IDENTITY
+from tests.support.map_server_mission import EPOCH, MISSION_YAML, encode_all, robot_batches, small_mission
+from tests.support.store_identity import IDENTITY
 
 
 def test_a_second_store_on_the_same_folder_is_refused_naming_the_holder(tmp_path: Path):
@@ -39,7 +39,7 @@ def test_the_lock_of_a_killed_server_does_not_block_a_restart(tmp_path: Path):
     holder = (
         "import sys, time\n"
         "from map_server.store import Store\n"
-        "from tests.map_server.test_store import IDENTITY\n"
+        "from tests.support.store_identity import IDENTITY\n"
         f"store, _ = Store.open({str(tmp_path / 's')!r}, IDENTITY)\n"
         "store.append([b'acked'])\n"
         "print('held', flush=True)\n"

@@ -12,7 +12,7 @@ import pytest
 from replay.asl import RecordingError
 from replay.bag import BagRecording
 from swarm.streams.frames import to_gray8
-from tests.replay.test_bag_inputs import CALIB, DriverBag, H, W, _bag, _colour
+from tests.support.driver_bags import CALIB, DriverBag, H, W, _bag, _colour
 
 pytest.importorskip("rosbags")
 

@@ -14,8 +14,6 @@ from swarm.navigation.path_follower import NO_PROGRESS_FRAMES
 from swarm.protocol.wire import Frame, Pose
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
-
 
 def known_below_1m(explorer: Explorer) -> Explorer:
     """Every voxel below 1 m known free (a sure, empty belief: mu = 0, sigma = 0.05), the air

@@ -12,7 +12,7 @@ from robot_agent.agent import Agent
 from robot_agent.frame_inbox import FrameInbox
 from swarm.protocol import bus
 from swarm.protocol.wire import Camera, Cmd, Frame, Pose
-from tests.map_server.test_merge import small_mission
+from tests.support.map_server_mission import small_mission
 
 
 def test_the_newest_frame_replaces_the_waiting_ones_and_they_are_counted():

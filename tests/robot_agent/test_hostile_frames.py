@@ -10,7 +10,7 @@ import pytest
 from robot_agent.agent import Agent
 from swarm.protocol import bus
 from swarm.protocol.wire import Camera, Frame, Pose
-from tests.map_server.test_merge import small_mission
+from tests.support.map_server_mission import small_mission
 
 POSE = Pose((0.5, 0.5, 0.3), (0.3, 0.0, 0.0))
 

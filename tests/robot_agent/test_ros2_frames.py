@@ -33,7 +33,7 @@ def recording():
 def bag_recording(tmp_path_factory):
     """The same pairs in a ROS 2 bag whose calibration is its CameraInfo topics."""
     from replay.bag import BagRecording
-    from tests.replay.test_bag import _write_euroc_bag
+    from tests.support.euroc_bags import _write_euroc_bag
 
     path = tmp_path_factory.mktemp("bag") / "euroc"
     _write_euroc_bag(path, 2)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 
 import cv2
@@ -19,64 +18,27 @@ from robot_agent.stereo import (
     points_from_depth,
     texture_threshold,
 )
-from robot_agent.stereo_command import add_arguments, run
 from swarm.formats.depth_picture import BAR_WIDTH
 from swarm.formats.stereo_calibration import (
     CalibrationError,
-    StereoCalibration,
     calibration_from_dict,
     load_calibration,
 )
 from tests.support.stereo_oracle import reference_depth, reference_valid_disparity
-
-W, H = 160, 120
-FX = 0.5 * W / math.tan(math.radians(30))  # 60 deg horizontal field of view
-CX, CY = (W - 1) / 2, (H - 1) / 2
-BASELINE = 0.09
-
-
-def rig(**kw) -> StereoCalibration:
-    args = dict(fx=FX, fy=FX, cx=CX, cy=CY, baseline=BASELINE)
-    args.update(kw)
-    return StereoCalibration(**args)
-
-
-def texture(rng: np.random.Generator, h: int = H, w: int = W) -> np.ndarray:
-    """Smoothed noise at several scales, uint8."""
-    img = np.zeros((h, w))
-    for s in (1, 2, 4, 8):
-        n = rng.standard_normal((h // s + 3, w // s + 3))
-        img += cv2.resize(n, ((w // s + 3) * s, (h // s + 3) * s), interpolation=cv2.INTER_CUBIC)[:h, :w]
-    img = cv2.GaussianBlur(img, (0, 0), 1.2)
-    img = (img - img.mean()) / img.std() * 40 + 128
-    return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def scene_depth(h: int = H, w: int = W) -> np.ndarray:
-    """Planes at 1-3 m: a wall at 2.8 m, a box face at 1.2 m, a slanted plane 1 -> 2 m on the left."""
-    u = np.arange(w)[None, :].repeat(h, 0)
-    z = np.full((h, w), 2.8)
-    z[h // 4 : 3 * h // 4, 5 * w // 16 : 11 * w // 16] = 1.2
-    slant = u < w // 4
-    z[slant] = 1.0 + u[slant] / (w / 4)
-    return z
-
-
-def synthetic_pair(seed: int = 0, offset: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(left, right, true depth): left(u, v) = right(u - d(u, v), v), d = fx b / Z - offset."""
-    rng = np.random.default_rng(seed)
-    right = texture(rng)
-    z = scene_depth()
-    d = (FX * BASELINE / z - offset).astype(np.float32)
-    u, v = np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32))
-    left = cv2.remap(right, u - d, v, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    return left, right, z
-
-
-def relative_error(depth: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    valid = np.isfinite(depth)
-    return float(np.median(np.abs(depth[valid] - truth[valid]) / truth[valid])), float(valid.mean())
-
+from tests.support.stereo_scenes import (
+    BASELINE,
+    CX,
+    CY,
+    FX,
+    H,
+    W,
+    cli,
+    relative_error,
+    rig,
+    synthetic_pair,
+    texture,
+    write_yaml,
+)
 
 # -- SGBM ---------------------------------------------------------------------------------------
 
@@ -172,11 +134,6 @@ def test_points_from_depth_pitch_down_and_max_range() -> None:
 
 
 # -- calibration --------------------------------------------------------------------------------
-
-
-def write_yaml(path, text: str):
-    path.write_text(text)
-    return path
 
 
 def test_rectified_calibration_file(tmp_path) -> None:
@@ -312,21 +269,6 @@ def test_opencv_filestorage_yaml(tmp_path) -> None:
 # -- CLI ----------------------------------------------------------------------------------------
 
 
-def cli(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser()
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-@pytest.fixture
-def pair_files(tmp_path):
-    left, right, truth = synthetic_pair(6)
-    cv2.imwrite(str(tmp_path / "left.png"), left)
-    cv2.imwrite(str(tmp_path / "right.png"), cv2.cvtColor(right, cv2.COLOR_GRAY2BGR))
-    write_yaml(tmp_path / "calib.yaml", f"fx: {FX}\nfy: {FX}\ncx: {CX}\ncy: {CY}\nbaseline: {BASELINE}\n")
-    return tmp_path, truth
-
-
 def test_cli_writes_depth_and_png(pair_files, capsys) -> None:
     d, truth = pair_files
     rc = cli([str(d / "left.png"), str(d / "right.png"), "--calib", str(d / "calib.yaml"),
@@ -459,8 +401,8 @@ def test_compiled_disparity_and_depth_equal_the_numpy_forms(min_disparity, pad_l
     # SGBM's fixed-point output: invalid marks, sub-pixel values, matches landing in the padding
     raw = rng.integers((min_disparity - 1) * 16, 80 * 16, (height, pad_left + width + 3)).astype(np.int16)
     raw[:, :4] = (min_disparity - 1) * 16
-    for texture, threshold in ((rng.uniform(0, 4, (height, width)).astype(np.float32), 1.5), (None, 0.0)):
-        tex = np.zeros((0, 0), np.float32) if texture is None else texture
+    for given, threshold in ((rng.uniform(0, 4, (height, width)).astype(np.float32), 1.5), (None, 0.0)):
+        tex = np.zeros((0, 0), np.float32) if given is None else given
         ours = valid_disparity(raw, pad_left, width, min_disparity, tex, np.float32(threshold))
         oracle = reference_valid_disparity(raw, pad_left, width, min_disparity, tex, threshold)
         np.testing.assert_array_equal(ours, oracle)  # NaN where the oracle has NaN

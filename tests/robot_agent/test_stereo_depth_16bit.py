@@ -6,16 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.robot_agent.test_stereo import (
-    BASELINE,
-    CX,
-    CY,
-    FX,
-    cli,
-    relative_error,
-    synthetic_pair,
-    write_yaml,
-)
+from tests.support.stereo_scenes import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair, write_yaml
 
 
 @pytest.mark.parametrize("bits", [10, 12, 16])

@@ -14,8 +14,8 @@ from robot_agent.subpixel import (
     DEFAULT_MIN_SIGNIFICANCE,
     refine_disparity,
 )
-from tests.robot_agent.test_stereo import H, W, rig, synthetic_pair, texture
 from tests.support.stereo_oracle import reference_refine_disparity
+from tests.support.stereo_scenes import H, W, rig, synthetic_pair, texture
 
 
 def slanted_plane(seed: int, noise: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

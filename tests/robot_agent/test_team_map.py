@@ -12,7 +12,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     assert_maps_equal,
     central_fusion,
     client_session,

@@ -40,7 +40,7 @@ from swarm.ros2.map_messages import (
     register_map_msgs,
 )
 from swarm.ros2.types import Ros2Types
-from tests.map_server.test_merge import EPOCH, robot_batches
+from tests.support.map_server_mission import EPOCH, robot_batches
 from tests.support.ros2_map_oracle import apply_update, oracle_cloud, oracle_grid, sort_rows
 
 GRID = Grid((-0.5, 0.2, 0.0), 0.1, (24, 17, 9))

@@ -11,7 +11,7 @@ from ros2_map.options import Ros2MapOptions
 from ros2_map.role import TeamMapTopics
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, export_map
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     all_acked,
     client_session,
     encode_all,

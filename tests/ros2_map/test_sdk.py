@@ -29,7 +29,7 @@ from swarm.map.fusion import batch_information  # noqa: E402
 from swarm.protocol import bus  # noqa: E402
 from swarm.protocol.map_client import MapClient, export_map  # noqa: E402
 from swarm.protocol.wire import DeltaMessage  # noqa: E402
-from tests.map_server.test_merge import (  # noqa: E402
+from tests.support.map_server_mission import (  # noqa: E402
     EPOCH,
     all_acked,
     client_session,

@@ -14,8 +14,6 @@ from swarm.formats.depth_picture import BAR_WIDTH
 from swarm.formats.floor_plan import load_floor_plan
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
-
 
 def render(*argv: str) -> int:
     parser = argparse.ArgumentParser()

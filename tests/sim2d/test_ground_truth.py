@@ -11,8 +11,6 @@ from swarm.formats.floor_plan import FloorPlan, load_floor_plan, rectangle
 from swarm.map.grid import Grid
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
-
 
 def test_voxel_half_inside_a_wall():
     # A wall from x = 1.05 to 1.5: voxel i = 10 spans [1.0, 1.1], so it is half inside.

@@ -15,7 +15,6 @@ from swarm.protocol.wire import Camera
 from tests.support import reference_render
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
 CAMERA = RigConfig().camera()  # 160 x 120, 60 degrees, 9 cm
 
 

@@ -19,7 +19,9 @@ from swarm.protocol import bus
 from swarm.protocol.wire import Cmd, Frame
 from swarm.ros2 import messages as rm
 from swarm.ros2.messages import Stamp
-from tests.swarm.config.test_ros2_config import OFFICE
+from tests.support.paths import CONFIGS
+
+OFFICE = CONFIGS / "office.yaml"
 
 
 @pytest.fixture

@@ -15,8 +15,6 @@ from swarm.protocol import bus
 from swarm.protocol.wire import Cmd, Frame, TruthPoses
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
-
 
 def small_mission(agent_timeout_s: float, r1_rig: dict | None = None) -> Mission:
     data = {

@@ -7,8 +7,6 @@ import sys
 
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 
 def second_run_cache_statistics(setup: str, functions: str) -> dict[str, list[int]]:
     """Run ``setup`` in two fresh interpreters; the second's {function name: [cache hits, misses]}.

@@ -9,8 +9,6 @@ from pathlib import Path
 from swarm.child_command import child_environment, swarm_argv
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 
 def test_a_child_started_in_another_copys_folder_runs_this_copy(tmp_path: Path) -> None:
     # as `swarm sim` of an installed copy started from the project folder: `python -m` would

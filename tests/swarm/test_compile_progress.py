@@ -10,8 +10,6 @@ import sys
 
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 KERNELS = """
 import numba
 

@@ -19,20 +19,8 @@ import pytest
 from swarm.child_command import STOPPED_BY_RUNNER
 from swarm.mission.study.grid import Cell
 from swarm.mission.study.runner import _matches
+from tests.support.endless_lab import endless_lab
 from tests.support.paths import ROOT
-
-ROOT = ROOT
-
-
-def endless_lab(folder: Path) -> Path:
-    """The lab mission with H_th 0 and a day of simulated time: it runs until it is stopped."""
-    from swarm.config import load_mission
-
-    lab = load_mission(ROOT / "configs" / "lab.yaml")
-    stop = lab.stop.model_copy(update={"entropy_threshold_bits": 0.0, "max_time_s": 86400.0})
-    path = folder / "endless-lab.yaml"
-    path.write_text(lab.model_copy(update={"stop": stop}).to_yaml())  # its paths made absolute
-    return path
 
 
 def _start_mission(tmp_path: Path, until: str = "sim t=") -> tuple[subprocess.Popen, Path]:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.system.test_mission_e2e import MISSION, PLAN
+from tests.support.missions import MISSION, PLAN
 
 SERVER_IP, ROBOT_IP = "192.0.2.1", "192.0.2.2"
 OUTAGE_S = 30.0

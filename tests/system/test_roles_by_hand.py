@@ -21,10 +21,9 @@ import pytest
 import yaml
 
 from swarm.config import load_mission
-from tests.map_server.test_merge import running_server
+from tests.support.map_server_mission import running_server
 from tests.support.paths import ROOT
 
-ROOT = ROOT
 LAB = ROOT / "configs" / "lab.yaml"
 
 

@@ -14,8 +14,8 @@ from swarm.formats.map_file import load_map
 from swarm.formats.octomap_file import write_bt
 from swarm.formats.octomap_map import coverage_to_leaves, states_to_prior
 from swarm.map.grid import Grid
-from tests.swarm.mission.test_prior_map import MISSION as PRIOR_MISSION
-from tests.system.test_mission_e2e import MISSION, PLAN
+from tests.support.missions import MISSION, PLAN
+from tests.support.prior_mission import MISSION as PRIOR_MISSION
 
 
 def test_secure_mission_reaches_its_threshold(tmp_path: Path):

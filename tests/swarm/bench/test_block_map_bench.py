@@ -7,8 +7,6 @@ from swarm.bench import ray_streams
 from swarm.config import load_mission
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 
 def test_the_comparison_finds_the_block_map_equal_to_the_dense_one_on_office_frames():
     mission = load_mission(ROOT / "configs" / "office.yaml")

@@ -8,7 +8,7 @@ import pytest
 
 from robot_agent.stereo import StereoMatcher
 from swarm.bench import stereo_pairs as bench
-from tests.robot_agent.test_stereo import texture
+from tests.support.stereo_scenes import texture
 
 W, H, D, DOFFS = 160, 120, 12, 5.0
 

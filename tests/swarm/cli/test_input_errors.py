@@ -12,8 +12,6 @@ from swarm.cli.common import endpoint_problem
 from swarm.protocol import bus
 from tests.support.paths import CONFIGS, TEST_DATA
 
-CONFIGS = CONFIGS
-
 
 @pytest.fixture
 def site(tmp_path: Path) -> Path:

@@ -18,8 +18,6 @@ from swarm.config import (
 from swarm.map.sensor_model import SensorModel
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
-
 
 def write_mission(tmp_path: Path, data: dict, name: str = "m.yaml") -> Path:
     plan = tmp_path / "room.yaml"

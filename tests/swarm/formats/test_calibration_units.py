@@ -15,17 +15,7 @@ import yaml
 
 from swarm.formats.calibration_formats import load_stereo_calibration
 from swarm.formats.stereo_calibration import CalibrationError
-from tests.swarm.formats.test_calibration_formats import (
-    D1,
-    D2,
-    EUROC_CAM0,
-    EUROC_CAM1,
-    K1,
-    K2,
-    SIZE,
-    R,
-    _matrix,
-)
+from tests.support.calibration_files import D1, D2, EUROC_CAM0, EUROC_CAM1, K1, K2, SIZE, R, _matrix
 
 T_M = np.array([-0.045, 0.0004, 0.0002])  # a 4.5 cm rig
 SCALE = {"m": 1.0, "cm": 100.0, "mm": 1000.0}  # file units per metre
@@ -134,7 +124,7 @@ def _euroc(tmp_path, units: str, factor: float):
 
 
 def test_stereo_depth_takes_calib_units_and_warns_without_it(tmp_path, capsys):
-    from tests.robot_agent.test_stereo import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair
+    from tests.support.stereo_scenes import BASELINE, CX, CY, FX, cli, relative_error, synthetic_pair
 
     left, right, truth = synthetic_pair(6)
     cv2.imwrite(str(tmp_path / "left.png"), left)

@@ -11,7 +11,7 @@ import pytest
 
 from swarm.cli.main import build_parser
 from swarm.formats.depth_picture import BAR_WIDTH, depth_picture
-from tests.robot_agent.test_stereo import cli, pair_files  # noqa: F401 (a fixture)
+from tests.support.stereo_scenes import cli, pair_files  # noqa: F401 (a fixture)
 
 
 def test_near_is_red_far_is_blue_no_return_black_and_a_bar():

@@ -112,7 +112,7 @@ def test_a_zed_conf_without_the_images_resolution_is_refused_naming_what_it_hold
 
 
 def test_swarm_stereo_depth_reads_a_zed_conf(tmp_path: Path, capsys):
-    from tests.robot_agent.test_stereo import cli
+    from tests.support.stereo_scenes import cli
 
     left = np.random.default_rng(0).integers(0, 255, (720, 1280), dtype=np.uint8)
     cv2.imwrite(str(tmp_path / "l.png"), left)

@@ -8,7 +8,7 @@ from swarm.map.delta import Delta, merge_deltas
 from swarm.map.fusion import batch_information
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
-from tests.swarm.map.test_traversal import reference
+from tests.support.traversal_oracle import reference
 
 GRID = Grid((-3.0, -3.0, -1.0), 0.1, (60, 60, 30))
 SENSOR = SensorModel(max_range=2.3)

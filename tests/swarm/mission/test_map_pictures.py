@@ -18,8 +18,6 @@ from swarm.mission.map_pictures import PICTURES, plot_map_3d, write_map_pictures
 from swarm.mission.picture_style import path_colour
 from tests.support.paths import ROOT
 
-ROOT = ROOT
-
 
 def _occupied_everywhere(grid: Grid) -> CoverageMap:
     """A map whose every voxel is known and occupied (E[C] near 1): a path at the floor lies

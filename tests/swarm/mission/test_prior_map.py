@@ -17,6 +17,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.mission.prior_map import PriorMapError, chunks, load_previous_map, prior_delta
+from tests.support.prior_mission import MISSION
 
 
 def test_prior_delta_gives_each_voxel_the_belief_at_its_centre():
@@ -70,19 +71,6 @@ def test_previous_map_from_npz_or_bt(tmp_path: Path):
     (tmp_path / "bad.bt").write_bytes(b"nonsense")
     with pytest.raises(PriorMapError, match="bad.bt"):
         load_previous_map(tmp_path / "bad.bt")
-
-
-MISSION = """
-mission: prior
-workspace: {lo: [0.0, 0.0, 0.0], hi: [2.4, 2.4, 0.8], voxel: 0.1}
-prior_map: previous.bt
-robots:
-  - id: r1
-    start: {x: 0.6, y: 0.6, yaw: 0.0}
-rig: {mode: range, camera_height: 0.4, width: 40, height: 30}
-stop: {max_time_s: 3}
-sim: {agent_timeout_s: 30}
-"""
 
 
 def test_config_names_a_prior_map(tmp_path: Path):

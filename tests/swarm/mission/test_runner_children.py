@@ -37,7 +37,7 @@ def test_a_terminated_mission_stops_every_role_and_says_where_its_run_folder_is(
     import sys
     import time
 
-    from tests.system.test_interrupts import endless_lab
+    from tests.support.endless_lab import endless_lab
 
     lab = endless_lab(tmp_path)  # it must not end by itself before the SIGTERM
     out = tmp_path / "run"

@@ -15,8 +15,8 @@ import pytest
 
 from swarm.mission import study
 from swarm.mission.study import Cell, Skipped, StudySpec, expand_grid, summarize
+from tests.support.missions import PLAN
 from tests.support.paths import CONFIGS
-from tests.system.test_mission_e2e import PLAN
 
 # The mission of tests/test_mission_e2e.py with a second robot.
 MISSION = """

@@ -16,7 +16,6 @@ from swarm.navigation.teammates import MAX_TEAMMATES, Teammates, block_teammates
 from swarm.navigation.traversability import TraversabilityGrid
 from tests.support.paths import CONFIGS
 
-CONFIGS = CONFIGS
 RADIUS = 0.18
 PERIOD = 0.5  # s per frame, as the simulator's default
 

@@ -14,7 +14,7 @@ import numpy as np
 import zenoh
 
 from swarm.protocol.map_client import MapClient
-from tests.map_server.test_merge import (
+from tests.support.map_server_mission import (
     all_acked,
     central_fusion,
     client_session,

@@ -29,8 +29,8 @@ from swarm.protocol.wire import (
     TruthPoses,
     WireError,
 )
-from tests.map_server.test_merge import small_mission
-from tests.map_server.test_rejects import good
+from tests.support.malformed_deltas import good
+from tests.support.map_server_mission import small_mission
 
 GRID = small_mission().workspace.grid()
 POSE = Pose((1.0, 1.0, 0.4), (0.1, 0.0, 0.0))

@@ -15,8 +15,8 @@ from swarm.protocol import bus
 from swarm.protocol.coord_client import ask_for_target, assign_key
 from swarm.protocol.wire import AssignRequest, Pose, Status
 from swarm.security.team_setup import init_team
-from tests.map_server.test_merge import small_mission, wait_until
-from tests.swarm.security.test_team_bus import one_delta, secure_server, session_as
+from tests.support.map_server_mission import small_mission, wait_until
+from tests.support.secure_team import one_delta, secure_server, session_as
 
 MISSION = "srvtest"
 
