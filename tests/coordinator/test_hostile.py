@@ -266,6 +266,7 @@ def test_a_received_delta_is_applied_whole_or_not_at_all_on_out_of_range_results
     assert cmap.lam[3] == pytest.approx(lam[3] + 20, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_a_robot_publishing_statuses_in_a_loop_does_not_hold_back_the_merged_stream(coordinated):
     """Statuses and merged deltas shared one FIFO: r1's status loop (about 20,000 a second) grew
     a backlog of tens of thousands the worker never caught up with, and every merged delta waited

@@ -242,6 +242,7 @@ def test_a_replica_started_from_a_snapshot_adds_no_delta_twice_even_beyond_the_a
     np.testing.assert_allclose(replica.map.eta, server.cmap.eta, rtol=1e-6, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_coordinator_role_over_zenoh():
     m = mission()
     name = m.mission
@@ -349,6 +350,7 @@ def test_without_a_coordinator_the_agent_is_told_nothing_and_decides_alone():
         router.close()
 
 
+@pytest.mark.slow
 def test_command_line_runs_without_a_map_server_and_stops_on_sigterm(tmp_path: Path):
     parser = argparse.ArgumentParser()
     add_arguments(parser)

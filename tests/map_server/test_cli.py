@@ -117,6 +117,7 @@ def test_map_export_npz_and_ply(served, capsys, tmp_path: Path):
     assert code == 2 and ".npz" in err
 
 
+@pytest.mark.slow
 def test_clear_error_when_nothing_answers(capsys):
     endpoint = bus.tcp_endpoint(bus.free_port())
     code, _, err = swarm(capsys, "map", "stats", "--connect", endpoint, "--timeout", "1")
@@ -162,6 +163,7 @@ def test_map_tools_find_the_servers_mission_or_name_both(served, capsys, tmp_pat
     assert code == 0 and "wrote" in out, err
 
 
+@pytest.mark.slow
 def test_a_server_listening_on_its_zenoh_config_names_the_endpoints(tmp_path: Path):
     # docs/security.md's walk-through starts the server with only --zenoh-config: its log said
     # "listening on the endpoints of team/server/zenoh.json5", not which

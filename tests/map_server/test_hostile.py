@@ -102,6 +102,7 @@ def offline_verdict(grid, payload: bytes) -> bool:
         return False
 
 
+@pytest.mark.slow
 def test_every_field_of_a_delta_made_hostile_live(tmp_path: Path):
     mission = small_mission()
     grid = mission.workspace.grid()
@@ -197,6 +198,7 @@ def _query_flood(session, mission: str, stop: threading.Event) -> None:
             list(h)
 
 
+@pytest.mark.slow
 def test_a_flood_of_deltas_and_queries_does_not_hold_back_another_robot(tmp_path: Path):
     """r2 sends the same deltas again and again, a tool asks for the whole map in a loop:
     each delta of r1 is still acked within two seconds (generous for a loaded CI machine; behind
@@ -377,6 +379,7 @@ def test_a_robot_pattern_admits_a_bounded_number_of_invented_ids(tmp_path: Path)
         restarted.store.close()
 
 
+@pytest.mark.slow
 def test_queries_are_answered_while_the_store_is_compacted(tmp_path: Path):
     """A compaction wrote the snapshot (8 bytes per voxel per robot, then fsync) under the query
     lock: on a 2,000,000-voxel map with 8 robots map/acks waited 0.53 s, past a slow disk the
@@ -464,6 +467,7 @@ def test_a_poisoned_delta_in_a_batch_is_refused_alone(tmp_path: Path):
     assert stats["rejected"]["internal_error"] == 0
 
 
+@pytest.mark.slow
 def test_flood_is_refused_at_the_inbox_and_oversized_payloads_before_decoding(tmp_path: Path):
     """Finding 2: no backpressure, no size limit. A robot's flood fills only its own queue."""
     mission = small_mission()
@@ -538,6 +542,7 @@ def test_only_the_missions_robots_are_taken(tmp_path: Path):
     assert len(json.dumps(stats)) < 4000
 
 
+@pytest.mark.slow
 def test_loose_values_are_refused_and_replies_are_strict(tmp_path: Path):
     """Finding 5: v true / 1.0 passed, region took '1_0' and non-ASCII digits and echoed 200 KB,
     the snapshot's integer map keys broke msgpack's default reader."""

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import zenoh
 
 from map_server.options import ServerOptions
@@ -42,6 +43,7 @@ def zero_information_deltas(grid, robot: str, count: int) -> list[bytes]:
     return out
 
 
+@pytest.mark.slow
 def test_a_flood_of_zero_information_deltas_is_neither_logged_nor_sent_on(tmp_path: Path):
     """Empty deltas and deltas of zeros, with fresh seqs, were each appended to the write-ahead
     log, fsynced and republished on ``merged`` to every replica: a flood cost the server's disk
@@ -94,6 +96,7 @@ class _SlowToEncode:
         return self.snap.encode()
 
 
+@pytest.mark.slow
 def test_a_flood_of_snapshot_queries_gets_busy_replies_and_deltas_go_on(tmp_path: Path):
     """64 snapshot queries at once, each taking 0.2 s to answer: all were taken on and answered
     one after the other (13 s of work for one stranger's burst, every team member's snapshot
@@ -422,6 +425,7 @@ def test_the_mission_monitor_attributes_a_bounded_number_of_robots():
     assert 1 <= len([line for line in logged.lines if "rejected delta" in line]) <= allowed
 
 
+@pytest.mark.slow
 def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
     """A "busy" answer to the coordinator's start-up map/snapshot (a stranger's query burst at
     that moment) made it start from the prior and never see the map built so far."""
@@ -461,6 +465,7 @@ def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
     assert started_from_snapshot and len(asked) == 3
 
 
+@pytest.mark.slow
 def test_a_flood_on_merged_faster_than_the_coordinator_applies_is_bounded():
     """Merged payloads waited for the coordinator's worker in an unbounded queue: a stranger
     putting deltas on merged faster than it applies them grew its memory without end. The

@@ -114,6 +114,7 @@ def _fields(done: MissionDone) -> dict:
     return {name: getattr(done, name) for name in names}
 
 
+@pytest.mark.slow
 def test_a_world_that_no_agent_comes_to_ends_with_an_error_naming_the_robots(tmp_path) -> None:
     endpoint = bus.tcp_endpoint(bus.free_port())
     lab = ROOT / "configs" / "lab.yaml"

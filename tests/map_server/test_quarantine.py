@@ -81,6 +81,7 @@ def _one(grid):
     return idx, dlam, dlam * 0.5
 
 
+@pytest.mark.slow
 def test_sighup_quarantines_the_robots_of_the_store_file(tmp_path: Path):
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()

@@ -11,6 +11,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from map_server.store import WAL_HEADER
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
@@ -49,6 +51,7 @@ def wait_for_server(client: MapClient, proc: subprocess.Popen, log: Path) -> Non
                 raise AssertionError(f"server did not come up:\n{log.read_text()[-3000:]}") from None
 
 
+@pytest.mark.slow
 def test_sigkill_mid_stream_loses_no_acked_delta(tmp_path: Path):
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()

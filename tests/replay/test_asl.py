@@ -72,6 +72,7 @@ def _floor_fit(points: np.ndarray, camera_z: float) -> tuple[float, float]:
     return camera_z - float(centre @ coef[:2] + coef[2]), tilt
 
 
+@pytest.mark.slow
 def test_real_euroc_pairs_put_the_floor_093_m_below_the_camera():
     from replay.asl import AslRecording
     from robot_agent.stereo import StereoMatcher, points_from_depth
@@ -91,6 +92,7 @@ def test_real_euroc_pairs_put_the_floor_093_m_below_the_camera():
         assert tilt < 3.0, pair.t
 
 
+@pytest.mark.slow
 def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     """``swarm replay asl`` of three pairs (tests/conftest.py): real server and agent processes."""
     from replay.asl import AslRecording
@@ -123,6 +125,7 @@ def test_euroc_frames_through_a_real_agent_fill_the_floor(euroc_asl_run):
     assert np.median(points[floor, 0]) > camera[0]
 
 
+@pytest.mark.slow
 def test_a_replays_map_exports_to_octomap_as_it_is(euroc_asl_run, tmp_path, capsys):
     """The default workspace's corners lie on the voxel lattice (OctoMap's): no --align shift."""
     from swarm.cli.main import main
@@ -147,6 +150,7 @@ def test_the_default_workspace_holds_the_box_on_the_lattice():
     assert str(lattice_box(np.array([-1e-12, 0.0, 0.0]), np.array([1, 1, 1]), 0.05)[0]) == "[0.0, 0.0, 0.0]"
 
 
+@pytest.mark.slow
 def test_realtime_replay_keeps_the_recorded_pace_and_gives_the_lockstep_map(tmp_path, euroc_asl_run):
     """``--realtime``: frames leave at the recorded times (one per second here), never before; the agent
     takes them all (reliable delivery, its queue), so the map is the lockstep run's, bit for bit, and
@@ -278,6 +282,7 @@ def test_an_image_file_missing_from_a_copy_leaves_its_pair_out_and_counts_it(tmp
         AslRecording(copy)
 
 
+@pytest.mark.slow
 def test_a_replay_that_fails_stops_its_agent(tmp_path, monkeypatch):
     """However the replay ends (here a recording whose second image is unreadable), the agent and
     server processes it started are stopped: no orphans."""

@@ -64,6 +64,7 @@ def test_euroc_written_to_a_bag_gives_the_asl_frames(tmp_path, ros):
         assert np.allclose(fa.pose.xyz, fb.pose.xyz) and np.allclose(fa.pose.ypr, fb.pose.ypr, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_euroc_bags_replayed_give_the_asl_map(tmp_path, euroc_asl_run):
     """ROS 1 bag (calibration from the sensor.yaml files) and ROS 2 bag (from its CameraInfo topics)
     through ``swarm replay bag``: the same map as ``swarm replay asl`` of the same pairs."""

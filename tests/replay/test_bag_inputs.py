@@ -181,6 +181,7 @@ def _yuv422(bgr: np.ndarray, uyvy: bool) -> np.ndarray:
     return packed
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "encoding",
     ["yuv422", "uyvy", "yuv422_yuy2", "yuyv", "bayer_rggb8", "bayer_bggr8", "bayer_gbrg8", "bayer_grbg8",
@@ -244,6 +245,7 @@ def test_images_of_another_size_or_short_data_are_named_when_the_bag_is_opened(t
         BagRecording(path, "/short", "/right", "/pose", CALIB)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("scale", "bits"), [(16, 12), (4, 10), (257, 16)])
 @pytest.mark.parametrize("compressed", [False, True])
 def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bits, compressed):
@@ -273,6 +275,7 @@ def test_16_bit_images_are_scaled_by_their_significant_bits(tmp_path, scale, bit
         )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ros", [1, 2])
 def test_16_bit_images_of_a_camera_that_starts_in_the_dark_keep_their_bits(tmp_path, ros):
     """A 12-bit camera whose first 40 of 100 images are dark (values under 200): the bits came
@@ -366,6 +369,7 @@ def test_a_png_compressed_bayer_image_is_demosaiced(tmp_path, pattern):
     assert error.mean() < 1.0 and error.max() <= 3, (error.mean(), error.max())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ros", [1, 2])
 def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, ros):
     """A driver binning 2x2 publishes half-size images with the CameraInfo of the full sensor and
@@ -398,6 +402,7 @@ def test_camera_info_of_a_binned_camera_is_scaled_and_a_roi_is_named(tmp_path, r
         BagRecording(path, "/left", "/right", "/pose", None, "/left/camera_info", "/roi/camera_info")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ros", [1, 2])
 def test_poses_slower_than_the_camera_are_interpolated(tmp_path, ros):
     """10 Hz odometry (or /tf) with a 20 Hz camera: every other image had no pose within 10 ms
@@ -487,6 +492,7 @@ def _as_recorded_by_humble(folder: Path) -> None:
         con.close()
 
 
+@pytest.mark.slow
 def test_a_ros2_bag_without_message_definitions_is_read(tmp_path):
     """Bags of Foxy and Humble carry no message definitions: rosbags refused them with 'Bag
     contains no type definitions' (mbpeterson70/robotdatapy#30); the standard types are known."""
@@ -586,6 +592,7 @@ def test_a_custom_topic_with_an_empty_definition_does_not_refuse_the_bag(tmp_pat
         BagRecording(path, "/left", "/right", "/meta", CALIB)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_a_ros2_bag_file_copied_without_its_metadata_is_read(tmp_path, storage):
     """A .mcap or .db3 copied alone (its metadata.yaml left behind) was refused with 'ros2 bag

@@ -35,6 +35,7 @@ def _nv(bgr: np.ndarray, encoding: str, pad: int) -> tuple[bytes, int]:
     return padded.tobytes(), W + pad
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("encoding", "pad"), [("nv12", 0), ("nv21", 0), ("nv12", 16), ("rgba16", 0), ("bgra16", 0)]
 )

@@ -66,6 +66,7 @@ def test_the_rule_interpolates_by_slerp_holds_a_near_sample_outside_and_drops_th
     assert not empty.found.any()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ros", [1, 2])
 def test_a_pose_topic_and_a_tf_chain_of_the_same_poses_give_the_same_poses(tmp_path, ros):
     """The same samples as a PoseStamped topic (the bag's pose-topic path) and as map -> base_link

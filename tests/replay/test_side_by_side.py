@@ -63,6 +63,7 @@ def _calibration(data: Path) -> StereoCalibration:
     return load_stereo_calibration(data / "mav0/cam0/sensor.yaml", data / "mav0/cam1/sensor.yaml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("data", DATA)
 @pytest.mark.parametrize("ros", [1, 2])
 def test_a_side_by_side_bag_gives_the_asl_frames(tmp_path, ros, data):
@@ -86,6 +87,7 @@ def test_a_side_by_side_bag_gives_the_asl_frames(tmp_path, ros, data):
         )
 
 
+@pytest.mark.slow
 @needs_micro
 def test_swarm_replay_bag_side_by_side_gives_the_asl_map(tmp_path):
     """``swarm replay bag --side-by-side`` through a real server and agent: the map of ``swarm replay

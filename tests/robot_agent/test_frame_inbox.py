@@ -7,6 +7,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from robot_agent.agent import Agent
 from robot_agent.frame_inbox import FrameInbox
@@ -34,6 +35,7 @@ def test_a_waiting_agent_wakes_for_a_frame_put_from_another_thread():
     assert time.monotonic() - start < 2.0
 
 
+@pytest.mark.slow
 def test_an_agent_behind_its_driver_answers_the_newest_frame_not_a_backlog():
     """Ten frames published before the agent takes one (a 20 Hz driver, a slower agent): it
     fuses and answers the tenth only and counts nine dropped; a first-in first-out queue

@@ -40,6 +40,7 @@ def _config(**cmd) -> Ros2Config:
     return Ros2Config(cmd=cmd).for_robot("r1")
 
 
+@pytest.mark.slow
 def test_twist_stamped_answers_carry_the_image_stamp_repeat_and_stop_on_the_watchdog(contexts):
     agent_ctx, robot_ctx = contexts
     twists = _listen(robot_ctx, "/r1/cmd_vel", rm.TWIST_STAMPED)
@@ -80,6 +81,7 @@ def test_plain_twist_without_repeats_and_zero_at_close(contexts):
     assert twists.empty()
 
 
+@pytest.mark.slow
 def test_nav2_mode_sends_each_new_target_as_a_goal_facing_the_gaze(contexts):
     agent_ctx, robot_ctx = contexts
     goals = _listen(robot_ctx, "/r1/goal_pose", rm.POSE_STAMPED)

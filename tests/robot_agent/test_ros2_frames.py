@@ -67,6 +67,7 @@ def _take(inbox: FrameInbox, timeout=10.0, source=None):
     return item
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("source", ["asl", "bag"])
 def test_euroc_pairs_over_ros2_are_the_frames_of_swarm_replay(sessions, source, request):
     """An ASL folder (CameraInfo from sensor.yaml) and a bag (from its CameraInfo topics), played as
@@ -109,6 +110,7 @@ def _publishers(ctx, config):
     }, node
 
 
+@pytest.mark.slow
 def test_bad_input_is_counted_by_name_and_leaves_the_map_of_the_good_frames(sessions, recording):
     """Wrong encodings, CameraInfo with a zero K, a 10 GB width x height claim, tf loops and stamps
     from the future among good pairs: each refused and counted by name, said in the progress line;
@@ -188,6 +190,7 @@ def test_bad_input_is_counted_by_name_and_leaves_the_map_of_the_good_frames(sess
         reference.shutdown(ack_wait_s=0)
 
 
+@pytest.mark.slow
 def test_a_robots_own_router_other_domain_and_humble(recording):
     """``ros2.connect``: the agent's link opens a client session of its own to the robot's router;
     the domain and the distro (Humble: ``TypeHashNotSupported`` in the keys) come from the settings."""

@@ -269,6 +269,7 @@ def test_opencv_filestorage_yaml(tmp_path) -> None:
 # -- CLI ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_writes_depth_and_png(pair_files, capsys) -> None:
     d, truth = pair_files
     rc = cli([str(d / "left.png"), str(d / "right.png"), "--calib", str(d / "calib.yaml"),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from robot_agent.agent import Agent
 from swarm.map.coverage_map import CoverageMap
@@ -77,6 +78,7 @@ def test_a_late_agent_catches_up_from_a_snapshot_then_follows_the_merged_stream(
             agent.shutdown()
 
 
+@pytest.mark.slow
 def test_an_agent_without_a_server_starts_from_the_prior(tmp_path):
     mission = small_mission()
     endpoint = bus.tcp_endpoint(bus.free_port())

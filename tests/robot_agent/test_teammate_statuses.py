@@ -7,6 +7,8 @@ from __future__ import annotations
 import logging
 import time
 
+import pytest
+
 from robot_agent.teammate_statuses import MAX_WAITING_KEYS, TeammateStatuses
 from swarm.log_limit import LogLimiter
 from swarm.navigation.teammates import MAX_TEAMMATES, Teammates
@@ -18,6 +20,7 @@ def status(robot: str, t: float, x: float) -> bytes:
     return Status(robot, t, Pose((x, 1.0, 0.0)), None, "drive", 0).encode()
 
 
+@pytest.mark.slow
 def test_statuses_are_noted_newest_first_and_strangers_cannot_plant_robots():
     endpoint = bus.tcp_endpoint(bus.free_port())
     agent_session = bus.open_session(listen=[endpoint])

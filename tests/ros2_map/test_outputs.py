@@ -70,6 +70,7 @@ def test_band_layers_are_those_whose_centres_lie_in_the_band():
         band_layers(GRID, 2.0, 3.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rule", ["all", "any"])
 def test_projection_equals_the_column_oracle_of_the_map_file(tmp_path, rule):
     cmap = explored_map()

@@ -5,6 +5,7 @@ as the server's."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import ros2_map.role as role
 from ros2_map.options import Ros2MapOptions
@@ -24,6 +25,7 @@ from tests.support.map_server_mission import (
 from tests.support.ros2_map_oracle import oracle_grid
 
 
+@pytest.mark.slow
 def test_dropped_merged_deltas_make_the_role_start_again_from_a_snapshot(tmp_path, monkeypatch):
     monkeypatch.setattr(role, "RESYNC_INTERVAL_S", 0.5)
     mission = small_mission()

@@ -139,6 +139,7 @@ def _cloud_rows(message) -> np.ndarray:
     return sort_rows(data)
 
 
+@pytest.mark.slow
 def test_a_late_sdk_subscriber_decodes_the_exported_map_and_discovers_our_node(tmp_path, offline_sdk):
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
@@ -203,6 +204,7 @@ def _check_discovery(topics: TeamMapTopics, port: int, domain: int, namespace: s
     assert node_liveliness_keyexpr(node) in tokens  # ros2 node list's token, built by the SDK
 
 
+@pytest.mark.slow
 def test_domain_namespace_humble_and_updates_as_nav2_and_rviz_apply_them(tmp_path, offline_sdk):
     """Domain 7, namespace /team, Humble (type hash 'TypeHashNotSupported'), every grid after the
     first as OccupancyGridUpdate boxes: the SDK's grid with the updates applied is the export's."""
@@ -237,6 +239,7 @@ def test_domain_namespace_humble_and_updates_as_nav2_and_rviz_apply_them(tmp_pat
             _check_discovery(topics, port, domain=7, namespace="/team", prefix="/team")
 
 
+@pytest.mark.slow
 def test_a_hostile_merged_stream_is_refused_and_the_published_map_stays_the_servers(tmp_path, offline_sdk):
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()

@@ -6,6 +6,7 @@ import argparse
 
 import cv2
 import numpy as np
+import pytest
 
 from sim2d.commands import add_render_arguments, run_render
 from sim2d.render import Renderer, camera_pose
@@ -21,6 +22,7 @@ def render(*argv: str) -> int:
     return run_render(parser.parse_args(list(argv)))
 
 
+@pytest.mark.slow
 def test_render_a_mission(tmp_path, capsys):
     assert render(str(CONFIGS / "lab.yaml"), "--robot", "r1", "--out", str(tmp_path)) == 0
     left = cv2.imread(str(tmp_path / "left.png"), cv2.IMREAD_UNCHANGED)

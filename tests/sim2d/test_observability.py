@@ -84,6 +84,7 @@ def test_reachable_floor_is_the_start_s_room_only():
     assert not at(0.25, 1.5)  # within a radius of the wall
 
 
+@pytest.mark.slow
 def test_observable_voxels_agree_with_the_slow_oracle_and_leave_out_the_hidden():
     plan = _room_plan()
     grid = Grid.from_bounds(np.array([0.0, 0.0, 0.0]), np.array([4.0, 3.0, 1.4]), 0.1)

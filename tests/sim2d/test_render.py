@@ -197,6 +197,7 @@ OFFICE_POSES = [
 DEPOT_POSES = [(15.0, 7.6, 0.0, 0.0), (5.0, 3.0, 0.7, 0.0), (25.0, 12.0, 3.5, 0.0), (10.0, 8.0, 1.0, 0.25)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "plan_file, poses, size",
     [

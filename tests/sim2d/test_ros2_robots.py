@@ -69,6 +69,7 @@ def test_frames_come_back_with_their_pose_pixels_and_pinhole(world_and_agent):
         assert frame.t == pytest.approx(0.5 * seq)
 
 
+@pytest.mark.slow
 def test_a_command_answers_the_frame_of_its_stamp_with_the_tilt(world_and_agent):
     mission, robots, link, inbox = world_and_agent
     rig = mission.rig_for("r1")

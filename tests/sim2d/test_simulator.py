@@ -128,6 +128,7 @@ def test_clock_advances_only_when_every_agent_answered(sessions):
         responder.close()
 
 
+@pytest.mark.slow
 def test_silent_agent_is_declared_dead_and_the_run_goes_on(sessions):
     sim_side, agent_side = sessions
     timeout = 1.5  # s: long beside a tick's own work, so that a loaded machine cannot blur the two

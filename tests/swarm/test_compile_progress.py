@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from tests.support.paths import ROOT
 
 KERNELS = """
@@ -50,6 +52,7 @@ def _run(code: str, *args: str, env: dict | None = None) -> str:
     return proc.stdout
 
 
+@pytest.mark.slow
 def test_a_first_run_says_which_kernel_compiles_and_a_second_says_nothing(tmp_path) -> None:
     (tmp_path / "kernels.py").write_text(KERNELS)
     cache = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
@@ -101,11 +104,13 @@ print(json.dumps({"declared": declared, "compiled": sorted(compiled())}))
 """
 
 
+@pytest.mark.slow
 def test_the_agents_warm_up_names_every_kernel_it_compiles_and_no_other() -> None:
     out = json.loads(_run(WHAT_COMPILES, "agent"))
     assert out["declared"] == out["compiled"], out
 
 
+@pytest.mark.slow
 def test_the_worlds_warm_up_names_the_kernels_a_frame_compiles() -> None:
     out = json.loads(_run(WHAT_COMPILES, "world"))
     assert out["declared"] == out["compiled"], out

@@ -7,6 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.slow  # whole missions: every role a process
+
 PLAN = """
 name: duo
 wall_height: 1.0

@@ -116,6 +116,7 @@ def test_a_ctrl_c_while_the_mission_starts_stops_every_role_and_writes_nothing(t
     assert _leftovers(out) == []
 
 
+@pytest.mark.slow
 def test_a_role_a_runner_started_ignores_the_terminals_ctrl_c_and_stops_on_sigterm(tmp_path) -> None:
     """The convention of swarm.child_command, in a real child: SIGINT (sent while it starts,
     too) changes nothing; SIGTERM stops it."""

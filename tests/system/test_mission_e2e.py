@@ -6,8 +6,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.support.missions import MISSION, PLAN
+
+pytestmark = pytest.mark.slow  # whole missions: every role a process
 
 
 def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):

@@ -24,6 +24,8 @@ import pytest
 
 from tests.support.missions import MISSION, PLAN
 
+pytestmark = pytest.mark.slow  # whole missions: every role a process
+
 SERVER_IP, ROBOT_IP = "192.0.2.1", "192.0.2.2"
 OUTAGE_S = 30.0
 SETTLE_S = 3.0
@@ -97,7 +99,6 @@ def _wait(condition, timeout: float, what: str, logs: list[Path]) -> None:
         time.sleep(0.2)
 
 
-@pytest.mark.slow
 def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts, tmp_path, monkeypatch):
     (tmp_path / "plan.yaml").write_text(PLAN)
     (tmp_path / "tiny.yaml").write_text(

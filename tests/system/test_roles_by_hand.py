@@ -24,6 +24,8 @@ from swarm.config import load_mission
 from tests.support.map_server_mission import running_server
 from tests.support.paths import ROOT
 
+pytestmark = pytest.mark.slow  # whole missions: every role a process
+
 LAB = ROOT / "configs" / "lab.yaml"
 
 

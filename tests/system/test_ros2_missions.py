@@ -15,6 +15,8 @@ import pytest
 from swarm.bench.ros2_runs import map_difference
 from tests.support.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
 
+pytestmark = pytest.mark.slow  # whole missions: every role a process
+
 PLAN = """
 name: two rooms
 wall_height: 1.0
@@ -41,7 +43,6 @@ sim: {agent_timeout_s: 30}
 """
 
 
-@pytest.mark.slow
 def test_a_mission_over_ros2_reaches_its_threshold(tmp_path: Path):
     (tmp_path / "plan.yaml").write_text(PLAN)
     (tmp_path / "tworooms.yaml").write_text(MISSION)
@@ -69,7 +70,6 @@ def test_a_mission_over_ros2_reaches_its_threshold(tmp_path: Path):
         assert "robot/" not in log.split("waiting for frames on", 1)[1].split("\n", 1)[0]
 
 
-@pytest.mark.slow
 def test_euroc_pairs_played_as_ros2_topics_give_the_asl_map(tmp_path, euroc_asl_run):
     out = tmp_path / "ros2"
     swarm_replay(["asl", str(EUROC_MINI), "--frames", str(REPLAY_FRAMES), "--ros2"], out)

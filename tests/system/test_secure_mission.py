@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from swarm.formats.map_file import load_map
 from swarm.formats.octomap_file import write_bt
@@ -16,6 +17,8 @@ from swarm.formats.octomap_map import coverage_to_leaves, states_to_prior
 from swarm.map.grid import Grid
 from tests.support.missions import MISSION, PLAN
 from tests.support.prior_mission import MISSION as PRIOR_MISSION
+
+pytestmark = pytest.mark.slow  # whole missions: every role a process
 
 
 def test_secure_mission_reaches_its_threshold(tmp_path: Path):

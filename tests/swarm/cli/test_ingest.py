@@ -26,6 +26,7 @@ def run_json(capsys, *args) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
+@pytest.mark.slow
 def test_nonfinite_and_out_of_box_points_are_reported_and_the_rest_fused(tmp_path, capsys):
     good = wall_cloud()
     bad = np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [-np.inf, 0, 0], [-9.0, 0.0, 0.0], [0.5, 5.0, 0.0]])
@@ -72,6 +73,7 @@ def test_text_bz2_and_ply_read_the_same_cloud(tmp_path, capsys):
     assert a["final_entropy_bits"] == pytest.approx(b["final_entropy_bits"], rel=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not BUNDLED_SCAN.exists(), reason="bundled OctoMap scan missing")
 def test_real_scan_ingests_and_map_info_summarises_it(tmp_path, capsys):
     out = tmp_path / "scan.npz"

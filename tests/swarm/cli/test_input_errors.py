@@ -237,6 +237,7 @@ def test_security_init_refuses_names_the_mission_would_refuse(tmp_path, capsys, 
     assert not (tmp_path / "team").exists()
 
 
+@pytest.mark.slow
 def test_a_tls_endpoint_without_a_zenoh_config_says_what_it_needs(capsys, monkeypatch) -> None:
     # as a user copying the endpoint of `swarm sim --secure`'s line without its --zenoh-config
     monkeypatch.delenv("ZENOH_CONFIG", raising=False)

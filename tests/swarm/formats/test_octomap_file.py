@@ -163,6 +163,7 @@ def test_bad_files_name_the_file_and_field(tmp_path: Path):
         assert f"{name}.bt" in str(err.value)
 
 
+@pytest.mark.slow
 def test_cli_import_then_export_gives_the_same_tree(tmp_path: Path):
     import subprocess
     import sys

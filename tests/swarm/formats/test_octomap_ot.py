@@ -35,6 +35,7 @@ def _octomap_states(tree, grid) -> np.ndarray:
     return out.reshape(grid.shape)
 
 
+@pytest.mark.slow
 def test_ot_of_the_sample_map_gives_the_voxels_of_its_bt(tmp_path):
     """OctoMap's own write() of its sample map: every expanded voxel as the .bt gives it."""
     tree = octomap.OcTree(str(SHARED_BT).encode())
@@ -78,6 +79,7 @@ def test_empty_tree_is_refused_naming_the_file(tmp_path):
     assert f"{path}: the octree has no known node" in done.stderr
 
 
+@pytest.mark.slow
 def test_cli_imports_a_color_ot(tmp_path):
     tree = octomap.ColorOcTree(0.1)
     for p in ([0.05, 0.05, 0.05], [0.35, 0.05, 0.05]):

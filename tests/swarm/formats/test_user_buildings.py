@@ -194,6 +194,7 @@ def test_an_image_path_of_another_machine_says_the_image_beside_the_yaml(tmp_pat
     )
 
 
+@pytest.mark.slow
 def test_the_reported_setup_time_of_h_th_includes_its_rays(tmp_path, monkeypatch):
     """Willow Garage's map spent 25-108 s on H_th's observable-voxel rays and the line said
     '(0.3 s)': the time counted only the sums after the rays."""

@@ -52,6 +52,7 @@ def rays(rng, centre, spread, n, reach):
 options = st.tuples(st.booleans(), st.sampled_from([(False, False), (True, False), (True, True)]))
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(seed=st.integers(0, 2**32 - 1), opts=options, bits=st.sampled_from([2, 3, 4, 5]))
 def test_a_bounded_block_map_fuses_exactly_as_the_dense_map(seed, opts, bits):
@@ -342,6 +343,7 @@ def test_lattices_refuse_bad_geometry_and_grids_off_their_corners():
         BlockMap(lattice).entropy_bits()
 
 
+@pytest.mark.slow
 def test_a_second_process_loads_the_block_kernels_from_numbas_cache():
     stats = second_run_cache_statistics(
         "from swarm.map import block_kernels as b, block_map, fusion_kernel as k\nblock_map.warm_up()",

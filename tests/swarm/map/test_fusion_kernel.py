@@ -211,6 +211,7 @@ def test_rays_ordered_by_direction_are_a_stable_permutation_grouped_by_cell():
     assert np.all(np.diff(order)[same_cell] > 0)  # stable within a cell
 
 
+@pytest.mark.slow
 def test_a_second_process_loads_the_kernels_from_numbas_cache():
     """Numba's own statistics: a fresh interpreter compiles nothing and hits the cache."""
     stats = second_run_cache_statistics(

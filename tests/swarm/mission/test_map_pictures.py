@@ -7,6 +7,7 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 
 from swarm.cli.main import main
 from swarm.cli.map_stats import stats_summary
@@ -36,6 +37,7 @@ def _pixels_of(png, colour, tolerance: int = 30) -> int:
     return int(np.count_nonzero(np.all(np.abs(image - target) <= tolerance, axis=2)))
 
 
+@pytest.mark.slow
 def test_the_paths_are_drawn_over_the_voxels_in_3d(tmp_path) -> None:
     grid = Grid((0.0, 0.0, 0.0), 0.1, (40, 30, 10))
     cmap = _occupied_everywhere(grid)
@@ -50,6 +52,7 @@ def test_the_paths_are_drawn_over_the_voxels_in_3d(tmp_path) -> None:
     assert _pixels_of(tmp_path / "map_3d.png", blue) > 800  # drawn over the voxels (hidden: < 50)
 
 
+@pytest.mark.slow
 def test_one_picture_set_for_every_run_without_negative_zeros_in_its_names(tmp_path) -> None:
     grid = Grid((-1.6, -1.0, -1e-12), 0.1, (32, 20, 9))  # z origin a hair below 0
     cmap = CoverageMap(grid)

@@ -83,6 +83,7 @@ def test_config_names_a_prior_map(tmp_path: Path):
     assert str((tmp_path / "previous.bt").resolve()) in mission.to_yaml()
 
 
+@pytest.mark.slow
 def test_simulated_mission_starts_from_the_previous_map(tmp_path: Path):
     """A previous map of the far half of the room: the server's final map still holds it there."""
     grid = Grid((0.0, 0.0, 0.0), 0.1, (24, 24, 8))

@@ -162,6 +162,7 @@ def test_top_view_image_marks_unknown_columns():
     assert np.isnan(image[5, 5]) and np.count_nonzero(~np.isnan(image)) == 1
 
 
+@pytest.mark.slow
 def test_write_run_folder(tmp_path):
     cmap, observed = _fused_map()
     record = _record()
@@ -196,6 +197,7 @@ def test_write_run_folder(tmp_path):
         assert image.std() > 10  # not a blank canvas
 
 
+@pytest.mark.slow
 def test_metrics_json_has_no_nan(tmp_path):
     cmap = CoverageMap(GRID)
     truth = np.ones(GRID.shape, np.float32)  # all solid: nothing is observable

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from swarm.cli import main
 from swarm.mission.role_processes import start_role, why_it_exited
 from tests.support.paths import CONFIGS
 
 
+@pytest.mark.slow
 def test_a_child_that_exits_is_explained_by_its_last_error_line(tmp_path) -> None:
     child = start_role(["server", "--config", str(tmp_path / "nowhere.yaml"), "--store", str(tmp_path / "s")],
                    tmp_path / "server.log")  # fmt: skip
@@ -26,6 +29,7 @@ def test_a_negative_max_time_is_refused_before_anything_starts(tmp_path, capsys)
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_terminated_mission_stops_every_role_and_says_where_its_run_folder_is(tmp_path) -> None:
     """SIGTERM to `swarm sim` (a job scheduler, `kill`): every role it started stops, the run
     folder is written from the map server's map with ``interrupted: true`` (a resumed study
@@ -113,6 +117,7 @@ walls:
 """
 
 
+@pytest.mark.slow
 def test_a_mission_that_runs_out_of_time_says_so(tmp_path: Path) -> None:
     import json
     import subprocess

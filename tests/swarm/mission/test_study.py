@@ -322,6 +322,7 @@ def test_speedup_bounds_and_failed_runs_in_the_summary():
     assert by_key[("c", 1)].speedup == 1.0 and by_key[("c", 1)].speedup_bound == ""
 
 
+@pytest.mark.slow
 def test_failed_cell_is_recorded_with_its_log_and_the_study_goes_on(tmp_path: Path):
     cfg = _tiny(tmp_path)
     out = tmp_path / "study"
@@ -398,6 +399,7 @@ def test_interrupt_stops_the_running_missions_cleanly(tmp_path: Path):
 # -- a real study --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_tiny_study_end_to_end(tmp_path: Path):
     cfg = _tiny(tmp_path)
     out = tmp_path / "study"

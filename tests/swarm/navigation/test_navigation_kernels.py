@@ -187,6 +187,7 @@ def test_band_occupancy_bound_never_decides_against_expected_coverage(threshold:
     assert 0.05 * n < len(column) < 0.8 * n  # the bound decides many, not all
 
 
+@pytest.mark.slow
 def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> None:
     """Numba's own statistics after the agent's warm-up of planning: a fresh interpreter hits the cache."""
     stats = second_run_cache_statistics(

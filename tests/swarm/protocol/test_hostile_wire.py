@@ -145,6 +145,7 @@ def test_valid_messages_decode():
         assert decodes_or_refuses(cls, payload) is not None, kind
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.sampled_from(KINDS), st.data())
 def test_every_field_of_every_message_mutated(kind, data):

@@ -158,6 +158,7 @@ def test_publisher_and_subscription_exchange_messages_with_attachments(contexts)
     assert all(abs(i.attachment.source_timestamp_ns / 1e9 - time.time()) < 10 for _, i in received)
 
 
+@pytest.mark.slow
 def test_liveliness_tokens_announce_the_node_and_its_endpoints(contexts):
     pub_ctx, sub_ctx = contexts
     node = pub_ctx.node("mapper", "/team")

@@ -26,6 +26,7 @@ def team(tmp_path_factory):
     return init_team(MISSION, ["r1", "r2"], tmp_path_factory.mktemp("team"))
 
 
+@pytest.mark.slow
 def test_an_agent_can_put_only_on_its_own_keys(team, tmp_path):
     others = {
         "merged": one_delta("r2"),
@@ -65,6 +66,7 @@ def test_an_agent_can_put_only_on_its_own_keys(team, tmp_path):
     assert server.stats()["deltas_applied"] == 0
 
 
+@pytest.mark.slow
 def test_an_agent_can_ask_the_coordinator_only_as_its_own_robot(team, tmp_path):
     """Before, every agent queried one key, coord/assign, and the request's ``robot`` field said
     who asked: agent-r1 could ask as r2 (and supersede r2's waiting request) or as invented ids

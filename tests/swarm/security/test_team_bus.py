@@ -113,6 +113,7 @@ def test_r1_cannot_get_a_delta_applied_as_r2_and_a_tool_cannot_put(team, tmp_pat
             assert client.stats()["deltas_applied"] == 1
 
 
+@pytest.mark.slow
 def test_a_client_without_a_mission_certificate_cannot_connect(team, tmp_path):
     other = init_team("srvtest", ["r1"], tmp_path / "other-team")  # same names, another CA
     with secure_server(team, tmp_path / "store") as (_server, endpoint):
@@ -180,6 +181,7 @@ def test_swarm_map_stats_as_a_tool_finds_the_mission_over_the_rules(team, tmp_pa
 # -- the client's own check, with no access control at all ---------------------------------------------
 
 
+@pytest.mark.slow
 def test_clients_refuse_disagreeing_replies_on_an_open_bus(tmp_path):
     endpoint = bus.tcp_endpoint(bus.free_port())
     server = MapServer(small_mission(), tmp_path / "store")

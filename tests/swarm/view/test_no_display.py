@@ -52,6 +52,7 @@ def test_missing_display_reads_the_environment(monkeypatch):
     assert live.missing_display() is None
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="displays are an X/Wayland matter")
 def test_swarm_view_without_a_display_refuses_in_one_line():
     pytest.importorskip("rerun", reason="swarm view first asks for the rerun SDK")
@@ -64,6 +65,7 @@ def test_swarm_view_without_a_display_refuses_in_one_line():
     assert line.startswith("swarm: error: no display to open a viewer window on") and "--save RUN.rrd" in line
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="displays are an X/Wayland matter")
 def test_sim_view_without_a_display_says_so_and_the_mission_runs(tmp_path: Path):
     (tmp_path / "plan.yaml").write_text(PLAN)

@@ -49,6 +49,7 @@ def columns(path: Path) -> dict[str, dict[str, list]]:
     return out
 
 
+@pytest.mark.slow
 def test_a_recorded_mission_holds_voxels_poses_and_entropy(tmp_path: Path):
     (tmp_path / "plan.yaml").write_text(PLAN)
     (tmp_path / "m.yaml").write_text(MISSION)
