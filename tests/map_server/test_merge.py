@@ -1,7 +1,7 @@
 """Map server merging: each (robot, epoch, seq) applied exactly once in any order, acks the
 contiguous prefix, and the merged map equals one central fusion of every robot's batches.
 
-Also holds the helpers the other ``test_server_*`` files share.
+The mission and server helpers it uses are in tests/support/map_server_mission.py.
 """
 
 from __future__ import annotations
@@ -32,9 +32,6 @@ from tests.support.map_server_mission import (
     small_mission,
     wait_until,
 )
-
-# -- shared helpers ---------------------------------------------------------------------------
-
 
 # -- the ledger and the team map, without Zenoh -----------------------------------------------
 

@@ -1,6 +1,6 @@
 """An independent ROS 2-over-Zenoh implementation, ``zenoh-ros2-sdk`` (its own RIHS01 hashes, CDR,
 attachments and liveliness tokens), publishes the shipped EuRoC pairs as raw Image, CameraInfo and
-tf (tests/ros2_sdk_robot.py, a process of its own); our agent fuses them over its ROS 2 path into
+tf (tests/support/ros2_sdk_robot.py, a process of its own); our agent fuses them over its ROS 2 path into
 the map our own protocol gives for the same pairs, and answers each on cmd_vel, which the SDK reads.
 The SDK's message definitions are the few shipped in tests/data/ros2_msgs (no network)."""
 

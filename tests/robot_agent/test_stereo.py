@@ -396,7 +396,7 @@ def test_points_from_depth_equals_a_per_pixel_computation() -> None:
 @pytest.mark.parametrize("min_disparity", [0, -4, 3])
 @pytest.mark.parametrize("pad_left", [0, 5])
 def test_compiled_disparity_and_depth_equal_the_numpy_forms(min_disparity, pad_left):
-    """valid_disparity and depth_of_disparity against tests/stereo_oracle.py, bit for bit."""
+    """valid_disparity and depth_of_disparity against tests/support/stereo_oracle.py, bit for bit."""
     rng = np.random.default_rng(pad_left + 10 * abs(min_disparity))
     height, width = 37, 61
     # SGBM's fixed-point output: invalid marks, sub-pixel values, matches landing in the padding

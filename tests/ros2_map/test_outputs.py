@@ -1,5 +1,5 @@
 """The team map as ROS 2 messages, without Zenoh: the 2-D projection and the occupied cloud
-against computations from the exported map file alone (tests/ros2_map_oracle.py), the messages'
+against computations from the exported map file alone (tests/support/ros2_map_oracle.py), the messages'
 layouts through rosbags' CDR, when whole grids, updates and clouds go out, and a replica that
 refuses every bad merged delta and keeps its map."""
 

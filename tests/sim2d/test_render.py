@@ -1,5 +1,5 @@
 """The renderer: exact depth against analytic geometry, stereo pairs that SGBM can match, and the
-compiled renderer equal to the numpy renderer it replaced (the oracle, tests/reference_render.py)."""
+compiled renderer equal to the numpy renderer it replaced (the oracle, tests/support/reference_render.py)."""
 
 from __future__ import annotations
 
@@ -179,7 +179,7 @@ def test_image_noise_and_no_return_pixels():
     assert clean[~sky].std() > 20  # textured
 
 
-# -- the compiled renderer against the numpy one it replaced (tests/reference_render.py) ----------
+# -- the compiled renderer against the numpy one it replaced (tests/support/reference_render.py) ----------
 
 
 def assert_same_hits(new, old):

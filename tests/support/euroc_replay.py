@@ -12,7 +12,7 @@ from pathlib import Path
 from tests.support.paths import TEST_DATA
 
 EUROC_MINI = TEST_DATA / "euroc_mini"
-REPLAY_FRAMES = 3  # the fewest pairs whose map still shows the floor (tests/test_replay.py)
+REPLAY_FRAMES = 3  # the fewest pairs whose map still shows the floor (tests/replay/test_asl.py)
 
 
 def swarm_replay(args: list[str], out: Path, timeout: float = 300.0) -> float:

@@ -1,6 +1,6 @@
 """Independent computations of what the team map's ROS 2 topics must carry, from a map file
 (``swarm map export``'s map.npz) alone: the 2-D grid column by column in plain Python, and the
-occupied voxels with their belief. Shared by tests/test_ros2_map*.py."""
+occupied voxels with their belief. Shared by tests/ros2_map/."""
 
 from __future__ import annotations
 

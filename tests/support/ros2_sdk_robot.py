@@ -3,8 +3,9 @@ independent of ours (its own RIHS01 hashes, CDR, attachments and liveliness toke
 a recording's raw left/right ``sensor_msgs/Image``, both ``CameraInfo`` and the left camera's pose
 on ``tf``, and waits, pair by pair, for the agent's ``cmd_vel`` stamped with the pair's stamp.
 
-Run by tests/test_ros2_sdk.py in a process of its own (the SDK keeps one Zenoh session per process):
-``python tests/ros2_sdk_robot.py PORT DATA.npz MSGS_DIR NAMESPACE FIXED_FRAME``. The message
+Run by tests/robot_agent/test_ros2_sdk.py in a process of its own (the SDK keeps one Zenoh session
+per process):
+``python tests/support/ros2_sdk_robot.py PORT DATA.npz MSGS_DIR NAMESPACE FIXED_FRAME``. The message
 definitions come from MSGS_DIR (no network: the SDK would clone them from GitHub otherwise). Prints
 ``answered K`` after each answered pair, ``topics ...`` with what the SDK's discovery sees, and
 exits 0 when every pair was answered.

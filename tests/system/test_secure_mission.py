@@ -1,6 +1,6 @@
 """`swarm sim --secure`: a mission where every role holds its own certificate and the map server is
 the TLS router enforcing the access rules. One robot keeps it short (the coordinator's side of the
-rules is shown in tests/test_security.py on real sessions)."""
+rules is shown in tests/swarm/security/test_team_bus.py on real sessions)."""
 
 import json
 import re

@@ -50,7 +50,7 @@ def test_shipped_configs_load(name):
     mission = load_mission(CONFIGS / f"{name}.yaml")
     assert mission.load_floor_plan().count > 0
     if mission.stop.observable_fraction is not None and mission.stop.entropy_threshold_bits is None:
-        return  # the simulator resolves H_th (tests/test_observability.py)
+        return  # the simulator resolves H_th (tests/sim2d/test_observability.py)
     assert mission.threshold_bits() > 0
 
 

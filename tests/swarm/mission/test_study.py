@@ -18,7 +18,7 @@ from swarm.mission.study import Cell, Skipped, StudySpec, expand_grid, summarize
 from tests.support.missions import PLAN
 from tests.support.paths import CONFIGS
 
-# The mission of tests/test_mission_e2e.py with a second robot.
+# The mission of tests/system/test_mission_e2e.py with a second robot.
 MISSION = """
 mission: tiny
 workspace: {lo: [0.0, 0.0, 0.0], hi: [2.4, 2.4, 0.8], voxel: 0.1}
