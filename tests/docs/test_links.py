@@ -1,5 +1,5 @@
-"""Every relative link in README.md and docs/ (Markdown ``[text](target)``) names a file or folder
-that exists, and a ``#fragment`` names a heading of its target page."""
+"""Every relative link in README.md, tests/README.md and docs/ (Markdown ``[text](target)``) names
+a file or folder that exists, and a ``#fragment`` names a heading of its target page."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from tests.support.paths import ROOT
 
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+PAGES = [ROOT / "README.md", ROOT / "tests" / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)|!\[[^\]]*\]\(([^)\s]+)\)")
 FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 
