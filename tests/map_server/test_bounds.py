@@ -8,7 +8,6 @@ import math
 
 import msgpack
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -48,7 +47,6 @@ def test_ray_bound_covers_the_fusion_of_single_rays():
     assert 0 < worst <= bound
 
 
-@pytest.mark.slow
 def test_office_deltas_fit_the_bound():
     """Real frames of the office (stereo, 4 robots driven by their explorers): every frame's
     information and every shared delta is within the bound; none is refused."""

@@ -90,7 +90,6 @@ def test_region_box_and_point_semantics():
 # -- over Zenoh ----------------------------------------------------------------------------------
 
 
-@pytest.mark.slow
 def test_server_merges_duplicated_reordered_deltas_like_central_fusion(tmp_path: Path):
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()

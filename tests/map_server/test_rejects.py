@@ -56,7 +56,6 @@ def test_validate_delta_names_each_kind():
         assert kind in REJECT_KINDS
 
 
-@pytest.mark.slow
 def test_server_counts_each_rejection_and_keeps_serving(tmp_path: Path):
     mission = small_mission()
     grid = mission.workspace.grid()

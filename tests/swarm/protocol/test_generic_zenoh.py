@@ -11,7 +11,6 @@ import time
 
 import msgpack
 import numpy as np
-import pytest
 import zenoh
 
 from swarm.protocol.map_client import MapClient
@@ -45,7 +44,6 @@ def plain_get(endpoint: str, selector: str, timeout: float = 5.0) -> bytes:
     raise AssertionError(f"no reply to {selector}")
 
 
-@pytest.mark.slow
 def test_stats_and_region_from_zenoh_alone(tmp_path):
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
