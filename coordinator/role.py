@@ -14,7 +14,7 @@ Layers: :class:`TeamMap` (the replica: idempotent merged deltas), :class:`Coordi
 (the replica, who holds what, and the planning of one answer; no I/O, callable from tests)
 and :class:`Coordinator` (the Zenoh side: one worker thread applies merged deltas and
 statuses in arrival order, one thread answers queries one at a time, the latest of each robot
-in turn: ``coordinator.requests``). An agent asks with
+in turn: a :class:`swarm.protocol.mailbox.Mailbox` of requests). An agent asks with
 :func:`swarm.protocol.coord_client.ask_for_target`.
 """
 
@@ -35,7 +35,6 @@ from coordinator.assignment import (
     CoordinationParams,
 )
 from coordinator.defaults import SNAPSHOT_TIMEOUT_S
-from coordinator.requests import RequestQueue
 from coordinator.state import Answer, CoordinatorState
 from swarm.compile_progress import compile_progress
 from swarm.config import Mission
@@ -44,6 +43,7 @@ from swarm.navigation import planner
 from swarm.protocol import bus, replies
 from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.codec import short
+from swarm.protocol.mailbox import Mailbox
 from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
@@ -51,6 +51,10 @@ log = logging.getLogger("coordinator")
 
 #: The answer times ``coord/stats`` summarises: the most recent this many.
 ANSWER_TIMES_KEPT = 10_000
+
+#: Robots whose latest request (an older one is refused as superseded), or whose newest status,
+#: may wait at once, served in the order they first came; more are refused (busy) or dropped.
+MAX_WAITING_ROBOTS = MAX_WAITING_STATUSES = 256
 
 #: The largest ``coord/assign`` payload read (a request is about 100 bytes; up to 256 robots'
 #: requests wait at once, each holding its payload).
@@ -91,13 +95,12 @@ class Coordinator:
         #: the latest status payload of each status key not handled yet: a status says where a
         #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
         #: costs the worker one status per round, not a backlog that holds merged deltas back
-        self._statuses: dict[str, bytes] = {}
-        self._statuses_lock = threading.Lock()
+        self._statuses: Mailbox[str, bytes] = Mailbox(MAX_WAITING_STATUSES)
         self._refused: Counter[str] = Counter()  # refused stream messages by kind, for the log
         #: what a remote peer makes the coordinator log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
         #: waiting coord/assign queries and their requests, the latest of each robot
-        self._requests: RequestQueue[tuple[zenoh.Query, AssignRequest]] = RequestQueue()
+        self._requests: Mailbox[str, tuple[zenoh.Query, AssignRequest]] = Mailbox(MAX_WAITING_ROBOTS)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._declared: list = []
@@ -181,12 +184,15 @@ class Coordinator:
         )
 
     def _on_status(self, key: str, payload: bytes) -> None:
-        with self._statuses_lock:
-            wake = not self._statuses  # one wake-up in the inbox for the statuses waiting
-            if key in self._statuses:
-                self.state.counts["status_superseded"] += 1
-            self._statuses[key] = payload
-        if wake:
+        posted = self._statuses.put(key, payload)
+        if posted.replaced is not None:
+            self.state.counts["status_superseded"] += 1
+        elif not posted.accepted:
+            self.state.counts["status_dropped"] += 1
+            self._peer_log.warning(
+                "status_dropped", "status dropped: %d robots' statuses wait", len(self._statuses)
+            )
+        if posted.first:  # one wake-up in the inbox for the statuses waiting
             self._inbox.put(("statuses", None))
 
     def _work(self) -> None:
@@ -203,9 +209,7 @@ class Coordinator:
                 self.merged_budget.give(len(payload))
                 self._handle("merged", self.state.team.apply_payload, payload)
             elif kind == "statuses":
-                with self._statuses_lock:
-                    statuses, self._statuses = self._statuses, {}
-                for key, status in statuses.items():
+                for key, status in self._statuses.take_all().items():
                     self._handle("status", self.state.on_status, status, now, key)
             if now - last_expiry >= 0.5:
                 last_expiry = now
@@ -251,15 +255,17 @@ class Coordinator:
                 self._peer_log.warning("assign_rejected", "rejected assign request (#%d): %s", count, exc)
                 self._refuse(query, started, str(exc))
                 return
-            replaced, taken = self._requests.offer(request.robot, (query, request))
-            if replaced is not None:
+            posted = self._requests.put(request.robot, (query, request))
+            if posted.replaced is not None:
                 self.state.counts["requests_superseded"] += 1
                 self._refuse(
-                    replaced[0], started, f"superseded by a newer request of {short(request.robot, 40)}"
+                    posted.replaced[0],
+                    started,
+                    f"superseded by a newer request of {short(request.robot, 40)}",
                 )
-            if not taken:
+            if not posted.accepted:
                 self.state.counts["requests_busy"] += 1
-                waiting = self._requests.max_robots
+                waiting = self._requests.max_keys
                 self._refuse(query, started, f"busy: {waiting} robots are waiting for an answer; ask again")
         except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
             self._peer_log.exception("assign_callback", "coord/assign callback failed")
@@ -282,7 +288,7 @@ class Coordinator:
                 self._answer(query, request, time.perf_counter())
             finally:
                 query.drop()
-        for query, _request in self._requests.drain():
+        for query, _request in self._requests.take_all().values():
             self._refuse(query, time.perf_counter(), "the coordinator is stopping")
 
     def _timed(self, started: float) -> None:

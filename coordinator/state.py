@@ -25,6 +25,8 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.navigation.exploration import (
     EntropyCandidate,
     ExplorationTarget,
+    SearchContext,
+    SearchOptions,
     rank_entropy_targets,
     wander_target,
 )
@@ -191,14 +193,12 @@ class CoordinatorState:
         grid = cmap.grid
         whole_map = float(np.linalg.norm(grid.hi[:2] - grid.lo[:2])) + grid.voxel
         c = self.mission.coordination
+        ctx = SearchContext.build(
+            cmap, entropy, (pose.xyz[0], pose.xyz[1], pose.ypr[0]), rig.camera_height, trav, cost
+        )
         return rank_entropy_targets(
-            cmap,
-            entropy,
-            (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
-            rig.camera_height,
-            trav,
-            cost,
-            whole_map,
+            ctx,
+            SearchOptions(radius=whole_map),
             limit=c.max_candidates,
             min_separation=c.candidate_spacing,
             max_rejects=c.max_candidates,
@@ -253,7 +253,7 @@ class CoordinatorState:
                 # at all on the team map, "nothing left" lets the agent fall back on its own
                 # (eq. 35 on its map, then the 3-D frontier views the coordinator does not plan).
                 if chosen is None and found:
-                    wander = self._wander(request.pose, cmap, reach, held, theirs)
+                    wander = self._wander(request.pose, cmap, entropy, reach, held, theirs)
                 goal = chosen.xy if chosen is not None else None if wander is None else wander.xy
                 if goal is not None:
                     self.book.hold(request.robot, goal, now)
@@ -282,23 +282,30 @@ class CoordinatorState:
         )
         return Answer(request.robot, reply, chosen, len(found), len(held), wander)
 
-    def _wander(self, pose: Pose, cmap: CoverageMap, reach, held: np.ndarray, theirs: np.ndarray | None):
+    def _wander(
+        self,
+        pose: Pose,
+        cmap: CoverageMap,
+        entropy: np.ndarray,
+        reach,
+        held: np.ndarray,
+        theirs: np.ndarray | None,
+    ):
         """When no eq. 35 target is left: the agent's wander (``wander_target``), kept off
         ``theirs`` (teammates' ground; None: anywhere) and away from the others'
         targets while it can be."""
         rig, trav, cost = reach
-        return wander_target(
+        ctx = SearchContext.build(
             cmap,
+            entropy,
             (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
             rig.camera_height,
             trav,
             cost,
-            2.0 * self.mission.exploration.radius,
-            self._rng,
-            avoid=theirs,
             exclude=list(held),
             exclude_radius=self.params.footprint_radius,
         )
+        return wander_target(ctx, 2.0 * self.mission.exploration.radius, self._rng, avoid=theirs)
 
     def _teammates_shares(self, pool: list[EntropyCandidate], theirs: np.ndarray | None) -> np.ndarray | None:
         """f_r(t) of each candidate's standing point over ``theirs`` (None when it is None)."""

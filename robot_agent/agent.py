@@ -10,8 +10,10 @@ The team map reaches the agent as the server's ``merged`` stream: every delta of
 robot (or of an earlier run of this one) is added to the local map once, so the robot
 plans on what the team has seen; its own deltas of this run are already in it and are
 skipped. An agent that starts while a map server runs begins from its ``map/snapshot``.
-With coordination on, the agent asks ``coord/assign`` for each new target and chooses by
-itself (eq. 35) when no coordinator answers in time, asking again a little later.
+With coordination on, the agent asks ``coord/assign`` before each decision that chooses a new
+target (``Explorer.wants_target``) and passes the answer in (``TeamAdvice``); the explorer
+chooses by itself (eq. 35) when no coordinator answered in time, and the agent asks again a
+little later.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from collections import Counter
 import numpy as np
 import zenoh
 
+from robot_agent.decision import TeamAdvice
 from robot_agent.delta_sender import DeltaSender
 from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
@@ -114,8 +117,6 @@ class Agent:
         self._coordinator_quiet_until = 0.0
         self._told_target: tuple[float, float] | None = None  # the target of the last status
         self._pose: Pose | None = None
-        if self.coordination:
-            self.explorer.assigner = self._ask_coordinator
         self.rejected_frames = 0
         self.frames_fused = 0
         self.last_t = 0.0
@@ -217,7 +218,8 @@ class Agent:
         self.frames_fused += 1
         self.outbox.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
-        decision = self.explorer.decide(x, y, frame.pose.ypr[0], frame.t)
+        advice = self._ask_coordinator() if self.coordination and self.explorer.wants_target else None
+        decision = self.explorer.decide(x, y, frame.pose.ypr[0], frame.t, advice)
         cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega, decision.tilt)
         target = self.explorer.target
         self.link.commands.send(cmd, decision, None if target is None else target.gaze_yaw)
@@ -336,32 +338,35 @@ class Agent:
             applied += 1
 
     # -- the coordinator -------------------------------------------------------------------
-    def _ask_coordinator(self) -> ExplorationTarget | None:
-        """The coordinator's target for this robot, or None to choose alone (eq. 35)."""
+    def _ask_coordinator(self) -> TeamAdvice:
+        """What the coordinator says before the explorer chooses a target: its target for this
+        robot, or none (choose alone, eq. 35) with, after "nothing left", where the teammates
+        went to look and where they head."""
         now = time.monotonic()
-        self.explorer.team_goals = []  # only a "nothing left" reply says where the others head
+        alone = TeamAdvice()  # only a "nothing left" reply says where the others head
         if self._pose is None or now < self._coordinator_quiet_until:
-            return None
+            return alone
         reply = ask_for_target(
             self.session, self.mission.mission, self.robot_id, self._pose, COORDINATOR_TIMEOUT_S
         )
         if reply is None:
             self.coordinator_counts["silent"] += 1
             self._coordinator_quiet_until = now + COORDINATOR_RETRY_S
-            return None
+            return alone
         if reply.target is None:
             self.coordinator_counts["nothing_left"] += 1
             # choosing alone now: not the columns the teammates went to look at
-            self.explorer.team_views = [np.array(v, dtype=np.float64) for v in reply.views]
-            self.explorer.team_goals = [np.array(g, dtype=np.float64) for g in reply.goals]
-            return None
+            views = [np.array(v, dtype=np.float64) for v in reply.views]
+            return TeamAdvice(None, views, [np.array(g, dtype=np.float64) for g in reply.goals])
         self.coordinator_counts["assigned"] += 1
         if reply.flush:  # flush on demand: the coordinator lacks what this robot saw there
             self.coordinator_counts["flushed"] += 1
             self._share(flush=True)
         gaze = reply.gaze or (1.0, 0.0, 0.0)
         xy = np.array(reply.target[:2], dtype=np.float64)
-        return ExplorationTarget(xy, math.atan2(gaze[1], gaze[0]), reply.utility, None, "assigned")
+        return TeamAdvice(
+            ExplorationTarget(xy, math.atan2(gaze[1], gaze[0]), reply.utility, None, "assigned")
+        )
 
     # -- acknowledgements ----------------------------------------------------------------
     def _poll_acks(self) -> None:

@@ -2,7 +2,7 @@
 
 At 640x480 the numpy forms of these two steps took about 6 ms of a 60 ms pair (four
 temporaries and a masked assignment each); one pass per step takes well under 1 ms.
-``tests/stereo_oracle.py`` keeps the numpy forms, which the tests compare these with.
+``tests/support/stereo_oracle.py`` keeps the numpy forms, which the tests compare these with.
 """
 
 from __future__ import annotations

@@ -6,37 +6,35 @@ not wait: at 20 Hz against an agent that fuses 8 frames a second, a first-in fir
 would grow without end, and the agent would answer frames seconds old with commands for a
 robot that has moved on. So the inbox holds one frame, the newest: a frame arriving while
 another waits replaces it, and the replaced one is counted (``superseded``) and gets no answer.
-This is the queue of depth one that ROS image pipelines use for the same reason.
+This is the queue of depth one that ROS image pipelines use for the same reason; here a
+:class:`swarm.protocol.mailbox.Mailbox` of one key.
 """
 
 from __future__ import annotations
 
-import threading
+from swarm.protocol.mailbox import Mailbox
+
+_FRAME = "frame"  # the one key: every frame replaces the one waiting
 
 
 class FrameInbox:
-    """One waiting frame payload (bytes), the newest; thread-safe (Zenoh's callback puts, the
-    agent's loop takes).
-
-    ``superseded`` counts the frames replaced before the agent took them."""
+    """One waiting frame, the newest: a payload (bytes), or a link's pending frame
+    (``robot_agent.frame_link.PendingFrame``); thread-safe (the link's callback puts, the
+    agent's loop takes)."""
 
     def __init__(self) -> None:
-        self._ready = threading.Condition()
-        self._payload: bytes | None = None
-        self.superseded = 0
+        self._box: Mailbox[str, object] = Mailbox(max_keys=1)
 
-    def put(self, payload: bytes) -> None:
+    @property
+    def superseded(self) -> int:
+        """Frames replaced by a newer one before the agent took them."""
+        return self._box.replaced
+
+    def put(self, payload: object) -> None:
         """Leave ``payload`` for the agent, replacing (and counting) a frame still waiting."""
-        with self._ready:
-            if self._payload is not None:
-                self.superseded += 1
-            self._payload = payload
-            self._ready.notify()
+        self._box.put(_FRAME, payload)
 
-    def take(self, timeout: float) -> bytes | None:
+    def take(self, timeout: float) -> object | None:
         """The waiting frame, waiting up to ``timeout`` seconds for one; None if none came."""
-        with self._ready:
-            if self._payload is None:
-                self._ready.wait_for(lambda: self._payload is not None, timeout=timeout)
-            payload, self._payload = self._payload, None
-            return payload
+        taken = self._box.take(timeout)
+        return None if taken is None else taken[1]

@@ -6,18 +6,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from robot_agent.stereo import points_from_depth
+from robot_agent.stereo import StereoMatcher, points_from_depth
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import EntropyTable
 from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
 from swarm.protocol.wire import Frame
 
 
-class LocalMapping:
-    """The perception half of :class:`robot_agent.explorer.Explorer`: its methods read and
-    update the explorer's ``grid``, ``sensor``, ``matcher``, ``table``, ``map``
-    (CoverageMap) and ``entropy`` (EntropyCache)."""
+class LocalMap:
+    """A robot's coverage map (``map``) on the mission's ``grid`` and its per-voxel entropy
+    (``entropy``, an EntropyCache on ``table``); ``matcher`` turns stereo pairs into depth
+    (None for a range camera)."""
+
+    def __init__(
+        self, grid: Grid, sensor: SensorModel, table: EntropyTable, matcher: StereoMatcher | None
+    ) -> None:
+        self.grid = grid
+        self.sensor = sensor
+        self.table = table
+        self.matcher = matcher
+        self.map = CoverageMap(grid, sensor)
+        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=table)
 
     def points(self, frame: Frame) -> np.ndarray:
         """World points of a frame's valid pixels within max range (stereo is matched first)."""
@@ -25,6 +37,8 @@ class LocalMapping:
         if frame.is_depth:
             depth = frame.depth
         else:
+            if self.matcher is None:
+                raise ValueError("a stereo frame for a robot whose rig is a range camera")
             depth = self.matcher.depth(frame.left, frame.right, cam)
         return points_from_depth(
             depth, cam.fx, cam.fy, cam.cx, cam.cy, frame.pose.xyz, frame.pose.ypr, self.sensor.max_range
@@ -37,11 +51,12 @@ class LocalMapping:
         return result.delta
 
     def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
-        """Start from the team map (a server snapshot, prior included); before any frame."""
+        """Start from the team map (a server snapshot, prior included); before any frame.
+        ValueError when ``grid`` is not the mission's."""
         if not self.grid.matches(grid):
             raise ValueError(f"the team map's grid {grid} is not the mission's {self.grid}")
         self.map = CoverageMap(self.grid, self.sensor, lam, eta)
-        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+        self.recompute_entropy()
 
     def apply_external(self, delta: Delta) -> None:
         """Add information another robot gathered (from the team's merged stream)."""
@@ -49,9 +64,15 @@ class LocalMapping:
         self.apply_entropy(delta)
 
     def apply_entropy(self, delta: Delta) -> None:
+        """Bring the entropy of the voxels ``delta`` touched up to date with the map."""
         idx = delta.idx.astype(np.int64)
         self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
 
+    def recompute_entropy(self) -> None:
+        """The entropy of every voxel from the map again (after the map's arrays were set whole)."""
+        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+
     @property
-    def map_entropy(self) -> float:
+    def entropy_bits(self) -> float:
+        """The map's entropy H (bits, eq. 36's left side)."""
         return float(self.entropy.total)

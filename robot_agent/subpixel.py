@@ -19,7 +19,7 @@ least ``min_significance`` standard errors from 0 (the standard error from the w
 residual sum of squares); elsewhere SGBM's value stays, and a pixel without a disparity gets
 none. This is the Lucas-Kanade (1981) registration step restricted to the epipolar line.
 
-``tests/stereo_oracle.py`` keeps a pixel-by-pixel form (each window solved with
+``tests/support/stereo_oracle.py`` keeps a pixel-by-pixel form (each window solved with
 ``np.linalg.lstsq``) that the tests compare this kernel with.
 """
 

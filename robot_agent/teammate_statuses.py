@@ -4,19 +4,20 @@ Each agent publishes ``robot/<rid>/status`` every frame (``docs/protocol.md``); 
 of the mission takes the newest one of each robot between two of its frames and notes where
 that robot was (:class:`swarm.navigation.teammates.Teammates`). Anyone on an open bus can
 publish statuses: malformed ones, ones whose robot differs from their key, and keys beyond
-MAX_WAITING_KEYS between two frames are refused and counted, the log lines bounded.
+MAX_WAITING_KEYS between two frames are refused and counted, the log lines bounded. The
+statuses wait in a :class:`swarm.protocol.mailbox.Mailbox` (the newest of each key).
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 
 import zenoh
 
 from swarm.log_limit import LogLimiter
 from swarm.navigation.teammates import Teammates
 from swarm.protocol import bus
+from swarm.protocol.mailbox import Mailbox
 from swarm.protocol.robot_messages import status_on_key
 from swarm.protocol.wire import WireError
 
@@ -31,32 +32,32 @@ class TeammateStatuses:
 
     def __init__(self, session: zenoh.Session, mission: str, robot_id: str, peer_log: LogLimiter) -> None:
         self.robot_id = robot_id
-        self.rejected = 0  # malformed, on another robot's key, or beyond MAX_WAITING_KEYS
+        self._malformed = 0  # malformed, or on another robot's key
         self._peer_log = peer_log
-        self._lock = threading.Lock()
-        self._waiting: dict[str, bytes] = {}  # key -> newest payload since the last frame
+        #: status key -> the newest payload since the last frame
+        self._waiting: Mailbox[str, bytes] = Mailbox(MAX_WAITING_KEYS)
         self._sub = bus.subscribe(session, bus.key_pattern(mission, "robot", "*", "status"), self._on_status)
 
+    @property
+    def rejected(self) -> int:
+        """Statuses refused: malformed, on another robot's key, or beyond MAX_WAITING_KEYS."""
+        return self._malformed + self._waiting.dropped
+
     def _on_status(self, key: str, payload: bytes) -> None:
-        with self._lock:
-            if key in self._waiting or len(self._waiting) < MAX_WAITING_KEYS:
-                self._waiting[key] = payload  # a newer status of the same robot replaces the older
-                return
-            self.rejected += 1
+        if self._waiting.put(key, payload).accepted:  # a newer status of a robot replaces the older
+            return
         self._peer_log.warning("status_dropped", "%s: status dropped (too many robots)", self.robot_id)
 
     def apply(self, teammates: Teammates, now: float) -> int:
         """Note in ``teammates`` the statuses received since the last call, at mission time
         ``now`` (s, this frame's); returns how many were kept (not this robot's own, not older
         than the one held, not from the future: ``Teammates.update``)."""
-        with self._lock:
-            waiting, self._waiting = self._waiting, {}
         kept = 0
-        for key, payload in waiting.items():
+        for key, payload in self._waiting.take_all().items():
             try:
                 status = status_on_key(key, payload)
             except WireError as exc:
-                self.rejected += 1
+                self._malformed += 1
                 log.debug("%s: rejected status on %s: %s", self.robot_id, key, exc)
                 continue
             xyz = status.pose.xyz

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from tests.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
+from tests.support.euroc_replay import EUROC_MINI, REPLAY_FRAMES, swarm_replay
+
+# Fixtures defined beside the helpers they serve (tests/support), offered to every test.
+pytest_plugins = ["tests.support.secure_team", "tests.support.stereo_scenes"]
 
 
 @pytest.fixture(scope="session")

@@ -7,9 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.architecture_rules import PACKAGES, cycles, module_imports, violations
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support.architecture_rules import PACKAGES, cycles, module_imports, violations
+from tests.support.paths import ROOT
 
 
 def test_the_house_keeps_its_import_rules():
@@ -30,6 +29,7 @@ def tree(tmp_path: Path) -> Path:
     return tmp_path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("module", "line", "expected"),
     [

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from swarm.cli import ros2_options
 from swarm.cli.common import fail
+from swarm.navigation.strategies import STRATEGIES
 from swarm.protocol import bus
 
 
@@ -26,7 +27,7 @@ def register_agent(sub: argparse._SubParsersAction) -> None:
     bus.add_client_arguments(p)
     p.add_argument(
         "--strategy",
-        choices=["entropy", "frontier", "random"],
+        choices=STRATEGIES,
         default="entropy",
         help="exploration: entropy gradient (the paper, default), nearest frontier, or random",
     )

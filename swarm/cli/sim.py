@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from swarm.navigation.strategies import STRATEGIES
+
 # -- swarm sim ----------------------------------------------------------------------------
 SIM_COMMANDS = {"run", "render", "world", "-h", "--help"}
 DEFAULT_MISSION = "configs/office.yaml"
@@ -34,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--out", type=Path, help="run folder (default runs/<mission>-<strategy>-s<seed>)")
     run.add_argument(
         "--strategy",
-        choices=["entropy", "frontier", "random"],
+        choices=STRATEGIES,
         default="entropy",
         help="exploration: entropy gradient (the paper, default), nearest frontier, or random",
     )

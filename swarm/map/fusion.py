@@ -5,7 +5,7 @@ detected. Each ray updates the voxels it traverses and the voxel behind its hit 
 the Gaussian sensor model; in information form the update of a voxel is the sum of
 lam = 1/sigma^2 and eta = mu/sigma^2 over the rays that influence it. The work is done
 by the compiled kernels of ``swarm.map.ray_batch`` and ``swarm.map.fusion_kernel``;
-``tests/fusion_oracle.py`` is the numpy implementation they are tested against.
+``tests/support/fusion_oracle.py`` is the numpy implementation they are tested against.
 """
 
 from __future__ import annotations

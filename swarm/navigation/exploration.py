@@ -1,7 +1,9 @@
 """Where a robot should go next: the paper's entropy-gradient target and two baselines.
 
-Pure functions of the map, the robot's pose, its traversability grid and its planner cost
-map (docs/design.md section 3, "Exploration", paper eq. 27-36); no I/O, no state.
+Pure functions of one :class:`~swarm.navigation.search_context.SearchContext` (the map, its
+entropy, the robot's pose, its traversability grid and planner cost map) and a frozen
+:class:`SearchOptions` (docs/design.md section 3, "Exploration", paper eq. 27-36); no I/O, no
+state. The strategies' names are :data:`swarm.navigation.strategies.STRATEGIES`.
 
 - ``"entropy"`` (the paper): l_s = argmax |grad H_G(l)| (1 - E[C_l]) over the slab of
   voxels at sensor height within xi of the robot (eq. 30, 32, 33, 35), among voxels the
@@ -32,7 +34,8 @@ checked exactly (:mod:`swarm.navigation.standing_points`: distance, angle to the
 straight line of sight); candidates without one are skipped.
 
 Grids: the traversability grid must be the map's x-y columns (same origin, resolution
-and shape), as :func:`swarm.navigation.traversability.build_traversability` makes it.
+and shape), as :func:`swarm.navigation.traversability.build_traversability` makes it
+(:meth:`SearchContext.build` checks).
 """
 
 from __future__ import annotations
@@ -43,12 +46,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarm.map.coverage_map import CoverageMap
 from swarm.map.gradient import candidate_voxels, entropy_gradient, project_on_plane, robot_axes, target_scores
 from swarm.navigation.baselines import frontier_cells, frontier_target, random_cell_target, random_target
 from swarm.navigation.probing import probe_target
 from swarm.navigation.search_context import SearchContext
 from swarm.navigation.standing_points import ViewGeometry, standing_cell
+from swarm.navigation.strategies import STRATEGIES, check_strategy
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid
 from swarm.navigation.view_targets import CameraReach, uncertain_voxels, view_target
@@ -58,6 +61,8 @@ __all__ = [
     "STRATEGIES",
     "EntropyCandidate",
     "ExplorationTarget",
+    "SearchContext",
+    "SearchOptions",
     "choose_target",
     "frontier_cells",
     "last_look_target",
@@ -65,13 +70,42 @@ __all__ = [
     "wander_target",
 ]
 
-STRATEGIES = ("entropy", "frontier", "random")
 #: Default eq. 35 threshold, as an entropy step between neighbouring voxels: a score is
 #: conclusive when it beats a 2-bit step (per voxel edge) at a surely empty voxel, or a
 #: 4-bit step at an unknown one (E[C] = 1/2); tuned on the office simulation.
 DEFAULT_MIN_STEP_BITS = 2.0
 #: Candidates the standing-point check rejects before the radius is widened anyway.
 MAX_TRIES = 64
+
+
+@dataclass(frozen=True)
+class SearchOptions:
+    """How a target search looks: the knobs, fixed for a robot or a call (the state is the
+    :class:`SearchContext`).
+
+    ``radius``: the neighbourhood xi of eq. 30 (m); ``min_score``: the eq. 35 threshold
+    (bits/m; None: DEFAULT_MIN_STEP_BITS / voxel edge); ``view``: where the robot may stand to
+    look at an entropy target; ``widen``: double xi up to the whole map when nothing within it
+    is conclusive (False: the paper's fixed radius, then wander, then None); ``camera``: the
+    camera's elevation band and range, for the 3-D frontier views (None: no views);
+    ``max_looks``: frontier strategy, looks per 3-D frontier column, each from another cell
+    (:mod:`swarm.navigation.view_targets`; the entropy strategy looks at each column once).
+    """
+
+    radius: float = 1.5
+    min_score: float | None = None
+    view: ViewGeometry = ViewGeometry()
+    widen: bool = True
+    camera: CameraReach | None = None
+    max_looks: int = 1
+
+    def __post_init__(self) -> None:
+        if not self.radius > 0:
+            raise ValueError(f"radius must be > 0, got {self.radius}")
+        if self.min_score is not None and not self.min_score >= 0:
+            raise ValueError(f"min_score must be >= 0, got {self.min_score}")
+        if self.max_looks < 1:
+            raise ValueError(f"max_looks must be >= 1, got {self.max_looks}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,132 +135,78 @@ class EntropyCandidate:
 
 def choose_target(
     strategy: str,
-    cmap: CoverageMap,
-    entropy: np.ndarray,
-    pose: tuple[float, float, float],
-    sensor_height: float,
-    trav: TraversabilityGrid,
-    planner_cost: np.ndarray,
-    radius: float,
+    ctx: SearchContext,
+    options: SearchOptions,
     rng: np.random.Generator,
-    min_score: float | None = None,
-    exclude: Sequence[np.ndarray] = (),
     *,
-    view: ViewGeometry = ViewGeometry(),
-    exclude_radius: float = 1.0,
-    widen: bool = True,
-    camera: CameraReach | None = None,
     tried: Sequence[np.ndarray] = (),
     stands: Sequence[np.ndarray] | None = None,
-    max_looks: int = 1,
     optimistic: TraversabilityGrid | None = None,
-    keep_away: Sequence[np.ndarray] = (),
-    keep_away_radius: float = 0.0,
 ) -> ExplorationTarget | None:
-    """The next target of ``strategy`` ("entropy", "frontier" or "random"), or None when done.
+    """The next target of ``strategy`` (one of STRATEGIES) in ``ctx``, or None when done.
 
-    ``entropy`` is the per-voxel entropy (flat, as kept by EntropyCache), ``pose`` the robot's
-    (x, y, yaw), ``sensor_height`` the sensor's world z, ``planner_cost`` the
-    GridPlanner.cost_map from the robot's cell (metres, inf where unreachable; from
-    ``nearest_free_cell`` when inflation blocks the robot's own cell), ``radius``
-    the neighbourhood xi of eq. 30. ``exclude``: x-y points (other robots' targets, recently
-    failed ones); targets within ``exclude_radius`` of them are skipped. ``min_score`` (eq.
-    35 units, bits/m) defaults to DEFAULT_MIN_STEP_BITS / voxel edge. ``view`` says where
-    the robot may stand to look at an entropy target; ``widen=False`` keeps the paper's
-    fixed radius (then wander, then None).
-
-    ``camera``: the camera's elevation band and range. When given, a strategy whose own
-    targets have run out (no eq. 35 target and no unknown slab voxel in view; no 2-D frontier)
-    goes on to the nearest 3-D frontier voxel it can be pointed at
-    (:func:`swarm.navigation.view_targets.view_target`, kind ``"view"``), skipping the
-    columns in ``tried`` (x-y); None only when none is left either. For ``"frontier"``,
-    ``stands`` (where the robot stood for each of ``tried``) and ``max_looks`` let a column be
-    looked at again from elsewhere, up to ``max_looks`` times (see
-    :mod:`swarm.navigation.view_targets`); the entropy strategy looks at each column once.
+    With ``options.camera``, a strategy whose own targets have run out (no eq. 35 target and
+    no unknown slab voxel in view; no 2-D frontier) goes on to the nearest 3-D frontier voxel
+    it can be pointed at (:func:`swarm.navigation.view_targets.view_target`, kind ``"view"``),
+    skipping the columns in ``tried`` (x-y); None only when none is left either. For
+    ``"frontier"``, ``stands`` (where the robot stood for each of ``tried``) and
+    ``options.max_looks`` let a column be looked at again from elsewhere.
 
     ``optimistic``: the grid of :func:`swarm.navigation.probing.optimistic_traversability`.
     When given, the entropy strategy with no eq. 35 target first probes the largest unknown
     floor region it opens (kind ``"probe"``, :func:`swarm.navigation.probing.probe_target`:
     a room behind a door whose floor is unknown), before the 3-D views; plan to a probe on
-    ``optimistic``.
-
-    ``keep_away``: x-y points (where teammates are heading) that targets and standing points
-    stay farther than ``keep_away_radius`` (m) from, as from ``exclude``.
+    ``optimistic``. ValueError for an unknown strategy.
     """
-    ctx = SearchContext.build(
-        cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius, keep_away, keep_away_radius
-    )
+    check_strategy(strategy)
     if strategy == "entropy":
-        return _entropy_target(ctx, entropy, radius, rng, min_score, view, widen, camera, tried, optimistic)
+        return _entropy_target(ctx, options, rng, tried, optimistic)
     if strategy == "frontier":
-        found = frontier_target(ctx, view.far)
-        if found is None and camera is not None:
-            found = view_target(ctx, camera, tried, kind="frontier3d", stands=stands, max_looks=max_looks)
+        found = frontier_target(ctx, options.view.far)
+        if found is None and options.camera is not None:
+            found = view_target(
+                ctx, options.camera, tried, kind="frontier3d", stands=stands, max_looks=options.max_looks
+            )
         return found
-    if strategy == "random":
-        return random_target(ctx, 2.0 * radius, rng, view.far)
-    raise ValueError(f"unknown exploration strategy {strategy!r}; expected one of {STRATEGIES}")
+    return random_target(ctx, 2.0 * options.radius, rng, options.view.far)
 
 
 def last_look_target(
-    cmap: CoverageMap,
-    entropy: np.ndarray,
-    pose: tuple[float, float, float],
-    sensor_height: float,
-    trav: TraversabilityGrid,
-    planner_cost: np.ndarray,
-    camera: CameraReach,
-    min_bits: float,
-    tried: Sequence[np.ndarray] = (),
-    exclude: Sequence[np.ndarray] = (),
-    exclude_radius: float = 1.0,
+    ctx: SearchContext, camera: CameraReach, min_bits: float, tried: Sequence[np.ndarray] = ()
 ) -> ExplorationTarget | None:
     """Where a robot that has no other target left would stop: the nearest view (kind
     ``"last look"``) of a voxel still holding at least ``min_bits`` of entropy (known or not)
     on a face of known free space, skipping the columns in ``tried``
     (:func:`swarm.navigation.view_targets.uncertain_voxels`); None when no such voxel is in
-    view of a reachable cell. The arguments are those of :func:`choose_target`."""
-    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
-    voxels = uncertain_voxels(ctx, entropy, min_bits)
+    view of a reachable cell."""
+    voxels = uncertain_voxels(ctx, ctx.entropy, min_bits)
     return view_target(ctx, camera, tried, kind="last look", voxels=voxels)
 
 
 def rank_entropy_targets(
-    cmap: CoverageMap,
-    entropy: np.ndarray,
-    pose: tuple[float, float, float],
-    sensor_height: float,
-    trav: TraversabilityGrid,
-    planner_cost: np.ndarray,
-    radius: float,
-    min_score: float | None = None,
-    exclude: Sequence[np.ndarray] = (),
+    ctx: SearchContext,
+    options: SearchOptions,
     *,
-    view: ViewGeometry = ViewGeometry(),
-    exclude_radius: float = 1.0,
-    widen: bool = True,
     limit: int | None = None,
     min_separation: float = 0.0,
     max_rejects: int = MAX_TRIES,
 ) -> list[EntropyCandidate]:
     """Entropy targets (eq. 30-35) in the order ``choose_target("entropy", ...)`` tries them.
 
-    The arguments are those of :func:`choose_target`. Candidates come ring by ring (xi,
-    then 2 xi, 4 xi, ... while ``widen``), by decreasing eq. 35 utility within a ring, each
-    with a standing point and its path cost from ``planner_cost``; the first one is
-    ``choose_target``'s entropy target whenever that is not a wander. A radius at least the
-    map's extent gives one ring: the whole map by utility. ``min_separation`` (m) skips a
-    voxel column closer than that to one already listed (a spread-out list for the
-    coordinator); ``limit`` caps the length; ``max_rejects`` candidates without a standing
-    point end a ring early. Empty when nothing viewable beats ``min_score`` (no wandering
-    here).
+    Candidates come ring by ring (xi, then 2 xi, 4 xi, ... while ``options.widen``), by
+    decreasing eq. 35 utility within a ring, each with a standing point and its path cost from
+    the context's planner cost; the first one is ``choose_target``'s entropy target whenever that
+    is not a wander. A radius at least the map's extent gives one ring: the whole map by
+    utility. ``min_separation`` (m) skips a voxel column closer than that to one already listed
+    (a spread-out list for the coordinator); ``limit`` caps the length; ``max_rejects``
+    candidates without a standing point end a ring early. Empty when nothing viewable beats
+    the threshold (no wandering here).
     """
     if limit is not None and limit < 1:
         raise ValueError(f"limit must be >= 1, got {limit}")
     if max_rejects < 1:
         raise ValueError(f"max_rejects must be >= 1, got {max_rejects}")
-    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
-    found = _entropy_candidates(ctx, entropy, radius, min_score, view, widen, max_rejects, min_separation)
+    found = _entropy_candidates(ctx, options, max_rejects, min_separation)
     out: list[EntropyCandidate] = []
     for candidate in found:
         out.append(candidate)
@@ -236,27 +216,16 @@ def rank_entropy_targets(
 
 
 def wander_target(
-    cmap: CoverageMap,
-    pose: tuple[float, float, float],
-    sensor_height: float,
-    trav: TraversabilityGrid,
-    planner_cost: np.ndarray,
-    radius: float,
-    rng: np.random.Generator,
-    avoid: np.ndarray | None = None,
-    exclude: Sequence[np.ndarray] = (),
-    *,
-    exclude_radius: float = 1.0,
+    ctx: SearchContext, radius: float, rng: np.random.Generator, avoid: np.ndarray | None = None
 ) -> ExplorationTarget | None:
     """``choose_target``'s wander, for a caller that knows where the robot should not go.
 
     When eq. 35 offers nothing, an agent wanders: a uniform reachable cell within
-    ``radius`` of it (else anywhere reachable), random gaze, while any unknown slab voxel
+    ``radius`` (m) of it (else anywhere reachable), random gaze, while any unknown slab voxel
     is in view of reachable space (None otherwise: nothing left to see). Here the cell is
-    also kept out of ``avoid`` ((nx, ny) bool) and away from the ``exclude`` points (within
-    ``exclude_radius``) while any other reachable cell is left.
+    also kept out of ``avoid`` ((nx, ny) bool) and away from the context's excluded points
+    while any other reachable cell is left.
     """
-    ctx = SearchContext.build(cmap, pose, sensor_height, trav, planner_cost, exclude, exclude_radius)
     if not ctx.reach.any() or not ctx.unknown_in_view():
         return None
     allowed = ctx.allowed if avoid is None else ctx.allowed & ~np.asarray(avoid, dtype=bool)
@@ -272,44 +241,32 @@ def wander_target(
 # ---------------------------------------------------------------------------------------
 def _entropy_target(
     ctx: SearchContext,
-    entropy: np.ndarray,
-    radius: float,
+    options: SearchOptions,
     rng: np.random.Generator,
-    min_score: float | None = None,
-    view: ViewGeometry = ViewGeometry(),
-    widen: bool = True,
-    camera: CameraReach | None = None,
     tried: Sequence[np.ndarray] = (),
     optimistic: TraversabilityGrid | None = None,
 ) -> ExplorationTarget | None:
     """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else a probe
-    into unknown floor (with ``optimistic``); else a 3-D frontier view (with ``camera``); else
+    into unknown floor (with ``optimistic``); else a 3-D frontier view (with a camera); else
     wander/None."""
-    best = next(_entropy_candidates(ctx, entropy, radius, min_score, view, widen), None)
+    best = next(_entropy_candidates(ctx, options), None)
     if best is not None:
         return best.as_target()
     if optimistic is not None:
         probe = probe_target(ctx, optimistic)
         if probe is not None:
             return probe
-    if camera is not None:
-        seen = view_target(ctx, camera, tried)
+    if options.camera is not None:
+        seen = view_target(ctx, options.camera, tried)
         if seen is not None:
             return seen
     if not ctx.reach.any() or not ctx.unknown_in_view():
         return None
-    return random_cell_target(ctx, 2.0 * radius, rng, "wander", 0.0)
+    return random_cell_target(ctx, 2.0 * options.radius, rng, "wander", 0.0)
 
 
 def _entropy_candidates(
-    ctx: SearchContext,
-    entropy: np.ndarray,
-    radius: float,
-    min_score: float | None = None,
-    view: ViewGeometry = ViewGeometry(),
-    widen: bool = True,
-    max_rejects: int = MAX_TRIES,
-    min_separation: float = 0.0,
+    ctx: SearchContext, options: SearchOptions, max_rejects: int = MAX_TRIES, min_separation: float = 0.0
 ) -> Iterator[EntropyCandidate]:
     """Eq. 35 candidates with a standing point, best first within xi, then 2 xi, 4 xi, ...
 
@@ -322,11 +279,9 @@ def _entropy_candidates(
     grid = ctx.cmap.grid
     nx, ny, nz = grid.shape
     e = grid.voxel
-    H = np.asarray(entropy).reshape(nx, ny, nz)
-    if min_score is None:
-        min_score = DEFAULT_MIN_STEP_BITS / e
-    if not (radius > 0 and min_score >= 0):
-        raise ValueError(f"need radius > 0 and min_score >= 0, got {radius}, {min_score}")
+    H = ctx.entropy.reshape(nx, ny, nz)
+    min_score = DEFAULT_MIN_STEP_BITS / e if options.min_score is None else options.min_score
+    view = options.view
     if not ctx.reach.any():
         return
     # eq. 32 on the slab (one layer below it for the z difference), projected (eq. 33)
@@ -340,7 +295,7 @@ def _entropy_candidates(
     far = np.linalg.norm(np.maximum(ctx.position - grid.lo, grid.hi - ctx.position)[:2]) + e
     z = grid.lo[2] + (k0 + 0.5) * e
     taken: list[np.ndarray] = []
-    xi = float(radius)
+    xi = float(options.radius)
     while open_.any():
         flat = candidate_voxels(grid.shape, e, grid.origin, ctx.position, xi)  # eq. 30
         cols = flat // nz
@@ -371,6 +326,6 @@ def _entropy_candidates(
             tries += 1
             if tries >= max_rejects:
                 break
-        if not widen or xi >= far:
+        if not options.widen or xi >= far:
             break
         xi *= 2.0

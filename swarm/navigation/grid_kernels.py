@@ -2,7 +2,7 @@
 
 Each function computes exactly what a few numpy/scipy calls computed before (same float
 operations in the same order, so the same answers); the numpy versions are kept in
-``tests/navigation_oracle.py`` and the tests compare the two. They exist because on the
+``tests/support/navigation_oracle.py`` and the tests compare the two. They exist because on the
 agent's grids (about 160 x 100 cells) the per-call overheads of those numpy calls, not the
 arithmetic, took most of a planning step. Compiled with ``cache=True``.
 """

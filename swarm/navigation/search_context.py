@@ -1,5 +1,11 @@
-"""What one target search shares: the robot, its reachable floor, the slab at sensor height, and
-what it can see from where (line of sight through known-transparent voxels)."""
+"""What one target search shares: the map and its entropy, the robot, its reachable floor, the
+slab at sensor height, and what it can see from where (line of sight through known-transparent
+voxels).
+
+A caller builds one :class:`SearchContext` per decision (:meth:`SearchContext.build`) and hands
+it to the searches of :mod:`swarm.navigation.exploration` with a
+:class:`swarm.navigation.exploration.SearchOptions`.
+"""
 
 from __future__ import annotations
 
@@ -23,9 +29,12 @@ OPAQUE_COVERAGE = 0.2
 # ---------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class SearchContext:
-    """Everything the strategies share, computed once per call (2-D arrays are (nx, ny))."""
+    """Everything the strategies share, computed once per decision (2-D arrays are (nx, ny)).
+
+    ``entropy`` is the map's per-voxel entropy (bits, flat, as kept by EntropyCache)."""
 
     cmap: CoverageMap
+    entropy: np.ndarray
     trav: TraversabilityGrid
     position: np.ndarray  # sensor position x (3,), eq. 30
     yaw: float
@@ -44,16 +53,32 @@ class SearchContext:
     def build(
         cls,
         cmap: CoverageMap,
+        entropy: np.ndarray,
         pose: tuple[float, float, float],
         sensor_height: float,
         trav: TraversabilityGrid,
         planner_cost: np.ndarray,
-        exclude: Sequence[np.ndarray],
-        exclude_radius: float,
+        *,
+        exclude: Sequence[np.ndarray] = (),
+        exclude_radius: float = 1.0,
         keep_away: Sequence[np.ndarray] = (),
         keep_away_radius: float = 0.0,
     ) -> SearchContext:
+        """The context of one search on ``cmap`` with its per-voxel ``entropy`` (bits, flat).
+
+        ``pose`` is the robot's (x, y, yaw) (m, rad), ``sensor_height`` the sensor's world z (m),
+        ``trav`` the map's x-y columns (same origin, voxel and shape, as
+        :func:`swarm.navigation.traversability.build_traversability` makes it), ``planner_cost``
+        the GridPlanner.cost_map from the robot's cell (m, inf where unreachable; from
+        ``nearest_free_cell`` when inflation blocks the robot's own cell). Targets and standing
+        points stay farther than ``exclude_radius`` (m) from the x-y points ``exclude`` (other
+        robots' targets, recently failed ones) and than ``keep_away_radius`` from ``keep_away``
+        (where teammates head). ValueError when the grids or the sensor height do not fit."""
         grid = cmap.grid
+        if np.shape(entropy) != (grid.size,):
+            raise ValueError(
+                f"entropy has shape {np.shape(entropy)}, expected ({grid.size},) (flat, per voxel)"
+            )
         nx, ny, nz = grid.shape
         e = grid.voxel
         if trav.shape != (nx, ny) or not (
@@ -87,6 +112,7 @@ class SearchContext:
         cov = expected_coverage(cmap.mean(slab), cmap.sigma(slab)).reshape(nx, ny)
         return cls(
             cmap=cmap,
+            entropy=np.asarray(entropy),
             trav=trav,
             position=np.array([x, y, float(sensor_height)]),
             yaw=yaw,

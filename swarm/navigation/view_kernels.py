@@ -1,6 +1,6 @@
 """Compiled (Numba) search for where to stand to look at one 3-D frontier column.
 
-``stand_for`` computes exactly what the numpy version in ``tests/navigation_oracle.py``
+``stand_for`` computes exactly what the numpy version in ``tests/support/navigation_oracle.py``
 (``reference_stand_for``) computes, with the same float operations in the same order:
 the cells in the column's square window, their horizontal distance to the column, a stable
 sort by path cost, and the slab line-of-sight test of the cheapest 64. A 3-D view target

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from swarm.mission.study.grid import COORDINATIONS, OPTION_OF, STRATEGIES, StudyError, StudySpec
+from swarm.mission.study.grid import COORDINATIONS, OPTION_OF, StudyError, StudySpec
+from swarm.navigation.strategies import STRATEGIES
 
 # -- command line ----------------------------------------------------------------------------------
 

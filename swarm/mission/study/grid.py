@@ -10,9 +10,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-Strategy = Literal["entropy", "frontier", "random"]
+from swarm.navigation.strategies import Strategy
+
 Coordination = Literal["coordinator", "none"]
-STRATEGIES: tuple[str, ...] = ("entropy", "frontier", "random")
 COORDINATIONS: tuple[str, ...] = ("coordinator", "none")
 
 

@@ -10,8 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from swarm.mission.run_report import METRIC_KEYS
-from swarm.mission.study.grid import COORDINATIONS, STRATEGIES, Skipped, StudySpec, unique
+from swarm.mission.study.grid import COORDINATIONS, Skipped, StudySpec, unique
 from swarm.mission.study.runner import RunResult
+from swarm.navigation.strategies import STRATEGIES
 
 # -- tables ----------------------------------------------------------------------------------------
 

@@ -1,0 +1,99 @@
+"""A corridor mission for the coordinator's tests: its map, robot poses, a stand-in map server and
+the coord/assign query."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from swarm.config import mission_from_dict
+from swarm.map.coverage_map import CoverageMap
+from swarm.protocol import bus
+from swarm.protocol.coord_client import assign_key
+from swarm.protocol.wire import Pose, Snapshot, Status
+
+MISSION = {
+    "mission": "coordtest",
+    "workspace": {"lo": [0.0, 0.0, 0.0], "hi": [8.0, 4.0, 1.0], "voxel": 0.1},
+    "robots": [
+        {"id": "r1", "start": {"x": 1.0, "y": 2.0}},
+        {"id": "r2", "start": {"x": 1.4, "y": 2.0}},
+        {"id": "r3", "start": {"x": 6.5, "y": 2.0}},
+    ],
+    "rig": {"camera_height": 0.4},
+    "exploration": {"radius": 1.0},
+}
+
+
+POSES = {"r1": (1.0, 2.0), "r2": (1.4, 2.0), "r3": (6.5, 2.0)}
+
+
+def mission(**coordination):
+    data = dict(MISSION)
+    if coordination:
+        data["coordination"] = coordination
+    return mission_from_dict(data)
+
+
+def corridor_map(m, x_lo=0.3, x_hi=7.7) -> CoverageMap:
+    """Known free columns (every layer) over a corridor y 1.5..2.5 m; the rest unknown."""
+    cmap = CoverageMap(m.workspace.grid(), m.sensor.model())
+    nx, ny, nz = cmap.grid.shape
+    cx = (np.arange(nx) + 0.5) * 0.1
+    cy = (np.arange(ny) + 0.5) * 0.1
+    cols = ((cx >= x_lo) & (cx <= x_hi))[:, None] & ((cy >= 1.5) & (cy <= 2.5))[None, :]
+    lam = cmap.lam.reshape(nx, ny, nz)
+    eta = cmap.eta.reshape(nx, ny, nz)
+    lam[cols] = 1.0 / 0.02**2
+    eta[cols] = 0.0
+    return cmap
+
+
+def pose(robot: str) -> Pose:
+    x, y = POSES[robot]
+    return Pose((x, y, 0.4), (0.0, 0.0, 0.0))
+
+
+# ---------------------------------------------------------------------------------------
+# Over Zenoh
+# ---------------------------------------------------------------------------------------
+class MapServerStandIn:
+    """A router with a real map/snapshot queryable, and a publisher on the merged stream."""
+
+    def __init__(self, name: str, snapshot: Snapshot | None) -> None:
+        self.endpoint = bus.tcp_endpoint(bus.free_port())
+        self.session = bus.open_session(listen=[self.endpoint])
+        self.merged = bus.reliable_publisher(self.session, bus.key(name, "merged"))
+        self.status = {}
+        self.name = name
+        self._snap = None
+        if snapshot is not None:
+            payload = snapshot.encode()
+            self._snap = self.session.declare_queryable(
+                bus.key(name, "map", "snapshot"), lambda q: q.reply(q.key_expr, payload)
+            )
+
+    def publish_status(self, robot: str, target, state: str = "drive") -> None:
+        if robot not in self.status:
+            self.status[robot] = self.session.declare_publisher(bus.key(self.name, "robot", robot, "status"))
+        self.status[robot].put(Status(robot, 0.0, pose(robot), target, state, 0).encode())
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def wait_until(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.02)
+    return condition()
+
+
+def query(session, name: str, payload: bytes, timeout: float = 5.0, robot: str = "r1"):
+    """The one reply to ``payload`` asked on ``robot``'s key ``coord/assign/<robot>``."""
+    replies = list(session.get(assign_key(name, robot), payload=payload, timeout=timeout))
+    assert len(replies) == 1
+    return replies[0]
