@@ -149,7 +149,12 @@ def test_forged_deltas_with_r1s_next_seqs_are_refused_and_every_real_one_applied
             for seq in range(1, 301):
                 payload = DeltaMessage("r1", epoch, seq, 0.0, grid, tiny.idx, tiny.dlam, tiny.deta).encode()
                 forger.put(payload, attachment=bytes(16) if seq % 2 else None)  # a wrong MAC, or none
-            wait_until(lambda: client.stats()["rejected"]["bad_mac"] == 300, 20, "300 refusals")
+
+            def refused() -> int:  # as forgeries, or at r1's full inbox before they were read
+                stats = client.stats()
+                return stats["rejected"]["bad_mac"] + stats["inbox"]["refused"].get("r1", 0)
+
+            wait_until(lambda: refused() == 300, 20, "300 refusals")
             send_in_order(r1, client, grid, real)
         stats, snap = client.stats(), client.snapshot()
     assert stats["robots"]["r1"]["acked_seq"] == 150 and stats["deltas_applied"] == 150
