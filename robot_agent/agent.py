@@ -377,11 +377,15 @@ class Agent:
             self.outbox.acknowledge(acks)
             self.acked = max(self.acked, acks)
             self.sender.forget(acks)
-            now = time.monotonic()
-            for seq, delta in self.outbox.to_resend():  # oldest first: the server takes seqs in order
-                if now - self.sender.last_sent(seq) > RESEND_AFTER_S:
-                    self.outbox.stats.resent += 1
-                    self._publish(seq, delta)
+            self._resend(RESEND_AFTER_S)
+
+    def _resend(self, after_s: float) -> None:
+        """Send again the unacked deltas put over ``after_s`` s ago, oldest first (seq order)."""
+        now = time.monotonic()
+        for seq, delta in self.outbox.to_resend():
+            if now - self.sender.last_sent(seq) > after_s:
+                self.outbox.stats.resent += 1
+                self._publish(seq, delta)
 
     def query_acks(self, timeout: float = 1.0) -> int | None:
         """This agent's last contiguous acked seq per the map server, or None if none answers."""
@@ -401,7 +405,7 @@ class Agent:
 
     # -- shutdown ------------------------------------------------------------------------
     def _await_acks(self, timeout: float) -> None:
-        """Ask ``map/acks`` until every sent delta is acked, no server answers, or ``timeout`` s pass."""
+        """Ask ``map/acks``, resending what is unacked, until all is acked, no server, or ``timeout``."""
         deadline = time.monotonic() + timeout
         while self.acked < self.outbox.seq and (left := deadline - time.monotonic()) > 0:
             acks = self.query_acks(timeout=min(1.0, left))
@@ -409,6 +413,7 @@ class Agent:
                 return  # no map server answers: nothing to wait for
             self.outbox.acknowledge(acks)
             self.acked = max(self.acked, acks)
+            self._resend(1.0)
             if self.acked < self.outbox.seq:
                 time.sleep(0.05)
 
