@@ -1,5 +1,6 @@
-"""One robot's local map: fuse its own frames (stereo matched first) and the team's deltas into
-its coverage map (eq. 24-25), and keep the map's per-voxel entropy up to date.
+"""One robot's local map: fuse its own frames (stereo matched first) into its coverage map
+(eq. 24-25), and keep the map's per-voxel entropy up to date. The team's deltas reach the same
+map and entropy through the agent's :class:`swarm.protocol.team_replica.TeamReplica`.
 """
 
 from __future__ import annotations
@@ -7,10 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from robot_agent.stereo import points_from_depth
-from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy_cache import EntropyCache
-from swarm.map.grid import Grid
 from swarm.protocol.wire import Frame
 
 
@@ -35,18 +33,6 @@ class LocalMapping:
         result = self.map.integrate(np.asarray(frame.pose.xyz), self.points(frame))
         self.apply_entropy(result.delta)
         return result.delta
-
-    def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
-        """Start from the team map (a server snapshot, prior included); before any frame."""
-        if not self.grid.matches(grid):
-            raise ValueError(f"the team map's grid {grid} is not the mission's {self.grid}")
-        self.map = CoverageMap(self.grid, self.sensor, lam, eta)
-        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
-
-    def apply_external(self, delta: Delta) -> None:
-        """Add information another robot gathered (from the team's merged stream)."""
-        self.map.apply_received(delta)
-        self.apply_entropy(delta)
 
     def apply_entropy(self, delta: Delta) -> None:
         idx = delta.idx.astype(np.int64)

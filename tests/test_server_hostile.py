@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from map_server.options import ServerOptions
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, MapQueryError
 from swarm.protocol.wire import DeltaMessage
@@ -39,9 +39,9 @@ def strict_json(text: bytes) -> dict:
     return json.loads(text, parse_constant=refuse)
 
 
-def oracle(mission, payloads: list[bytes]) -> TeamMap:
+def oracle(mission, payloads: list[bytes]) -> MergedMap:
     """The map of exactly these valid deltas, merged without a server."""
-    team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+    team = MergedMap(mission.workspace.grid(), mission.sensor.model())
     for p in payloads:
         msg = DeltaMessage.decode(p)
         if team.admit(msg):
