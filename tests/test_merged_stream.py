@@ -221,7 +221,7 @@ def test_a_stalled_merged_subscriber_costs_the_other_robots_nothing(tmp_path):
     payloads = _payloads(grid, sensor, robots=3, per_robot=per_robot, rays=400, seed=3)
     options = ServerOptions(information_bound=False)
     with running_server(mission, tmp_path / "store", options) as (server, endpoint):
-        server._merged_pub = TimedPublisher(server._merged_pub)
+        timed = server._merged_pub = TimedPublisher(server._merged_pub)
         port = int(endpoint.rsplit(":", 1)[1])
         relay = StallRelay(("127.0.0.1", port))
         got = [0]
@@ -248,7 +248,8 @@ def test_a_stalled_merged_subscriber_costs_the_other_robots_nothing(tmp_path):
     assert len(every) == 3 * per_robot
     assert published == 3 * per_robot
     sent_mb = sum(len(p) for ps in payloads.values() for p in ps) / 1e6
-    assert sent_mb > 40, sent_mb  # far more than the link's buffers hold
+    assert sent_mb > 10, sent_mb  # more than the link's buffers hold
     assert got[0] < published  # the stalled subscriber did not get the stream
-    assert server._merged_pub.longest < 1.0, server._merged_pub.longest
-    assert float(np.percentile(every, 99)) < 1.0, np.percentile(every, [50, 99, 100])
+    assert timed.longest < 1.0, timed.longest
+    # (with congestion control BLOCK: one put waits 5 s, until Zenoh closes the link, and so do acks)
+    assert float(np.percentile(every, 99)) < 1.0 and every.max() < 2.0, np.percentile(every, [50, 99, 100])
