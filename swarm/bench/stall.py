@@ -15,6 +15,7 @@ mission reached H_th, its simulated and wall time, and what the stalled subscrib
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -40,7 +41,9 @@ _LISTENING = re.compile(r"listening on (tcp/127\.0\.0\.1:(\d+))")
 class RunFigures:
     """What one mission run measured."""
 
-    attacked: bool
+    name: str
+    stall: bool
+    idle: int
     acked: int = 0
     p50_ms: float = float("nan")
     p99_ms: float = float("nan")
@@ -52,6 +55,7 @@ class RunFigures:
     published: int = 0
     held: int = 0
     exit_code: int | None = None
+    load: float = 0.0  # the machine's 1-minute load average at the end (other work shares the cores)
 
 
 def _client(endpoint: str) -> zenoh.Session:
@@ -110,9 +114,10 @@ class AckObserver:
         self._sub.undeclare()
 
 
-def run_once(config: Path, out: Path, attacked: bool, connections: int, seed: int) -> RunFigures:
-    """One ``swarm sim`` run of ``config`` into ``out`` (attacked or not; module doc)."""
-    figures = RunFigures(attacked)
+def run_once(config: Path, out: Path, name: str, stall: bool, idle: int, seed: int) -> RunFigures:
+    """One ``swarm sim`` run of ``config`` into ``out``: with a stalled merged subscriber when
+    ``stall``, with ``idle`` idle connections to the server (module doc)."""
+    figures = RunFigures(name, stall, idle)
     out.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "swarm.cli", "sim", "run", str(config), "--out", str(out)]
     cmd += ["--seed", str(seed), "--quiet"]
@@ -127,12 +132,13 @@ def run_once(config: Path, out: Path, attacked: bool, connections: int, seed: in
         session = _client(endpoint)
         mission = _mission_name(out)
         observer = AckObserver(session, mission)
-        if attacked:
+        if stall:
             relay = StallRelay(("127.0.0.1", port))
             slow = _client(relay.endpoint)
             slow.declare_subscriber(bus.key(mission, "merged"), lambda _s: got.__setitem__(0, got[0] + 1))
             threading.Timer(1.0, relay.stall).start()
-            holder = threading.Thread(target=_hold, args=(port, connections, stop, held), daemon=True)
+        if idle:
+            holder = threading.Thread(target=_hold, args=(port, idle, stop, held), daemon=True)
             holder.start()
         while proc.poll() is None:
             figures.held = max(figures.held, held[0])
@@ -158,6 +164,7 @@ def run_once(config: Path, out: Path, attacked: bool, connections: int, seed: in
             if s is not None:
                 s.close()
     figures.wall_s = time.monotonic() - started
+    figures.load = os.getloadavg()[0]
     figures.stalled_received = got[0]
     lat = np.asarray(observer.latencies if observer is not None else [], np.float64) * 1e3
     if len(lat):
@@ -190,26 +197,41 @@ def _mission_name(out: Path) -> str:
 
 def describe(f: RunFigures) -> str:
     """One line of figures."""
-    name = "attacked" if f.attacked else "alone   "
     line = (
-        f"{name}: ack latency p50 {f.p50_ms:.0f} ms, p99 {f.p99_ms:.0f} ms, max {f.max_ms:.0f} ms over "
-        f"{f.acked} deltas; reached H_th: {f.reached_threshold} (sim {f.sim_time_s} s, wall {f.wall_s:.0f} s)"
+        f"{f.name:>9}: ack latency p50 {f.p50_ms:.0f} ms, p99 {f.p99_ms:.0f} ms, max {f.max_ms:.0f} ms over "
+        f"{f.acked} deltas; reached H_th: {f.reached_threshold} (sim {f.sim_time_s or 0:.0f} s, "
+        f"wall {f.wall_s:.0f} s, load {f.load:.1f})"
     )
-    if f.attacked:
-        line += (
-            f"; stalled subscriber received {f.stalled_received} of {f.published} merged samples, "
-            f"{f.held} idle connections held"
-        )
+    if f.stall:
+        line += f"; stalled subscriber received {f.stalled_received} of {f.published} merged samples"
+    if f.idle:
+        line += f"; {f.held} of {f.idle} idle connections held"
     return line
 
 
-def run(config: Path, out: Path, connections: int = 300, seed: int = 0, target_ms: float = 200.0) -> int:
-    """Both runs, side by side; exit status 1 when the attacked p99 misses ``target_ms`` or the
-    attacked mission does not reach H_th while the one alone does."""
-    alone = run_once(config, out / "alone", False, connections, seed)
-    print(describe(alone), flush=True)
-    attacked = run_once(config, out / "attacked", True, connections, seed)
-    print(describe(attacked), flush=True)
-    ok = attacked.p99_ms < target_ms and (attacked.reached_threshold or not alone.reached_threshold)
+#: The runs ``--runs`` may name: (stalled merged subscriber, idle connections or None: --connections).
+RUNS = {"alone": (False, 0), "stall": (True, 0), "idle": (False, None), "attacked": (True, None)}
+
+
+def run(
+    config: Path,
+    out: Path,
+    connections: int = 300,
+    seed: int = 0,
+    target_ms: float = 200.0,
+    runs: tuple[str, ...] = ("alone", "attacked"),
+) -> int:
+    """The ``runs`` one after the other, side by side; exit status 1 when the attacked p99 misses
+    ``target_ms`` or the attacked mission does not reach H_th while the one alone does."""
+    done: dict[str, RunFigures] = {}
+    for name in runs:
+        stall, idle = RUNS[name]
+        done[name] = run_once(config, out / name, name, stall, connections if idle is None else idle, seed)
+        print(describe(done[name]), flush=True)
+    attacked, alone = done.get("attacked"), done.get("alone")
+    if attacked is None:
+        return 0
+    reached = attacked.reached_threshold or (alone is not None and not alone.reached_threshold)
+    ok = attacked.p99_ms < target_ms and reached
     print(f"target: attacked ack p99 < {target_ms:.0f} ms and H_th reached: {'met' if ok else 'MISSED'}")
     return 0 if ok else 1

@@ -241,6 +241,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     stall.add_argument("--connections", type=at_least(0), default=300, help="idle connections (default 300)")
     stall.add_argument("--seed", type=int, default=0, help="the missions' seed (default 0)")
     stall.add_argument("--target-ms", type=float, default=200.0, help="ack p99 target (default 200)")
+    stall.add_argument(
+        "--runs",
+        default="alone,attacked",
+        help="runs in order, comma-separated, of: alone, stall (the stalled subscriber only), idle "
+        "(the idle connections only), attacked (both); default alone,attacked",
+    )
     stall.set_defaults(run=_run_bench_stall)
     ros2 = bsub.add_parser(
         "ros2-map",
@@ -272,7 +278,11 @@ def _run_bench_slowloris(args: argparse.Namespace) -> int:
 def _run_bench_stall(args: argparse.Namespace) -> int:
     from swarm.bench import stall
 
-    return stall.run(args.config, args.out, args.connections, args.seed, args.target_ms)
+    runs = tuple(r.strip() for r in args.runs.split(",") if r.strip())
+    unknown = [r for r in runs if r not in stall.RUNS]
+    if unknown or not runs:
+        return fail(f"--runs {args.runs!r}: expected some of {', '.join(stall.RUNS)}")
+    return stall.run(args.config, args.out, args.connections, args.seed, args.target_ms, runs)
 
 
 def _run_bench_durability(args: argparse.Namespace) -> int:
