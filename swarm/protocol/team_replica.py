@@ -47,6 +47,9 @@ log = logging.getLogger("swarm.replica")
 
 #: Seconds between two catch-ups from ``map/snapshot`` (each costs the server a whole-map query).
 RESYNC_INTERVAL_S = 2.0
+#: After a failed catch-up the wait doubles, up to this many seconds (no server answers: the
+#: owner's thread, which waits for each try, is not held back every interval).
+MAX_RESYNC_INTERVAL_S = 30.0
 
 #: ``unshared``: called before a snapshot is asked for; returns what to add on top of it.
 Unshared = Callable[[], Callable[[Snapshot], Iterable[Delta]]]
@@ -102,6 +105,7 @@ class TeamReplica:
         self._queue: deque[bytes] = deque()
         self._resync_due = threading.Event()
         self._last_resync = -math.inf
+        self._resync_wait = 0.0  # the longer wait after failed tries (0: none)
 
     # -- the receiving side (Zenoh's callback thread) -----------------------------------------
     def subscribe(self, session: zenoh.Session, key_expr: str) -> zenoh.Subscriber:
@@ -238,9 +242,11 @@ class TeamReplica:
     def resync(self, force: bool = False) -> bool:
         """Catch up from ``fetch()`` now, unless the last catch-up is under ``resync_interval_s``
         old (``force``: anyway); True when the snapshot was loaded. On failure the map stays as it
-        is, the catch-up stays due, and it is counted ``resync_failed`` and logged."""
+        is, the catch-up stays due, it is counted ``resync_failed`` and logged, and the wait before
+        the next try doubles (up to MAX_RESYNC_INTERVAL_S)."""
         now = time.monotonic()
-        if self.fetch is None or (not force and now - self._last_resync < self.resync_interval_s):
+        wait = max(self.resync_interval_s, self._resync_wait)
+        if self.fetch is None or (not force and now - self._last_resync < wait):
             return False
         self._last_resync = now
         self._resync_due.clear()
@@ -250,11 +256,13 @@ class TeamReplica:
             self.load_snapshot(snap, finish(snap) if finish is not None else ())
         except Exception as exc:  # noqa: BLE001 (no server, a bad reply: keep the map, try later)
             self._resync_due.set()
+            self._resync_wait = min(2 * wait, MAX_RESYNC_INTERVAL_S)
             self.counts["resync_failed"] += 1
             self._warn(
                 "resync_failed", "%s: cannot catch up from map/snapshot: %s", self.name, short(exc, 200)
             )
             return False
+        self._resync_wait = 0.0
         self.counts["resyncs"] += 1
         self._warn(
             "resync",
