@@ -136,6 +136,7 @@ class MapServer:
         self._merged_pub = None
         #: the run id and sample numbers of merged (the attachment of every sample)
         self.merged_numbers = MergedNumbering()
+        self.merged_put_max_s = 0.0  # the longest a put on merged took (DROP: never a subscriber's wait)
         self.wal_errors = 0
         self._started = time.monotonic()
         self._last_log = (time.monotonic(), len(self.team.ledger))
@@ -332,7 +333,9 @@ class MapServer:
                 self._reject(msg.robot, msg, Rejected(kind, str(exc)))
         for payload in applied if self._merged_pub is not None else ():
             try:
+                started = time.perf_counter()
                 self._merged_pub.put(payload, attachment=self.merged_numbers.next())
+                self.merged_put_max_s = max(self.merged_put_max_s, time.perf_counter() - started)
             except Exception:  # noqa: BLE001 (agents also start from the snapshot; keep merging)
                 log.exception("republishing a merged delta failed")
         if self.store.should_compact(self.options.compact_bytes, self.options.compact_records) and (
@@ -402,7 +405,11 @@ class MapServer:
             "uptime_s": round(time.monotonic() - self._started, 3),
             "threshold_bits": self.threshold_bits,
             "mission_done": self.mission_done,
-            "merged": {"run": f"{self.merged_numbers.run:016x}", "published": self.merged_numbers.number},
+            "merged": {
+                "run": f"{self.merged_numbers.run:016x}",
+                "published": self.merged_numbers.number,
+                "longest_put_ms": round(self.merged_put_max_s * 1e3, 3),
+            },
         }
         return stats
 

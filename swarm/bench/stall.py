@@ -9,7 +9,8 @@ endpoint for the whole mission (``swarm.bench.slowloris``). An observer on that 
 when each robot's delta first appears on ``delta/*`` and polls ``map/acks`` every 20 ms: a
 delta's ack latency is from its arrival to the first ack that covers it (20 ms resolution).
 Figures per run: ack latency p50/p99/max over every delta acked, deltas acked, whether the
-mission reached H_th, its simulated and wall time, and what the stalled subscriber received.
+mission reached H_th, its simulated and wall time, the machine's load, the map server's longest
+put on merged (map/stats), and what the stalled subscriber received.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ class RunFigures:
     wall_s: float = 0.0
     stalled_received: int = 0
     published: int = 0
+    longest_put_ms: float = float("nan")  # the map server's longest put on merged
     held: int = 0
     exit_code: int | None = None
     load: float = 0.0  # the machine's 1-minute load average at the end (other work shares the cores)
@@ -144,7 +146,9 @@ def run_once(config: Path, out: Path, name: str, stall: bool, idle: int, seed: i
             figures.held = max(figures.held, held[0])
             try:
                 stats = MapClient(session, mission, timeout=1.0).stats()
-                figures.published = int(stats.get("merged", {}).get("published", figures.published))
+                merged = stats.get("merged", {})
+                figures.published = int(merged.get("published", figures.published))
+                figures.longest_put_ms = float(merged.get("longest_put_ms", figures.longest_put_ms))
             except Exception:  # noqa: BLE001 (the server is stopping)
                 pass
             time.sleep(1.0)
@@ -200,7 +204,7 @@ def describe(f: RunFigures) -> str:
     line = (
         f"{f.name:>9}: ack latency p50 {f.p50_ms:.0f} ms, p99 {f.p99_ms:.0f} ms, max {f.max_ms:.0f} ms over "
         f"{f.acked} deltas; reached H_th: {f.reached_threshold} (sim {f.sim_time_s or 0:.0f} s, "
-        f"wall {f.wall_s:.0f} s, load {f.load:.1f})"
+        f"wall {f.wall_s:.0f} s, load {f.load:.1f}); server's longest merged put {f.longest_put_ms:.1f} ms"
     )
     if f.stall:
         line += f"; stalled subscriber received {f.stalled_received} of {f.published} merged samples"
