@@ -159,8 +159,8 @@ class OutOfRange(ValueError):
         with np.errstate(invalid="ignore"):
             over = not bool(np.all(new_lam <= LAM_MAX))  # NaN fails too
         if over:
-            return cls(f"delta would lift a voxel's information over {LAM_MAX:g}", True)
-        return cls("delta would move a voxel's mean outside [0, 1] (or its information to <= 0)", False)
+            return cls(f"delta would leave a voxel's information outside (0, {LAM_MAX:g}]", True)
+        return cls("delta would leave a voxel's mean outside [0, 1] (or its information <= 0)", False)
 
 
 @njit(cache=True, nogil=True)
