@@ -253,3 +253,75 @@ def test_a_stalled_merged_subscriber_costs_the_other_robots_nothing(tmp_path):
     assert timed.longest < 1.0, timed.longest
     # (with congestion control BLOCK: one put waits 5 s, until Zenoh closes the link, and so do acks)
     assert float(np.percentile(every, 99)) < 1.0 and every.max() < 2.0, np.percentile(every, [50, 99, 100])
+
+
+def test_the_live_view_follows_merged_to_the_servers_map(tmp_path):
+    """``swarm view``'s replica: started from the snapshot, then every merged delta once."""
+    pytest.importorskip("rerun")
+    from swarm.view.live import TeamView, open_recording
+
+    mission = small_mission()
+    grid, sensor = mission.workspace.grid(), mission.sensor.model()
+    payloads = _payloads(grid, sensor, robots=3, per_robot=4, rays=60, seed=4)
+    with running_server(mission, tmp_path / "store") as (server, endpoint):
+        with bus.open_session(connect=[endpoint]) as session:
+            pubs = {
+                rid: bus.reliable_publisher(session, bus.key(mission.mission, "delta", rid))
+                for rid in payloads
+            }
+            assert bus.wait_for_subscribers(pubs.values(), timeout=10.0)
+            for rid, ps in payloads.items():  # before the view: in its snapshot
+                pubs[rid].put(ps[0])
+            wait_until(lambda: server.merged_numbers.number == 3, 10.0, "the first deltas")
+            view = TeamView(
+                session, mission.mission, open_recording(mission.mission, tmp_path / "v.rrd"), 0.2
+            )
+            view.catch_up(timeout=10.0)
+            view.start()
+            for seq in range(1, 4):
+                for rid, ps in payloads.items():
+                    pubs[rid].put(ps[seq])
+            wait_until(lambda: view.deltas == 9, 20.0, "the view's merged deltas")
+            view.stop()
+            snap = MapClient(session, mission.mission, timeout=5.0).snapshot()
+    assert view.team.counts["applied"] == 9 and view.rejected == 0
+    np.testing.assert_array_equal(view.cmap.lam, snap.lam)
+    np.testing.assert_array_equal(view.cmap.eta, snap.eta)
+
+
+def test_the_coordinator_catches_up_after_missed_samples_and_keeps_attributing(tmp_path):
+    from coordinator.role import Coordinator
+
+    mission = small_mission()
+    grid, sensor = mission.workspace.grid(), mission.sensor.model()
+    payloads = _payloads(grid, sensor, robots=3, per_robot=6, rays=60, seed=5)
+    with running_server(mission, tmp_path / "store") as (server, endpoint):
+        with bus.open_session(connect=[endpoint]) as session:
+            coordinator = Coordinator(mission, session, snapshot_timeout=5.0)
+            team = coordinator.state.team
+            team.resync_interval_s = 0.0
+            real_receive, got = team.receive, [0]
+
+            def lossy(payload: bytes, attachment: bytes | None = None) -> bool:
+                got[0] += 1
+                return real_receive(payload, attachment) if got[0] % 4 else False
+
+            team.receive = lossy
+            coordinator.start()
+            try:
+                pubs = {
+                    rid: bus.reliable_publisher(session, bus.key(mission.mission, "delta", rid))
+                    for rid in payloads
+                }
+                assert bus.wait_for_subscribers(pubs.values(), timeout=10.0)
+                for seq in range(6):
+                    for rid, ps in payloads.items():
+                        pubs[rid].put(ps[seq])
+                wait_until(lambda: got[0] == 18, 20.0, "the merged samples")
+                wait_until(lambda: coordinator.counts["merged_resyncs"] >= 1, 20.0, "a catch-up")
+                snap = MapClient(session, mission.mission, timeout=5.0).snapshot()
+                wait_until(lambda: np.array_equal(team.copy()[0].lam, snap.lam), 20.0, "the server's map")
+            finally:
+                coordinator.stop()
+    np.testing.assert_array_equal(team.map.eta, snap.eta)
+    assert team.teammates_ground("r1").any()  # deltas after the catch-up are attributed
