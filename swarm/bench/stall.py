@@ -60,10 +60,19 @@ class RunFigures:
     load: float = 0.0  # the machine's 1-minute load average at the end (other work shares the cores)
 
 
-def _client(endpoint: str) -> zenoh.Session:
-    conf, _, _ = bus.session_config([], [endpoint])
-    conf.insert_json5(NO_SHM, "false")  # payloads take the TCP link, as between two machines
-    return zenoh.open(conf)
+def _client(endpoint: str, wait_s: float = 30.0) -> zenoh.Session:
+    """A client session to ``endpoint`` (payloads on the TCP link: no shared memory), retried for
+    ``wait_s`` s (the server logs its endpoint a moment before it takes sessions)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        conf, _, _ = bus.session_config([], [endpoint])
+        conf.insert_json5(NO_SHM, "false")  # as between two machines
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(0.3)
 
 
 def _server_endpoint(log: Path, proc: subprocess.Popen, timeout_s: float) -> tuple[str, int]:
