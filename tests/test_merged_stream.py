@@ -294,7 +294,7 @@ def test_the_coordinator_catches_up_after_missed_samples_and_keeps_attributing(t
 
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
-    payloads = _payloads(grid, sensor, robots=3, per_robot=6, rays=60, seed=5)
+    payloads = _payloads(grid, sensor, robots=3, per_robot=7, rays=60, seed=5)
     with running_server(mission, tmp_path / "store") as (server, endpoint):
         with bus.open_session(connect=[endpoint]) as session:
             coordinator = Coordinator(mission, session, snapshot_timeout=5.0)
@@ -321,7 +321,8 @@ def test_the_coordinator_catches_up_after_missed_samples_and_keeps_attributing(t
                 wait_until(lambda: coordinator.counts["merged_resyncs"] >= 1, 20.0, "a catch-up")
                 snap = MapClient(session, mission.mission, timeout=5.0).snapshot()
                 wait_until(lambda: np.array_equal(team.copy()[0].lam, snap.lam), 20.0, "the server's map")
+                np.testing.assert_array_equal(team.copy()[0].eta, snap.eta)
+                pubs["r2"].put(payloads["r2"][6])  # (sample 19: kept) a delta after the catch-up
+                wait_until(lambda: team.teammates_ground("r1").any(), 20.0, "r2's ground attributed")
             finally:
                 coordinator.stop()
-    np.testing.assert_array_equal(team.map.eta, snap.eta)
-    assert team.teammates_ground("r1").any()  # deltas after the catch-up are attributed
