@@ -3,7 +3,9 @@
 Subscribes ``swarm/<mission>/delta/*``. Zenoh callbacks only enqueue; one worker thread
 validates each payload, drops duplicates, appends the new ones to the write-ahead log and
 fsyncs (a group commit per batch), applies them to the team map exactly once, and
-republishes each payload unchanged on ``swarm/<mission>/merged``. The acks of
+republishes each payload unchanged on ``swarm/<mission>/merged``, numbered
+(``swarm.protocol.merged_stream``) and with congestion control DROP: a subscriber that does
+not drain loses samples (and catches up from the snapshot) instead of holding the worker. The acks of
 ``map/acks`` therefore only ever cover durable deltas. Queryables ``map/stats``,
 ``map/acks``, ``map/snapshot`` and ``map/region`` read the map under a lock, so they never
 see a half-applied delta. The worker compacts the store when its log grows past the
@@ -30,12 +32,13 @@ from map_server.query_gate import QueryGate
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.store_files import OS_FILES, StoreFiles
-from map_server.team_map import TeamMap, parse_vector, region_of
+from map_server.team_map import MergedMap, parse_vector, region_of
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
 from swarm.protocol.codec import short
 from swarm.protocol.map_messages import PRIOR_SOURCE
+from swarm.protocol.merged_stream import MergedNumbering
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
@@ -72,7 +75,7 @@ class MapServer:
         except ValueError as exc:
             raise StoreError(f"{self.store.path}: snapshot contributions unreadable: {exc}") from exc
         quarantined = recovered.counters.get("quarantined", [])
-        self.team = TeamMap(
+        self.team = MergedMap(
             grid,
             sensor,
             recovered.lam,
@@ -131,6 +134,9 @@ class MapServer:
         self._declared: list = []
         self._delta_sub = None
         self._merged_pub = None
+        #: the run id and sample numbers of merged (the attachment of every sample)
+        self.merged_numbers = MergedNumbering()
+        self.merged_put_max_s = 0.0  # the longest a put on merged took (DROP: never a subscriber's wait)
         self.wal_errors = 0
         self._started = time.monotonic()
         self._last_log = (time.monotonic(), len(self.team.ledger))
@@ -144,7 +150,7 @@ class MapServer:
         start the worker."""
         self.session = session
         key = self.key
-        self._merged_pub = bus.reliable_publisher(self.session, key("merged"))
+        self._merged_pub = bus.dropping_publisher(self.session, key("merged"))
         handlers = {
             "stats": guarded(self._on_stats),
             "acks": guarded(self._on_acks),
@@ -327,7 +333,9 @@ class MapServer:
                 self._reject(msg.robot, msg, Rejected(kind, str(exc)))
         for payload in applied if self._merged_pub is not None else ():
             try:
-                self._merged_pub.put(payload)
+                started = time.perf_counter()
+                self._merged_pub.put(payload, attachment=self.merged_numbers.next())
+                self.merged_put_max_s = max(self.merged_put_max_s, time.perf_counter() - started)
             except Exception:  # noqa: BLE001 (agents also start from the snapshot; keep merging)
                 log.exception("republishing a merged delta failed")
         if self.store.should_compact(self.options.compact_bytes, self.options.compact_records) and (
@@ -397,6 +405,11 @@ class MapServer:
             "uptime_s": round(time.monotonic() - self._started, 3),
             "threshold_bits": self.threshold_bits,
             "mission_done": self.mission_done,
+            "merged": {
+                "run": f"{self.merged_numbers.run:016x}",
+                "published": self.merged_numbers.number,
+                "longest_put_ms": round(self.merged_put_max_s * 1e3, 3),
+            },
         }
         return stats
 

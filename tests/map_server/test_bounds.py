@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from map_server.ledger import Ledger, Rejected, validate_delta
 from map_server.limits import mission_bounds, ray_information_bound
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from robot_agent.explorer import Explorer
 from robot_agent.sharing import DeltaOutbox
 from sim2d.simulator import Simulator
@@ -52,7 +52,7 @@ def test_office_deltas_fit_the_bound():
     information and every shared delta is within the bound; none is refused."""
     mission = load_mission("configs/office.yaml")
     bounds = mission_bounds(mission)
-    team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+    team = MergedMap(mission.workspace.grid(), mission.sensor.model())
     session = bus.open_session(listen=[bus.tcp_endpoint(bus.free_port())])
     try:
         sim = Simulator(mission, session)
@@ -144,7 +144,7 @@ def test_hostile_payloads_never_touch_the_valid_deltas(hostile, rnd):
             bad.append(msgpack.packb(msg, use_bin_type=True))
     stream = [(rid, p) for rid, _, p in valid] + [("r1", p) for p in bad]
     rnd.shuffle(stream)
-    team, bounds = TeamMap(grid, sensor), mission_bounds(mission)
+    team, bounds = MergedMap(grid, sensor), mission_bounds(mission)
     applied = []
     for rid, payload in stream:
         try:
