@@ -10,11 +10,11 @@ When the only eq. 35 targets are held by others it wanders the robot on its own 
 long as anything unknown is in view; when the team map has none at all it answers "nothing
 left", and the agent chooses alone (its own eq. 35, then its 3-D frontier views).
 
-Layers: :class:`TeamMap` (the replica: idempotent merged deltas), :class:`CoordinatorState`
-(the replica, who holds what, and the planning of one answer; no I/O, callable from tests)
-and :class:`Coordinator` (the Zenoh side: one worker thread applies merged deltas and
-statuses in arrival order, one thread answers queries one at a time, the latest of each robot
-in turn: a :class:`swarm.protocol.mailbox.Mailbox` of requests). An agent asks with
+Layers: :class:`TeamMap` (the replica: ``swarm.protocol.team_replica``, plus attribution),
+:class:`CoordinatorState` (the replica, who holds what, and the planning of one answer; no
+I/O, callable from tests) and :class:`Coordinator` (the Zenoh side: one worker thread applies
+merged deltas and statuses in arrival order, one thread answers queries one at a time, the
+latest of each robot in turn: a :class:`swarm.protocol.mailbox.Mailbox` of requests). An agent asks with
 :func:`swarm.protocol.coord_client.ask_for_target`.
 """
 
@@ -89,9 +89,6 @@ class Coordinator:
         self.clock = clock
         self.started_from_snapshot = False
         self._inbox: queue.Queue = queue.Queue()
-        #: bytes of merged payloads waiting in the inbox: anyone on an open bus can put on
-        #: merged faster than the worker applies
-        self.merged_budget = ByteBudget(max_queued_merged_bytes)
         #: the latest status payload of each status key not handled yet: a status says where a
         #: robot is now, so a newer one replaces it, and a robot publishing statuses in a loop
         #: costs the worker one status per round, not a backlog that holds merged deltas back
@@ -99,6 +96,12 @@ class Coordinator:
         self._refused: Counter[str] = Counter()  # refused stream messages by kind, for the log
         #: what a remote peer makes the coordinator log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
+        #: the replica queues merged payloads within its byte budget (anyone on an open bus can
+        #: put on merged faster than the worker applies) and catches up when it misses one
+        team = self.state.team
+        team.budget = ByteBudget(max_queued_merged_bytes)
+        team.fetch = self._fetch_snapshot
+        team.peer_log = self._peer_log
         #: waiting coord/assign queries and their requests, the latest of each robot
         self._requests: Mailbox[str, tuple[zenoh.Query, AssignRequest]] = Mailbox(MAX_WAITING_ROBOTS)
         self._stop = threading.Event()
@@ -113,14 +116,14 @@ class Coordinator:
         """Every counter: requests, merged deltas (``merged_*``), statuses, releases."""
         out = Counter(self.state.counts)
         out.update({f"merged_{k}": v for k, v in self.state.team.counts.items()})
-        out["merged_queued_bytes_high_water"] = self.merged_budget.high_water
+        out["merged_queued_bytes_high_water"] = self.state.team.budget.high_water
         return out
 
     def start(self) -> None:
         """Subscribe, load a snapshot if a map server answers, and start answering."""
         name, s = self.name, self.session
         # subscribe before the snapshot so no merged delta falls between the two
-        self._declared.append(bus.subscribe(s, bus.key(name, "merged"), self._on_merged))
+        self._declared.append(s.declare_subscriber(bus.key(name, "merged"), self._on_merged))
         self._declared.append(
             bus.subscribe(s, bus.key_pattern(name, "robot", "*", "status"), self._on_status)
         )
@@ -149,39 +152,39 @@ class Coordinator:
             "from a snapshot" if self.started_from_snapshot else "from the prior",
         )
 
-    def _load_snapshot(self) -> None:
-        """Start the replica from the map server's snapshot, asking again while the server
-        answers "busy" (it takes few whole-map queries at once) and time is left."""
+    def _fetch_snapshot(self) -> Snapshot:
+        """The map server's snapshot, asking again while the server answers "busy" (it takes few
+        whole-map queries at once) and ``snapshot_timeout`` is not over. Raises ConnectionError
+        when none answers, ValueError for an error reply or a bad snapshot."""
         deadline = time.monotonic() + self.snapshot_timeout
+        while True:
+            left = max(deadline - time.monotonic(), 0.05)
+            answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), left)
+            busy = answer is not None and answer.ok is None and BUSY in str(answer.error)
+            if not busy or time.monotonic() + BUSY_PAUSE_S >= deadline:
+                break
+            time.sleep(BUSY_PAUSE_S)
+        if answer is None:
+            raise ConnectionError("no map server answered map/snapshot")
+        if answer.ok is None:
+            raise ValueError(f"map/snapshot answered an error: {answer.error}")
+        return Snapshot.decode(answer.ok)
+
+    def _load_snapshot(self) -> None:
+        """Start the replica from the map server's snapshot when one answers (else the prior)."""
         try:
-            while True:
-                left = max(deadline - time.monotonic(), 0.05)
-                answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), left)
-                busy = answer is not None and answer.ok is None and BUSY in str(answer.error)
-                if not busy or time.monotonic() + BUSY_PAUSE_S >= deadline:
-                    break
-                time.sleep(BUSY_PAUSE_S)
-            if answer is not None and answer.ok is None:
-                log.warning("map/snapshot answered an error: %s", answer.error)
-            elif answer is not None:
-                self.state.team.load_snapshot(Snapshot.decode(answer.ok))
-                self.started_from_snapshot = True
+            self.state.team.load_snapshot(self._fetch_snapshot())
+            self.started_from_snapshot = True
+        except ConnectionError:
+            pass
         except (zenoh.ZError, ValueError, replies.ConflictingReplies) as exc:  # WireError is a ValueError
             log.warning("no usable map snapshot (%s); starting from the prior", exc)
 
-    def _on_merged(self, _key: str, payload: bytes) -> None:
-        """Queue a merged payload for the worker, unless the merged payloads waiting already
-        fill ``merged_budget`` (then it is dropped, counted ``merged_dropped``)."""
-        if self.merged_budget.take(len(payload)):
-            self._inbox.put(("merged", payload))
-            return
-        self.state.counts["merged_dropped"] += 1
-        self._peer_log.warning(
-            "merged_dropped",
-            "merged delta dropped (#%d): %s bytes of merged deltas are waiting already",
-            self.state.counts["merged_dropped"],
-            f"{self.merged_budget.limit:,}",
-        )
+    def _on_merged(self, sample: zenoh.Sample) -> None:
+        """Zenoh's callback: the replica queues the payload (or drops it, counted
+        ``merged_dropped``, and catches up later); the worker is woken to apply it."""
+        self.state.team.on_sample(sample)
+        self._inbox.put(("merged", None))
 
     def _on_status(self, key: str, payload: bytes) -> None:
         posted = self._statuses.put(key, payload)
@@ -206,8 +209,7 @@ class Coordinator:
                 kind = None
             now = self.clock()
             if kind == "merged":
-                self.merged_budget.give(len(payload))
-                self._handle("merged", self.state.team.apply_payload, payload)
+                self._handle("merged", self.state.team.drain)
             elif kind == "statuses":
                 for key, status in self._statuses.take_all().items():
                     self._handle("status", self.state.on_status, status, now, key)

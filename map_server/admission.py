@@ -27,7 +27,7 @@ import zenoh
 from map_server.epochs import EpochRegistry
 from map_server.ledger import Rejected, validate_delta
 from map_server.limits import InformationBound, InformationBucket
-from map_server.team_map import TeamMap, delta_id
+from map_server.team_map import MergedMap, delta_id
 from swarm.log_limit import LogLimiter
 from swarm.protocol.codec import short
 from swarm.protocol.epochs import EpochGrant, mac_matches
@@ -45,7 +45,7 @@ class Admission:
 
     def __init__(
         self,
-        team: TeamMap,
+        team: MergedMap,
         lock: threading.Lock,
         registry: EpochRegistry,
         *,

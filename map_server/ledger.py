@@ -76,7 +76,7 @@ def validate_delta(
     dlam >= 0), the grid equals ``grid``, the robot field equals ``robot``, indices unique,
     0 <= deta <= dlam (unless ``increments`` is False: a previous map's delta moves a belief
     from the prior to another Gaussian, and its mean is checked on the resulting voxel by
-    TeamMap instead). Any exception at all becomes a Rejected (``malformed``, or
+    MergedMap instead). Any exception at all becomes a Rejected (``malformed``, or
     ``internal_error`` for one that is not a WireError), so one payload can only ever be refused.
     ``versions``: the protocol versions taken (the log's replay takes v1 deltas of older stores).
     """

@@ -13,7 +13,7 @@ from map_server.epochs import EpochFileError, EpochRegistry
 from map_server.ledger import Ledger, Rejected, validate_delta
 from map_server.store import Recovered, Store
 from map_server.store_files import StoreFiles
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from map_server.wal_file import StoreError
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -29,7 +29,7 @@ def recover(
     sensor: SensorModel,
     max_epochs: int,
     files: StoreFiles,
-) -> tuple[TeamMap, EpochRegistry, tuple[int, int, int]]:
+) -> tuple[MergedMap, EpochRegistry, tuple[int, int, int]]:
     """The team map and the epoch registry of ``store``, and (deltas from the snapshot, deltas
     replayed from the log, torn bytes cut). Raises StoreError for unreadable contents."""
     ledger = Ledger.from_json(recovered.ledger_json)
@@ -38,7 +38,7 @@ def recover(
         contributions = Contributions.from_arrays(recovered.arrays, grid.size)
     except ValueError as exc:
         raise StoreError(f"{store.path}: snapshot contributions unreadable: {exc}") from exc
-    team = TeamMap(
+    team = MergedMap(
         grid,
         sensor,
         recovered.lam,

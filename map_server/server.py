@@ -5,11 +5,13 @@ issues (map_server.admission, map_server.epochs). Zenoh callbacks only enqueue; 
 thread admits each payload (epoch, MAC, next seq, information budget), drops duplicates,
 appends the new ones to the write-ahead log and fsyncs (a group commit per batch), applies
 them to the team map exactly once, and republishes each payload unchanged on
-``swarm/<mission>/merged``. The acks of ``map/acks`` therefore only ever cover durable
-deltas. Queryables ``map/stats``, ``map/acks``, ``map/snapshot`` and ``map/region`` read the
-map under a lock, so they never see a half-applied delta. The worker compacts the store when
-its log grows past the configured size, and :meth:`MapServer.stop` drains the queue and
-compacts once more.
+``swarm/<mission>/merged``, numbered (``swarm.protocol.merged_stream``) and with congestion
+control DROP: a subscriber that does not drain loses samples (and catches up from the
+snapshot) instead of holding the worker. The acks of ``map/acks`` therefore only ever cover
+durable deltas. Queryables ``map/stats``, ``map/acks``, ``map/snapshot`` and ``map/region``
+read the map under a lock, so they never see a half-applied delta. The worker compacts the
+store when its log grows past the configured size, and :meth:`MapServer.stop` drains the
+queue and compacts once more.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
 from swarm.protocol.codec import short
+from swarm.protocol.merged_stream import MergedNumbering
 from swarm.protocol.wire import DeltaMessage
 
 log = logging.getLogger("swarm.server")
@@ -110,6 +113,9 @@ class MapServer:
         self._declared: list = []
         self._delta_sub = None
         self._merged_pub = None
+        #: the run id and sample numbers of merged (the attachment of every sample)
+        self.merged_numbers = MergedNumbering()
+        self.merged_put_max_s = 0.0  # the longest a put on merged took (DROP: never a subscriber's wait)
         self.wal_errors = 0
         self._started = time.monotonic()
         self._last_log = (time.monotonic(), len(self.team.ledger))
@@ -123,7 +129,7 @@ class MapServer:
         start the worker."""
         self.session = session
         key = self.key
-        self._merged_pub = bus.reliable_publisher(self.session, key("merged"))
+        self._merged_pub = bus.dropping_publisher(self.session, key("merged"))
         handlers = {
             "stats": guarded(self._on_stats),
             "acks": guarded(self._on_acks),
@@ -287,7 +293,9 @@ class MapServer:
                 self._reject(msg.robot, msg, Rejected(kind, str(exc)))
         for payload in applied if self._merged_pub is not None else ():
             try:
-                self._merged_pub.put(payload)
+                started = time.perf_counter()
+                self._merged_pub.put(payload, attachment=self.merged_numbers.next())
+                self.merged_put_max_s = max(self.merged_put_max_s, time.perf_counter() - started)
             except Exception:  # noqa: BLE001 (agents also start from the snapshot; keep merging)
                 log.exception("republishing a merged delta failed")
         if self.store.should_compact(self.options.compact_bytes, self.options.compact_records) and (
@@ -361,6 +369,11 @@ class MapServer:
             "breaches": dict(self.admission.breaches),
             "threshold_bits": self.threshold_bits,
             "mission_done": self.mission_done,
+            "merged": {
+                "run": f"{self.merged_numbers.run:016x}",
+                "published": self.merged_numbers.number,
+                "longest_put_ms": round(self.merged_put_max_s * 1e3, 3),
+            },
         }
         return stats
 

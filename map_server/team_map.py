@@ -1,10 +1,12 @@
 """The map server's merged team map and what it answers (pure, no I/O, not thread-safe).
 
-:class:`TeamMap` holds the coverage map (information form, float32, prior counted once),
+:class:`MergedMap` holds the coverage map (information form, float32, prior counted once),
 its per-voxel entropy cache, the :class:`~map_server.ledger.Ledger` of applied deltas and
-the counters of ``map/stats``. The server calls :meth:`TeamMap.admit` on a validated
+the counters of ``map/stats``. A delta is checked against the map by
+``CoverageMap.check_received`` and added by ``CoverageMap.apply_received`` (one check of
+range and mean for every holder of a map). The server calls :meth:`MergedMap.admit` on a validated
 delta (new, or a duplicate that is only counted), makes it durable, then
-:meth:`TeamMap.apply` adds it to the map and the ledger. Queries: :meth:`stats`,
+:meth:`MergedMap.apply` adds it to the map and the ledger. Queries: :meth:`stats`,
 :meth:`snapshot`, :meth:`region`.
 """
 
@@ -18,8 +20,9 @@ from collections.abc import Iterable
 import numpy as np
 
 from map_server.contributions import Contributions
-from map_server.ledger import ETA_TOLERANCE, REJECT_KINDS, DeltaId, Ledger, Rejected
-from swarm.map.coverage_map import LAM_MAX, CoverageMap, prior_entropy_bits, prior_information
+from map_server.ledger import REJECT_KINDS, DeltaId, Ledger, Rejected
+from swarm.map.coverage_map import CoverageMap, OutOfRange, prior_entropy_bits, prior_information
+from swarm.map.delta import Delta
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import default_table
@@ -35,7 +38,7 @@ def delta_id(msg: DeltaMessage) -> DeltaId:
     return (msg.robot, msg.epoch, msg.seq)
 
 
-class TeamMap:
+class MergedMap:
     """The merged map of every robot's deltas, each applied exactly once."""
 
     def __init__(
@@ -59,9 +62,7 @@ class TeamMap:
         self.ledger = ledger or Ledger()
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
         self.initial_entropy_bits = prior_entropy_bits(grid, sensor)
-        lam0, _ = prior_information(sensor)
-        self._known_lam = np.float32(lam0) * np.float32(1.0 + 1e-5)
-        self.known = int(np.count_nonzero(self.cmap.lam > self._known_lam))
+        self.known = int(np.count_nonzero(self.cmap.known_mask()))
         #: voxel updates merged per robot (persisted with the snapshot)
         self.updates: Counter[str] = Counter(updates or {})
         self.rejected: Counter[str] = Counter()
@@ -73,9 +74,7 @@ class TeamMap:
         non-finite, non-positive or over-LAM_MAX information (or eta outside [0, lam]); returns
         how many. A map this server writes never holds one."""
         lam, eta = self.cmap.lam, self.cmap.eta
-        with np.errstate(invalid="ignore"):
-            bad = ~(np.isfinite(lam) & np.isfinite(eta) & (lam > 0) & (lam <= LAM_MAX))
-            bad |= ~((eta >= 0) & (eta <= lam * np.float32(1 + ETA_TOLERANCE)))
+        bad = self.cmap.invalid_voxels()
         n = int(np.count_nonzero(bad))
         if n:
             lam0, eta0 = prior_information(self.sensor)
@@ -108,21 +107,20 @@ class TeamMap:
         if self.is_known(ident):
             self.duplicates += 1
             return False
-        self._check_overflow(msg)
+        self._check_range(msg)
         self._pending[ident] = float(np.sum(msg.dlam, dtype=np.float64))
         return True
 
-    def _check_overflow(self, msg: DeltaMessage) -> np.ndarray:
-        """The voxels' lam after adding ``msg`` (float32); Rejected when one would pass LAM_MAX
-        (``map_overflow``) or leave a mean outside [0, 1] (``mean_outside_unit``)."""
-        idx = msg.idx.astype(np.int64)
-        lam = self.cmap.lam[idx] + msg.dlam
-        if not np.all(lam <= LAM_MAX):  # also catches inf and NaN
-            raise Rejected("map_overflow", f"delta of {msg.robot} would lift a voxel over {LAM_MAX:g}")
-        eta = self.cmap.eta[idx] + msg.deta
-        if not (np.all(eta >= 0) and np.all(eta <= lam * np.float32(1 + ETA_TOLERANCE))):
-            raise Rejected("mean_outside_unit", f"delta of {msg.robot} would move a mean outside [0, 1]")
-        return lam
+    def _check_range(self, msg: DeltaMessage) -> None:
+        """Rejected when adding ``msg`` would lift a voxel over LAM_MAX (``map_overflow``) or
+        leave a mean outside [0, 1] (``mean_outside_unit``): ``CoverageMap.check_received``."""
+        try:
+            self.cmap.check_received(Delta(msg.idx, msg.dlam, msg.deta))
+        except OutOfRange as exc:
+            kind = "map_overflow" if exc.information else "mean_outside_unit"
+            raise Rejected(kind, f"delta of {msg.robot}: {exc}") from exc
+        except ValueError as exc:
+            raise Rejected("malformed", f"delta of {msg.robot}: {exc}") from exc
 
     def release(self, msg: DeltaMessage) -> float:
         """Forget an admitted delta that could not be made durable or applied (its sender will
@@ -138,13 +136,16 @@ class TeamMap:
         if msg.robot in self.quarantined:  # quarantined between admit and apply
             raise Rejected("quarantined", f"{msg.robot} is quarantined")
         idx = msg.idx.astype(np.int64)
-        new_lam = self._check_overflow(msg)
-        known_before = int(np.count_nonzero(self.cmap.lam[idx] > self._known_lam))
-        self.cmap.lam[idx] = new_lam
-        self.cmap.eta[idx] += msg.deta
+        known = self.cmap.known_threshold()
+        known_before = int(np.count_nonzero(self.cmap.lam[idx] > known))
+        try:  # whole or nothing: the map is as it was when a voxel would leave its range
+            self.cmap.apply_received(Delta(msg.idx, msg.dlam, msg.deta))
+        except OutOfRange as exc:
+            kind = "map_overflow" if exc.information else "mean_outside_unit"
+            raise Rejected(kind, f"delta of {msg.robot}: {exc}") from exc
         lam, eta = self.cmap.lam[idx], self.cmap.eta[idx]
         self.entropy.update_information(idx, lam, eta)
-        self.known += int(np.count_nonzero(lam > self._known_lam)) - known_before
+        self.known += int(np.count_nonzero(lam > known)) - known_before
         self.contributions.add(msg.robot, idx, msg.dlam, msg.deta)
         ident = delta_id(msg)
         self._pending.pop(ident, None)
@@ -163,7 +164,7 @@ class TeamMap:
         self.cmap.lam[:] = lam
         self.cmap.eta[:] = eta
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
-        self.known = int(np.count_nonzero(self.cmap.lam > self._known_lam))
+        self.known = int(np.count_nonzero(self.cmap.known_mask()))
         return True
 
     def count_rejected(self, kind: str) -> int:

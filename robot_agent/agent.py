@@ -9,7 +9,10 @@ its own thread under the epoch the server issued.
 The team map reaches the agent as the server's ``merged`` stream: every delta of another
 robot (or of an earlier run of this one) is added to the local map once, so the robot
 plans on what the team has seen; its own deltas of this run are already in it and are
-skipped. An agent that starts while a map server runs begins from its ``map/snapshot``.
+skipped. An agent that starts while a map server runs begins from its ``map/snapshot``,
+and one that misses merged samples starts again from a fresh snapshot plus what it holds
+that the server does not (:meth:`Agent.unshared`). The team map is a
+:class:`swarm.protocol.team_replica.TeamReplica` whose map and entropy the explorer fuses into.
 With coordination on, the agent asks ``coord/assign`` before each decision that chooses a new
 target (``Explorer.wants_target``) and passes the answer in (``TeamAdvice``); the explorer
 chooses by itself (eq. 35) when no coordinator answered in time, and the agent asks again a
@@ -21,7 +24,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import queue
 import threading
 import time
 from collections import Counter
@@ -42,7 +44,6 @@ from swarm.map.delta import Delta
 from swarm.navigation.exploration import ExplorationTarget
 from swarm.protocol import bus, replies
 from swarm.protocol.applied_deltas import AppliedDeltas
-from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.codec import short
 from swarm.protocol.coord_client import ask_for_target
 from swarm.protocol.map_client import (
@@ -52,7 +53,8 @@ from swarm.protocol.map_client import (
     MissionMismatch,
     missions_answering,
 )
-from swarm.protocol.wire import Cmd, DeltaMessage, Frame, Pose, Status, WireError
+from swarm.protocol.team_replica import TeamReplica
+from swarm.protocol.wire import Cmd, Frame, Pose, Snapshot, Status, WireError
 
 log = logging.getLogger("swarm.agent")
 
@@ -101,15 +103,23 @@ class Agent:
         self._acks_key = bus.key(name, "map", "acks")
         self._frames = FrameInbox()  # the newest frame: older waiting ones are dropped, counted
         self.link.frames.start(self._frames)
-        self.applied = AppliedDeltas()
-        self.merged_counts: Counter[str] = Counter()
-        self._merged: queue.Queue = queue.Queue()
         #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
-        #: bytes of merged payloads waiting for the next frame: anyone on an open bus can put
-        #: on merged faster than the agent takes them
-        self.merged_budget = ByteBudget(MAX_QUEUED_MERGED_BYTES)
-        self._merged_sub = bus.subscribe(session, bus.key(name, "merged"), self._on_merged)
+        #: the team map: the explorer fuses into the replica's map and entropy, merged deltas of
+        #: the others are applied at each frame, a missed one makes it start again from a snapshot
+        self.team = TeamReplica(
+            self.explorer.grid,
+            self.explorer.sensor,
+            own=lambda: (self.robot_id, self.epoch),
+            fetch=lambda: MapClient(self.session, name, 2.0).snapshot(),
+            unshared=self.unshared,
+            table=self.explorer.table,
+            cmap=self.explorer.map,
+            entropy=self.explorer.entropy,
+            peer_log=self._peer_log,
+            name=robot_id,
+        )
+        self._merged_sub = self.team.subscribe(session, bus.key(name, "merged"))
         #: the teammates' statuses: where they are, for keeping out of their way
         self.statuses = TeammateStatuses(session, name, robot_id, self._peer_log)
         self.coordination = coordination and strategy == "entropy"
@@ -287,55 +297,45 @@ class Agent:
             log.info("%s: no team map to start from (%s)", self.robot_id, exc)
             return False
         try:
-            self.explorer.load_team_map(snap.grid, snap.lam, snap.eta)
+            self.team.load_snapshot(snap)
         except ValueError as exc:
             log.warning("%s: ignored the server's snapshot: %s", self.robot_id, exc)
             return False
-        self.applied.cover(snap.acks, snap.above)
         entropy = self.explorer.map_entropy
         log.info("%s: started from the team map (entropy %.0f bits)", self.robot_id, entropy)
         return True
 
-    def _on_merged(self, _key: str, payload: bytes) -> None:
-        """Queue a merged payload for the next frame, unless the waiting ones fill
-        ``merged_budget`` (then it is dropped, counted ``dropped``)."""
-        if self.merged_budget.take(len(payload)):
-            self._merged.put(payload)
-            return
-        self.merged_counts["dropped"] += 1
-        self._peer_log.warning("merged_dropped", "%s: merged delta dropped (queue full)", self.robot_id)
+    @property
+    def merged_counts(self) -> Counter[str]:
+        """The team map's counts: ``applied``, ``duplicate``, ``own``, ``rejected``, ``dropped``,
+        ``resyncs`` (``TeamReplica``)."""
+        return self.team.counts
 
     def apply_merged(self) -> int:
-        """Add the merged deltas received since the last frame; returns how many were applied."""
-        applied = 0
+        """Add the merged deltas received since the last frame (after a catch-up from a fresh
+        snapshot when one was missed); returns how many were applied."""
+        return self.team.drain()
+
+    def unshared(self):
+        """What this agent's map holds that the server's may not: called before a snapshot is
+        asked for, it notes the deltas sent and not acked then (the snapshot holds every one
+        acked before it was asked for); the function it returns gives, for the snapshot, the
+        noted deltas the snapshot does not hold, oldest first, then the information not sent yet."""
         while True:
             try:
-                payload = self._merged.get_nowait()
-            except queue.Empty:
-                return applied
-            self.merged_budget.give(len(payload))
-            try:
-                msg = DeltaMessage.decode(payload)
-                if not self.explorer.grid.matches(msg.grid):
-                    raise WireError(f"merged delta on grid {msg.grid}, not the mission's")
-            except WireError as exc:
-                self.merged_counts["rejected"] += 1
-                self._peer_log.warning("merged", "%s: rejected merged delta: %s", self.robot_id, exc)
+                held = list(self.outbox.unacked.items())  # the ack thread may forget some meanwhile
+                break
+            except RuntimeError:
                 continue
-            if msg.robot == self.robot_id and msg.epoch == self.epoch:
-                self.merged_counts["own"] += 1  # already in the local map
-                continue
-            if not self.applied.add(msg.robot, msg.epoch, msg.seq):
-                self.merged_counts["duplicate"] += 1
-                continue
-            try:
-                self.explorer.apply_external(Delta(msg.idx, msg.dlam, msg.deta))
-            except ValueError as exc:
-                self.merged_counts["rejected"] += 1
-                self._peer_log.warning("merged", "%s: rejected merged delta: %s", self.robot_id, exc)
-                continue
-            self.merged_counts["applied"] += 1
-            applied += 1
+        robot, epoch = self.robot_id, self.epoch
+
+        def finish(snap: Snapshot) -> list[Delta]:
+            covered = AppliedDeltas()
+            covered.cover(snap.acks, snap.above)
+            parts = [d for seq, d in held if (robot, epoch, seq) not in covered]
+            return [*parts, self.outbox.pending()]
+
+        return finish
 
     # -- the coordinator -------------------------------------------------------------------
     def _ask_coordinator(self) -> TeamAdvice:

@@ -159,12 +159,6 @@ class Explorer:
     def fuse(self, frame: Frame) -> Delta:  # the local map's (see LocalMap)
         return self.local.fuse(frame)
 
-    def apply_external(self, delta: Delta) -> None:
-        self.local.apply_external(delta)
-
-    def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
-        self.local.load_team_map(grid, lam, eta)
-
     # -- decisions -----------------------------------------------------------------------
     @property
     def wants_target(self) -> bool:

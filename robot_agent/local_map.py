@@ -1,5 +1,7 @@
-"""One robot's local map: fuse its own frames (stereo matched first) and the team's deltas into
-its coverage map (eq. 24-25), and keep the map's per-voxel entropy up to date.
+"""One robot's local map: fuse its own frames (stereo matched first) into its coverage map
+(eq. 24-25), and keep the map's per-voxel entropy up to date. The team's deltas reach the same
+map and entropy through the agent's :class:`swarm.protocol.team_replica.TeamReplica`, which
+updates both in place.
 """
 
 from __future__ import annotations
@@ -50,27 +52,17 @@ class LocalMap:
         self.apply_entropy(result.delta)
         return result.delta
 
-    def load_team_map(self, grid: Grid, lam: np.ndarray, eta: np.ndarray) -> None:
-        """Start from the team map (a server snapshot, prior included); before any frame.
-        ValueError when ``grid`` is not the mission's."""
-        if not self.grid.matches(grid):
-            raise ValueError(f"the team map's grid {grid} is not the mission's {self.grid}")
-        self.map = CoverageMap(self.grid, self.sensor, lam, eta)
-        self.recompute_entropy()
-
-    def apply_external(self, delta: Delta) -> None:
-        """Add information another robot gathered (from the team's merged stream)."""
-        self.map.apply_received(delta)
-        self.apply_entropy(delta)
-
     def apply_entropy(self, delta: Delta) -> None:
         """Bring the entropy of the voxels ``delta`` touched up to date with the map."""
         idx = delta.idx.astype(np.int64)
         self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
 
     def recompute_entropy(self) -> None:
-        """The entropy of every voxel from the map again (after the map's arrays were set whole)."""
-        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+        """The entropy of every voxel from the map again, in place (after the map's arrays were
+        set whole; the team replica holds the same cache)."""
+        fresh = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+        self.entropy.values[:] = fresh.values
+        self.entropy.resum()
 
     @property
     def entropy_bits(self) -> float:

@@ -157,6 +157,11 @@ class DeltaOutbox:
         self.stats.released_held += len(released)
         return released
 
+    def pending(self) -> Delta:
+        """The information gathered and not sent yet (in the agent's map, in no server's)."""
+        idx = np.flatnonzero(self._touched)
+        return Delta(idx.astype(np.uint32), self.pending_lam[idx].copy(), self.pending_eta[idx].copy())
+
     def acknowledge(self, last_contiguous_seq: int) -> None:
         """Forget every delta up to the server's contiguous ack."""
         for seq in [s for s in self.unacked if s <= last_contiguous_seq]:

@@ -15,9 +15,10 @@ attachments):
 What goes out when is :mod:`ros2_map.outputs`. Zenoh's callbacks only queue merged payloads
 (at most ``max_queued_bytes`` waiting, larger ones than a whole-map delta refused at once); one
 worker thread applies them (:class:`ros2_map.replica.FollowedMap` refuses bad ones, counted),
-and publishes what is due. When the queue is full a payload is dropped, and since the replica
-then misses a delta, the worker starts again from a fresh snapshot (at most one per
-``RESYNC_INTERVAL_S``: each costs the server a whole-map query).
+and publishes what is due. When the queue is full a payload is dropped, or when the numbers of
+the merged stream skip one (``swarm.protocol.merged_stream``: the server drops samples for a
+subscriber that does not keep up), the replica misses a delta: the worker starts again from a
+fresh snapshot (at most one per ``RESYNC_INTERVAL_S``: each costs the server a whole-map query).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
 from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable, sensor_from_stats
+from swarm.protocol.merged_stream import StreamPosition
 from swarm.protocol.message_size import delta_bytes
 from swarm.protocol.wire import WireError
 from swarm.ros2.graph import LATCHED_QOS, Qos
@@ -94,6 +96,7 @@ class TeamMapTopics:
         self._last_snapshot = -math.inf
         self._inbox: queue.Queue = queue.Queue()
         self._resync = threading.Event()
+        self.stream = StreamPosition()  # where this subscriber is in the numbered merged stream
         self._stop = threading.Event()
         self._worker: threading.Thread | None = None
         self._subscriber = None
@@ -109,7 +112,7 @@ class TeamMapTopics:
         the ROS 2 session does not timestamp its samples.
         """
         # subscribe before the snapshot so that no merged delta falls between the two
-        self._subscriber = bus.subscribe(self.session, bus.key(self.mission, "merged"), self._on_merged)
+        self._subscriber = self.session.declare_subscriber(bus.key(self.mission, "merged"), self._on_sample)
         options, types = self.options, self.context.types
         self._node = node = self.context.node(options.node_name, options.namespace)
         try:
@@ -191,8 +194,20 @@ class TeamMapTopics:
         self._max_payload = delta_bytes(fmap.grid)
         self._last_snapshot = time.monotonic()
 
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh's callback: note the sample's number (a skipped one makes a fresh snapshot due),
+        then :meth:`_on_merged` its payload; never raises."""
+        try:
+            attachment = None if sample.attachment is None else sample.attachment.to_bytes()
+            if self.stream.observe(attachment) is not None:
+                self.counts["merged_missed"] += 1
+                self._resync.set()
+            self._on_merged(str(sample.key_expr), sample.payload.to_bytes())
+        except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
+            self._peer_log.exception("callback", "merged callback failed")
+
     def _on_merged(self, _key: str, payload: bytes) -> None:
-        """Zenoh's callback: queue the payload within the budget (module doc); never raises."""
+        """Queue the payload within the budget (module doc); never raises."""
         if self._max_payload and len(payload) > self._max_payload:
             self.counts["merged_too_large"] += 1
             return

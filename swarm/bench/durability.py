@@ -7,7 +7,7 @@ recorded. For every instant of that recording and every way a cut may leave the 
 (unsynced data and folder names dropped, torn or zeroed tails), the store is rebuilt in a
 fresh folder and opened by a new server; its acks must cover every delta acked before the
 cut, and its map must equal the map of exactly the deltas it says it holds, each applied
-once (a fresh TeamMap fed them in merge order).
+once (a fresh MergedMap fed them in merge order).
 
 SIGKILL (processes): a ``swarm server`` on loopback takes both robots' deltas; after a few
 are acked it is killed with SIGKILL, restarted on the same store, and the acks it recovers
@@ -31,7 +31,7 @@ import yaml
 
 from map_server.options import ServerOptions
 from map_server.server import MapServer
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from swarm.bench.crash_model import RecordingFiles, crash_states, materialize
 from swarm.config import Mission, mission_from_dict
 from swarm.map.fusion import batch_information
@@ -235,9 +235,9 @@ def sigkills(kills: int = 15, per_robot: int = 40, seed: int = 1, timeout_s: flo
     }
 
 
-def _map_of(mission: Mission, payloads: list[bytes]) -> TeamMap:
+def _map_of(mission: Mission, payloads: list[bytes]) -> MergedMap:
     """The map of exactly these deltas, each once, merged without a server."""
-    team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+    team = MergedMap(mission.workspace.grid(), mission.sensor.model())
     for payload in payloads:
         msg = DeltaMessage.decode(payload)
         if team.admit(msg):

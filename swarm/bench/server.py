@@ -81,7 +81,7 @@ def merge_rates(grid: Grid, sensor: SensorModel, deltas: list, workdir: Path, re
     """Voxel updates per second of each stage of the merge path (best of ``repeat``)."""
     from map_server.ledger import validate_delta
     from map_server.store import Store, StoreIdentity
-    from map_server.team_map import TeamMap
+    from map_server.team_map import MergedMap
 
     payloads = _messages(grid, deltas, "b1", 1)
     updates = sum(len(d) for d in deltas)
@@ -91,7 +91,7 @@ def merge_rates(grid: Grid, sensor: SensorModel, deltas: list, workdir: Path, re
     def timed(name: str, body) -> None:  # best of `repeat`, each on a fresh map
         best = float("inf")
         for _ in range(repeat):
-            team = TeamMap(grid, sensor)
+            team = MergedMap(grid, sensor)
             t0 = time.perf_counter()
             body(team)
             best = min(best, time.perf_counter() - t0)

@@ -221,6 +221,33 @@ def register(sub: argparse._SubParsersAction) -> None:
     slow.add_argument("--connections", type=at_least(1), default=300, help="idle connections (default 300)")
     slow.add_argument("--seconds", type=float, default=20.0, help="attack length (default 20)")
     slow.set_defaults(run=_run_bench_slowloris)
+    stall = bsub.add_parser(
+        "stall",
+        help="robots' ack p99 and H_th with a stalled merged subscriber and 300 idle connections",
+        description="Run a swarm sim mission twice, alone and attacked: a Zenoh session on the map "
+        "server's endpoint behind a relay that stops reading (a subscriber of merged that does not "
+        "drain) and --connections idle TCP connections to the same endpoint. Prints the robots' ack "
+        "latency (p50/p99/max, from a delta's arrival to the first map/acks covering it, polled every "
+        "20 ms) and whether each mission reached H_th, side by side (swarm.bench.stall). Exit status 1 "
+        "when the attacked p99 is over --target-ms or the attacked mission misses H_th.",
+    )
+    stall.add_argument(
+        "--config",
+        type=Path,
+        default=_bundled(Path("configs") / "office.yaml"),
+        help="the mission (default configs/office.yaml, 4 robots)",
+    )
+    stall.add_argument("--out", type=Path, default=Path("runs") / "bench-stall", help="run folders")
+    stall.add_argument("--connections", type=at_least(0), default=300, help="idle connections (default 300)")
+    stall.add_argument("--seed", type=int, default=0, help="the missions' seed (default 0)")
+    stall.add_argument("--target-ms", type=float, default=200.0, help="ack p99 target (default 200)")
+    stall.add_argument(
+        "--runs",
+        default="alone,attacked",
+        help="runs in order, comma-separated, of: alone, stall (the stalled subscriber only), idle "
+        "(the idle connections only), attacked (both); default alone,attacked",
+    )
+    stall.set_defaults(run=_run_bench_stall)
     ros2 = bsub.add_parser(
         "ros2-map",
         help="cost and bytes of the team map's ROS 2 topics (swarm map ros2), office and large map",
@@ -246,6 +273,16 @@ def _run_bench_slowloris(args: argparse.Namespace) -> int:
     from swarm.bench import slowloris
 
     return slowloris.run(args.connections, args.seconds)
+
+
+def _run_bench_stall(args: argparse.Namespace) -> int:
+    from swarm.bench import stall
+
+    runs = tuple(r.strip() for r in args.runs.split(",") if r.strip())
+    unknown = [r for r in runs if r not in stall.RUNS]
+    if unknown or not runs:
+        return fail(f"--runs {args.runs!r}: expected some of {', '.join(stall.RUNS)}")
+    return stall.run(args.config, args.out, args.connections, args.seed, args.target_ms, runs)
 
 
 def _run_bench_durability(args: argparse.Namespace) -> int:

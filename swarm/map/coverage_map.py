@@ -73,6 +73,29 @@ class CoverageMap:
         """
         self._add(delta, check_range=True)
 
+    def check_received(self, delta: Delta) -> None:
+        """Whether :meth:`apply_received` would take ``delta``, without changing the map: raises
+        what it would raise (ValueError; :class:`OutOfRange` for a voxel it would leave out of
+        range). The same kernel, run on copies of the touched voxels."""
+        idx = delta.idx.astype(np.int64)
+        self.grid.check_flat(idx)
+        lam, eta = self.lam[idx], self.eta[idx]  # copies
+        at = np.arange(len(idx), dtype=np.int64)
+        status = add_information(lam, eta, at, delta.dlam, delta.deta, True, LAM_MAX, MEAN_SLACK)
+        if status == NONFINITE:
+            raise ValueError("delta holds NaN or inf information")
+        if status == OUT_OF_RANGE:
+            raise OutOfRange.of(self.lam[idx] + delta.dlam)
+
+    def invalid_voxels(self) -> np.ndarray:
+        """Mask of the voxels no delta :meth:`apply_received` takes could have made: information
+        not in (0, LAM_MAX] (NaN included) or a mean outside [0, 1] (within MEAN_SLACK)."""
+        lam, eta = self.lam, self.eta
+        with np.errstate(invalid="ignore"):
+            good = np.isfinite(lam) & np.isfinite(eta) & (lam > 0) & (lam <= LAM_MAX)
+            good &= (eta >= -MEAN_SLACK * lam) & (eta <= (1 + MEAN_SLACK) * lam)
+        return ~good
+
     def _add(self, delta: Delta, check_range: bool) -> None:
         idx = delta.idx if delta.idx.dtype in (np.uint32, np.int64) else delta.idx.astype(np.int64)
         status = add_information(
@@ -83,9 +106,7 @@ class CoverageMap:
         if status == NONFINITE:
             raise ValueError("delta holds NaN or inf information")
         if status == OUT_OF_RANGE:
-            raise ValueError(
-                f"delta would leave a voxel's information outside (0, {LAM_MAX:g}] or its mean outside [0, 1]"
-            )
+            raise OutOfRange.of(self.lam[idx] + delta.dlam)  # the map is as it was
 
     def integrate(self, origin: np.ndarray, points: np.ndarray) -> BatchResult:
         """Fuse one batch of hit points seen from ``origin``; returns the batch and its delta."""
@@ -121,6 +142,25 @@ class CoverageMap:
 
 
 OUTSIDE, NONFINITE, OUT_OF_RANGE = 1, 2, 3
+
+
+class OutOfRange(ValueError):
+    """A delta would leave a voxel out of range; ``information``: True when some voxel's
+    information would pass LAM_MAX (or stop being finite), False when only a mean would leave
+    [0, 1]."""
+
+    def __init__(self, reason: str, information: bool) -> None:
+        super().__init__(reason)
+        self.information = information
+
+    @classmethod
+    def of(cls, new_lam: np.ndarray) -> OutOfRange:
+        """The error for a delta whose touched voxels would end with information ``new_lam``."""
+        with np.errstate(invalid="ignore"):
+            over = not bool(np.all(new_lam <= LAM_MAX))  # NaN fails too
+        if over:
+            return cls(f"delta would leave a voxel's information outside (0, {LAM_MAX:g}]", True)
+        return cls("delta would leave a voxel's mean outside [0, 1] (or its information <= 0)", False)
 
 
 @njit(cache=True, nogil=True)

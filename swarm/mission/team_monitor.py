@@ -1,7 +1,8 @@
 """What an observer of a mission's bus knows: the team map, trajectories, states and traffic.
 
 :class:`TeamMonitor` subscribes like any client (``delta/*``, ``sim/truth``,
-``robot/*/status``) and keeps a replica of the team map from the deltas it sees: the entropy
+``robot/*/status``) and keeps a replica of the team map from the deltas it sees (a
+:class:`swarm.protocol.team_replica.TeamReplica` fed the robots' own deltas, each once): the entropy
 curve (one sample per delta), the bytes each robot shared, and per robot which of its deltas
 first carried each voxel (for the overlap over time). ``swarm sim`` and ``swarm replay run``
 (:mod:`swarm.mission.runner`, :mod:`swarm.mission.replay_run`) watch their missions with it.
@@ -18,12 +19,10 @@ import numpy as np
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
-from swarm.map.entropy_table import default_table
 from swarm.mission.prior_map import PRIOR_SOURCE
-from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.message_size import sources_of_deltas
+from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage, TruthPoses, WireError, status_on_key
 
 log = logging.getLogger("swarm.monitor")
@@ -36,8 +35,7 @@ class TeamMonitor:
     """What an observer of the bus knows: the team map, trajectories, states and traffic."""
 
     mission: Mission
-    cmap: CoverageMap = field(init=False)
-    entropy: EntropyCache = field(init=False)
+    team: TeamReplica = field(init=False)
     curve: list[tuple[float, float]] = field(default_factory=list)
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     states: dict[str, str] = field(default_factory=dict)
@@ -48,7 +46,6 @@ class TeamMonitor:
     sim_time: float = 0.0
     dead: list[str] = field(default_factory=list)
     rejected: int = 0
-    seen: AppliedDeltas = field(default_factory=AppliedDeltas)
     applied: int = 0  # distinct deltas in the map
     prior_deltas: int = 0  # of which the previous map's (delta/prior): the starting belief
     #: robots with per-robot figures (first_delta, bytes_shared: 4 bytes per voxel each); on an
@@ -58,43 +55,47 @@ class TeamMonitor:
 
     def __post_init__(self) -> None:
         grid = self.mission.workspace.grid()
-        self.cmap = CoverageMap(grid, self.mission.sensor.model())
-        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
-        self.curve.append((0.0, float(self.entropy.total)))
+        self.team = TeamReplica(grid, self.mission.sensor.model(), on_applied=self._applied, name="monitor")
+        self.curve.append((0.0, self.team.entropy_bits))
         self._lock = threading.Lock()
         self.max_robots = self.max_robots or sources_of_deltas(len(self.mission.robot_ids))
         self._peer_log = LogLimiter(log)  # one line per 10 s however many deltas are refused
 
+    @property
+    def cmap(self) -> CoverageMap:
+        """The team map as the monitor saw it."""
+        return self.team.map
+
+    @property
+    def entropy(self) -> EntropyCache:
+        return self.team.entropy
+
     def on_delta(self, _key: str, payload: bytes) -> None:
+        """A ``delta/<rid>`` payload: applied once (a resend changes nothing), else refused,
+        counted and logged."""
         try:
-            msg = DeltaMessage.decode(payload)
-            if not self.cmap.grid.matches(msg.grid):
-                raise WireError(f"delta on grid {msg.grid}, not the mission's {self.cmap.grid}")
-            delta = Delta(msg.idx, msg.dlam, msg.deta)
             with self._lock:
-                if (msg.robot, msg.epoch, msg.seq) in self.seen:
-                    return  # a resend: already counted
-                self.cmap.apply_received(delta)
-                self.seen.add(msg.robot, msg.epoch, msg.seq)
-                self.applied += 1
-                idx = msg.idx.astype(np.int64)
-                self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
-                if msg.robot == PRIOR_SOURCE:  # the previous map: the mission's starting belief
-                    self.prior_deltas += 1
-                    self.curve[-1] = (0.0, float(self.entropy.total))
-                    return
-                self.curve.append((float(msg.t), float(self.entropy.total)))
-                first = self.first_delta.get(msg.robot)
-                if first is None and len(self.first_delta) < self.max_robots:
-                    first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
-                if first is None:  # an id beyond the bound: in the map, not in the per-robot figures
-                    self.unattributed += 1
-                    return
-                first[idx] = np.minimum(first[idx], self.applied - self.prior_deltas)
-                self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + len(payload)
+                self.team.apply_payload(payload)
         except (WireError, ValueError) as exc:
             self.rejected += 1
             self._peer_log.warning("rejected", "monitor: rejected delta: %s", exc)
+
+    def _applied(self, msg: DeltaMessage, idx: np.ndarray, size: int) -> None:
+        """After each new delta (under the lock): the curve, and per robot its bytes and first deltas."""
+        self.applied += 1
+        if msg.robot == PRIOR_SOURCE:  # the previous map: the mission's starting belief
+            self.prior_deltas += 1
+            self.curve[-1] = (0.0, self.team.entropy_bits)
+            return
+        self.curve.append((float(msg.t), self.team.entropy_bits))
+        first = self.first_delta.get(msg.robot)
+        if first is None and len(self.first_delta) < self.max_robots:
+            first = self.first_delta[msg.robot] = np.full(self.cmap.grid.size, NEVER, np.int32)
+        if first is None:  # an id beyond the bound: in the map, not in the per-robot figures
+            self.unattributed += 1
+            return
+        first[idx] = np.minimum(first[idx], self.applied - self.prior_deltas)
+        self.bytes_shared[msg.robot] = self.bytes_shared.get(msg.robot, 0) + size
 
     def on_truth(self, _key: str, payload: bytes) -> None:
         try:
@@ -123,4 +124,4 @@ class TeamMonitor:
 
     @property
     def team_entropy(self) -> float:
-        return float(self.entropy.total)
+        return self.team.entropy_bits

@@ -248,6 +248,17 @@ def reliable_publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher
     )
 
 
+def dropping_publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:
+    """A publisher with reliable delivery and congestion control DROP: a link whose queue is full
+    loses the sample instead of making ``put`` wait (the map server's ``merged``, whose
+    subscribers catch up from ``map/snapshot``)."""
+    return session.declare_publisher(
+        key_expr,
+        congestion_control=zenoh.CongestionControl.DROP,
+        reliability=zenoh.Reliability.RELIABLE,
+    )
+
+
 def wait_for_subscribers(publishers: Iterable[zenoh.Publisher], timeout: float) -> bool:
     """Wait until every publisher has a matching subscriber; False on timeout."""
     publishers = list(publishers)

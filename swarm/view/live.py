@@ -3,10 +3,11 @@
 The view subscribes to ``<mission>/merged`` (every delta the map server merged) and
 ``<mission>/robot/*/status``, then starts from ``map/snapshot`` (deltas the snapshot already
 holds are skipped, as an agent does). Zenoh callbacks only queue payloads; one worker
-thread applies every merged delta to its replica of the team map (information form, eq.
-24-25) and logs the entropy after each one, and draws the map and the robots at most once
-per ``period`` seconds of wall time. A slow viewer thus draws fewer frames; it never drops
-a delta and never makes the mission wait (the view publishes nothing).
+thread applies every merged delta to its replica of the team map
+(:class:`swarm.protocol.team_replica.TeamReplica`, information form, eq. 24-25) and logs the
+entropy after each one, and draws the map and the robots at most once per ``period`` seconds
+of wall time. A slow viewer thus draws fewer frames; a merged sample it misses makes it catch
+up from a fresh snapshot, and it never makes the mission wait (the view publishes nothing).
 """
 
 from __future__ import annotations
@@ -22,19 +23,19 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from swarm.log_limit import LogLimiter
 from swarm.map.coverage_map import CoverageMap
-from swarm.map.delta import Delta
-from swarm.map.entropy_cache import EntropyCache
-from swarm.map.entropy_table import default_table
 from swarm.protocol import bus
-from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable, sensor_from_stats
+from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage, WireError, status_on_key
 from swarm.view.scene import RobotTrack, log_map, log_robot, require_rerun
 
 log = logging.getLogger("swarm.view")
 
 TIMELINE = "sim_time"
+#: Merged samples kept while the first snapshot is on its way (more: a catch-up after it).
+MAX_EARLY_SAMPLES = 10_000
 
 
 def missing_display() -> str | None:
@@ -75,18 +76,19 @@ class TeamView:
         self.rec = rec
         self.period = period
         self.max_points = max_points
-        self.cmap: CoverageMap | None = None
-        self.entropy: EntropyCache | None = None
-        self.applied = AppliedDeltas()
+        self.team: TeamReplica | None = None  # from the first snapshot on
         self.tracks: dict[str, RobotTrack] = {}
         self.sim_time = 0.0
         self.frames = 0
         self.deltas = 0
-        self.rejected = 0
+        self.rejected_statuses = 0
         self._inbox: queue.Queue = queue.Queue()
+        self._early: list[zenoh.Sample] = []  # merged samples before the first snapshot
+        self._early_lock = threading.Lock()
+        self._early_dropped = False
         self._stop = threading.Event()
         self._subs = [
-            bus.subscribe(session, bus.key(mission, "merged"), lambda _k, p: self._inbox.put(("delta", p))),
+            session.declare_subscriber(bus.key(mission, "merged"), self._on_merged),
             bus.subscribe(
                 session,
                 bus.key_pattern(mission, "robot", "*", "status"),
@@ -111,11 +113,24 @@ class TeamView:
                         f"no map server of mission {self.mission!r} answered: {exc}"
                     ) from exc
                 time.sleep(0.5)
-        self.cmap = CoverageMap(snap.grid, sensor, snap.lam, snap.eta)
-        self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
-        self.applied.cover(snap.acks, snap.above)
+        team = TeamReplica(
+            snap.grid,
+            sensor,
+            fetch=client.snapshot,
+            on_applied=self._on_delta,
+            peer_log=LogLimiter(log),
+            name="view",
+        )
+        team.load_snapshot(snap)
+        with self._early_lock:
+            self.team = team
+            early, self._early = self._early, []
+        for sample in early:
+            team.on_sample(sample)
+        if self._early_dropped:  # some merged samples before the snapshot were not kept
+            team.resync(force=True)
         self._set_time(0.0)
-        self.rec.log("plots/entropy", require_rerun().Scalars(float(self.entropy.total)))
+        self.rec.log("plots/entropy", require_rerun().Scalars(team.entropy_bits))
 
     def start(self) -> None:
         self._worker = threading.Thread(target=self._run, name="view", daemon=True)
@@ -147,9 +162,28 @@ class TeamView:
                 return
             time.sleep(0.05)
 
+    @property
+    def cmap(self) -> CoverageMap | None:
+        """The replica's map (None before the first snapshot)."""
+        return None if self.team is None else self.team.map
+
+    @property
+    def rejected(self) -> int:
+        return self.rejected_statuses + (0 if self.team is None else self.team.counts["rejected"])
+
+    def _on_merged(self, sample: zenoh.Sample) -> None:
+        with self._early_lock:
+            team = self.team
+            if team is None and len(self._early) < MAX_EARLY_SAMPLES:
+                self._early.append(sample)
+            elif team is None:
+                self._early_dropped = True
+        if team is not None:
+            team.on_sample(sample)
+
     def drain(self) -> int:
-        """Handle every queued message; returns how many."""
-        handled = 0
+        """Apply the merged deltas waiting and handle every queued status; returns how many."""
+        handled = 0 if self.team is None else self.team.drain()
         while True:
             try:
                 kind, payload = self._inbox.get_nowait()
@@ -157,28 +191,18 @@ class TeamView:
                 return handled
             handled += 1
             try:
-                if kind == "delta":
-                    self._on_delta(payload)
-                else:
-                    self._on_status(payload)
+                self._on_status(payload)
             except (WireError, ValueError) as exc:
-                self.rejected += 1
-                if self.rejected <= 10:
+                self.rejected_statuses += 1
+                if self.rejected_statuses <= 10:
                     log.warning("view: ignored a %s message: %s", kind, exc)
 
-    def _on_delta(self, payload) -> None:
-        msg = DeltaMessage.decode(payload)
-        if self.cmap is None or not self.cmap.grid.matches(msg.grid):
-            raise WireError("merged delta on another grid than the snapshot's")
-        if not self.applied.add(msg.robot, msg.epoch, msg.seq):
-            return
-        self.cmap.apply_received(Delta(msg.idx, msg.dlam, msg.deta))
-        idx = msg.idx.astype(np.int64)
-        self.entropy.update_information(idx, self.cmap.lam[idx], self.cmap.eta[idx])
+    def _on_delta(self, msg: DeltaMessage, _idx: np.ndarray, _size: int) -> None:
+        """After each merged delta applied: the sim time and the entropy curve."""
         self.deltas += 1
         self.sim_time = max(self.sim_time, float(msg.t))
         self._set_time(msg.t)
-        self.rec.log("plots/entropy", require_rerun().Scalars(float(self.entropy.total)))
+        self.rec.log("plots/entropy", require_rerun().Scalars(self.team.entropy_bits))
 
     def _on_status(self, sample: tuple[str, bytes]) -> None:
         status = status_on_key(*sample)

@@ -225,7 +225,7 @@ def test_a_forged_merged_delta_cannot_break_the_coordinators_map(coordinated):
     assert np.isfinite(team.entropy_bits) and np.all(np.isfinite(entropy))
     assert after.lam[5] == np.float32(lam_before.lam[5]) + huge[0]  # the first one fits
     assert after.lam[7] == lam_before.lam[7] and after.eta[7] == lam_before.eta[7]
-    assert (("r7", 1, 2) not in team._seen) and (("r7", 1, 1) in team._seen)
+    assert (("r7", 1, 2) not in team.applied) and (("r7", 1, 1) in team.applied)
 
 
 def test_a_received_delta_is_applied_whole_or_not_at_all_on_out_of_range_results():
@@ -279,7 +279,7 @@ def test_a_robot_publishing_statuses_in_a_loop_does_not_hold_back_the_merged_str
         return DeltaMessage("r5", 1, seq, 0.0, grid, one, *np.ones((2, 1), np.float32)).encode()
 
     server.merged.put(merged(1))  # the compiled kernels loaded before the clock runs
-    assert wait_until(lambda: ("r5", 1, 1) in team._seen, 10.0)
+    assert wait_until(lambda: ("r5", 1, 1) in team.applied, 10.0)
     thread = threading.Thread(target=loop)
     thread.start()
     waits = []

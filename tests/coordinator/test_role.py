@@ -22,7 +22,7 @@ from coordinator.command import add_arguments
 from coordinator.replica import TeamMap
 from coordinator.role import Coordinator, answer_time_summary
 from coordinator.state import CoordinatorState, params_from_mission
-from map_server.team_map import TeamMap as ServerTeamMap
+from map_server.team_map import MergedMap
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import SearchContext, wander_target
@@ -223,7 +223,7 @@ def test_a_replica_started_from_a_snapshot_adds_no_delta_twice_even_beyond_the_a
     m = mission()
     grid, sensor = m.workspace.grid(), m.sensor.model()
     d1, d2, d3 = deltas_of(m, corridor_map(m), "r9", 1, 3)
-    server = ServerTeamMap(grid, sensor)
+    server = MergedMap(grid, sensor)
     for msg in (d2, d3):
         assert server.admit(msg)
         server.apply(msg)

@@ -15,7 +15,7 @@ from map_server.admission import Admission
 from map_server.epochs import EpochRegistry
 from map_server.ledger import Rejected, validate_delta
 from map_server.limits import InformationBucket, mission_bounds, ray_information_bound
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from robot_agent.explorer import Explorer
 from robot_agent.sharing import DeltaOutbox
 from sim2d.simulator import Simulator
@@ -56,7 +56,7 @@ def test_office_deltas_fit_the_bound():
     mission = load_mission("configs/office.yaml")
     bounds = mission_bounds(mission)
     buckets = {rid: InformationBucket(bound, 0.0) for rid, bound in bounds.items()}
-    team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+    team = MergedMap(mission.workspace.grid(), mission.sensor.model())
     session = bus.open_session(listen=[bus.tcp_endpoint(bus.free_port())])
     try:
         sim = Simulator(mission, session)
@@ -95,7 +95,7 @@ def test_office_deltas_fit_the_bound():
     print(f"largest frame information / I_frame = {worst:.2e}")
 
 
-def bare_admission(team: TeamMap, mission, **options) -> Admission:
+def bare_admission(team: MergedMap, mission, **options) -> Admission:
     """The server's admission of deltas on ``team`` without a server: epochs kept in memory."""
     import logging
     import threading
@@ -156,7 +156,7 @@ def test_hostile_payloads_never_touch_the_valid_deltas(hostile, rnd):
             msg = msgpack.unpackb(good(grid, robot="r1", seq=99), raw=False)
             msg[value[0]] = value[1]
             bad.append(msgpack.packb(msg, use_bin_type=True))
-    team = TeamMap(grid, sensor)
+    team = MergedMap(grid, sensor)
     admission = bare_admission(team, mission)
     keys = {rid: admission.issue(rid).key for rid in ("r1", "r2")}
     # the valid deltas in their order (each robot's seqs in turn), the hostile ones anywhere

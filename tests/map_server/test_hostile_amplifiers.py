@@ -530,14 +530,14 @@ def test_a_flood_on_merged_between_two_frames_is_bounded_in_the_agent():
     try:
         with client_session(endpoint) as stranger:
             agent = Agent(mission, "r1", session, coordination=False)
-            agent.merged_budget = ByteBudget(1 << 20)
+            agent.team.budget = ByteBudget(1 << 20)
             merged = bus.reliable_publisher(stranger, bus.key(mission.mission, "merged"))
             assert bus.wait_for_subscribers([merged], 10.0)
             for payload in flood:  # no frame meanwhile: nothing is taken from the queue
                 merged.put(payload)
             counts = agent.merged_counts
-            wait_until(lambda: counts["dropped"] + agent._merged.qsize() == len(flood), 20, "the flood")
-            waiting = sum(len(p) for p in list(agent._merged.queue))
+            wait_until(lambda: counts["dropped"] + agent.team.queued == len(flood), 20, "the flood")
+            waiting = agent.team.budget.taken
             applied = agent.apply_merged()
     finally:
         session.close()

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from map_server.ledger import Ledger
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from swarm.map.entropy_table import default_table
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
@@ -59,7 +59,7 @@ def test_team_map_in_any_order_with_duplicates_equals_central_fusion():
     msgs = [DeltaMessage.decode(p) for _, _, p in encode_all(grid, batches)]
     copies = msgs + random.Random(1).sample(msgs, 7)
     random.Random(2).shuffle(copies)
-    team = TeamMap(grid, sensor)
+    team = MergedMap(grid, sensor)
     applied = 0
     for m in copies:
         if team.admit(m):
@@ -76,7 +76,7 @@ def test_team_map_in_any_order_with_duplicates_equals_central_fusion():
 
 def test_region_box_and_point_semantics():
     mission = small_mission()
-    team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+    team = MergedMap(mission.workspace.grid(), mission.sensor.model())
     assert len(team.region([0, 0, 0], [0.2, 0.2, 0.2])) == 8  # faces do not count
     one = team.region([0.55, 0.25, 0.5], [0.55, 0.25, 0.5])  # a point: the voxel holding it
     assert one.idx.tolist() == [int(team.grid.flat(np.array([5, 2, 5])))]

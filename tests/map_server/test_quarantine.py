@@ -14,7 +14,7 @@ import pytest
 from map_server.ledger import Rejected
 from map_server.options import ServerOptions
 from map_server.server import MapServer
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
@@ -38,7 +38,7 @@ def test_quarantine_takes_a_robots_deltas_out_of_the_map():
     mission = small_mission()
     grid, sensor = mission.workspace.grid(), mission.sensor.model()
     batches = robot_batches(grid, sensor, per_robot=3, seed=8)
-    team = TeamMap(grid, sensor)
+    team = MergedMap(grid, sensor)
     for _rid, _seq, payload in encode_all(grid, batches):
         msg = DeltaMessage.decode(payload)
         assert team.admit(msg)
@@ -46,7 +46,7 @@ def test_quarantine_takes_a_robots_deltas_out_of_the_map():
     assert team.quarantine("r2")
     without = {rid: d for rid, d in batches.items() if rid != "r2"}
     assert_maps_equal(team.cmap.lam, team.cmap.eta, central_fusion(grid, sensor, without))
-    exact = TeamMap(grid, sensor, team.cmap.lam.copy(), team.cmap.eta.copy())
+    exact = MergedMap(grid, sensor, team.cmap.lam.copy(), team.cmap.eta.copy())
     assert team.entropy.total == pytest.approx(exact.entropy.total, rel=1e-6)
     assert team.known == exact.known
     again = DeltaMessage.decode(encode_all(grid, {"r2": batches["r2"]})[0][2])

@@ -13,7 +13,7 @@ from map_server.ledger import validate_delta
 from map_server.options import ServerOptions
 from map_server.server import MapServer
 from map_server.store import Store, StoreError, StoreIdentity
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from map_server.wal_file import RECORD_HEADER, WAL_HEADER, encode_records, read_wal
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -167,7 +167,7 @@ def test_server_recovers_map_and_acks_from_snapshot_plus_log(tmp_path: Path):
     assert again.team.acks() == {rid: {EPOCH: 5} for rid in batches}
     assert again.team.stats()["updates_merged"] == sum(len(d) for ds in batches.values() for d in ds)
     # replaying the same payloads again changes nothing
-    team = TeamMap(grid, sensor, again.team.cmap.lam.copy(), again.team.cmap.eta.copy(), again.team.ledger)
+    team = MergedMap(grid, sensor, again.team.cmap.lam.copy(), again.team.cmap.eta.copy(), again.team.ledger)
     assert not any(team.admit(validate_delta(p, grid)) for _, _, p in sent)
 
 

@@ -53,7 +53,7 @@ def test_a_late_agent_catches_up_from_a_snapshot_then_follows_the_merged_stream(
             agent.sender.start()  # asks map/epoch/r1
             wait_until(lambda: agent.epoch is not None, 10.0, "r1's epoch")
             mine = DeltaMessage("r1", agent.epoch, 1, 1.0, grid, own.idx, own.dlam, own.deta)
-            agent.explorer.apply_external(own)  # as fusing that frame did locally
+            agent.team.add_local(own)  # as fusing that frame did locally
             extra = [(rid, p) for rid, _s, p in encode_all(grid, {"r2": early["r2"] + later["r2"][:2]})][4:]
             merged_pub = bus.reliable_publisher(robots, bus.key(mission.mission, "merged"))
             assert bus.wait_for_subscribers([merged_pub], timeout=10.0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from map_server.team_map import TeamMap
+from map_server.team_map import MergedMap
 from swarm.protocol.wire import DeltaMessage
 from tests.support.map_server_mission import (
     encode_all,
@@ -22,9 +22,9 @@ def strict_json(text: bytes) -> dict:
     return json.loads(text, parse_constant=refuse)
 
 
-def oracle(mission, payloads: list[bytes]) -> TeamMap:
+def oracle(mission, payloads: list[bytes]) -> MergedMap:
     """The map of exactly these valid deltas, merged without a server."""
-    team = TeamMap(mission.workspace.grid(), mission.sensor.model())
+    team = MergedMap(mission.workspace.grid(), mission.sensor.model())
     for p in payloads:
         msg = DeltaMessage.decode(p)
         if team.admit(msg):

@@ -1,0 +1,290 @@
+"""A replica of the team map, kept from the map server's ``merged`` stream (docs/architecture.md).
+
+Every client that holds a copy of the team map (an agent, the coordinator, ``swarm view``,
+``swarm map ros2``, the mission runner's monitor) holds one :class:`TeamReplica`: the coverage
+map (information form, float32), its per-voxel entropy cache, the record of applied deltas
+(each (robot, epoch, seq) at most once), the check and apply of a ``merged`` payload, and the
+catch-up from ``map/snapshot``.
+
+Two threads meet in it. Zenoh's callback calls :meth:`receive` (or :meth:`on_sample`): it
+notes the sample's place in the numbered stream (``swarm.protocol.merged_stream``) and queues
+the payload within a byte budget. The owner's thread calls :meth:`drain`: it applies what is
+queued and, when a sample was missed (a number skipped, a new server run, or a payload the
+budget could not take), first starts again from a fresh snapshot, at most once per
+``resync_interval_s``. What the owner added to its map that the snapshot cannot hold yet (an
+agent's own information not acked) comes back through ``unshared``: called before the
+snapshot is asked for, it returns a function of the snapshot that gives that information as
+deltas, added on top in order. Counts (``counts``): ``applied``, ``duplicate``, ``own`` (the owner's
+own deltas, skipped), ``rejected`` (and ``rejected_<kind>``), ``dropped`` (over the budget),
+``resyncs``, ``resync_failed``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
+
+import numpy as np
+import zenoh
+
+from swarm.map.coverage_map import CoverageMap
+from swarm.map.delta import Delta
+from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_table import EntropyTable, default_table
+from swarm.map.grid import Grid
+from swarm.map.sensor_model import SensorModel
+from swarm.protocol.applied_deltas import AppliedDeltas
+from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
+from swarm.protocol.codec import short
+from swarm.protocol.merged_stream import StreamPosition
+from swarm.protocol.wire import DeltaMessage, Snapshot, WireError
+
+log = logging.getLogger("swarm.replica")
+
+#: Seconds between two catch-ups from ``map/snapshot`` (each costs the server a whole-map query).
+RESYNC_INTERVAL_S = 2.0
+#: After a failed catch-up the wait doubles, up to this many seconds (no server answers: the
+#: owner's thread, which waits for each try, is not held back every interval).
+MAX_RESYNC_INTERVAL_S = 30.0
+
+#: ``unshared``: called before a snapshot is asked for; returns what to add on top of it.
+Unshared = Callable[[], Callable[[Snapshot], Iterable[Delta]]]
+
+
+class TeamReplica:
+    """The team map as one client holds it (see the module doc).
+
+    ``grid``/``sensor``: the mission's (the sensor sets the prior). ``own()``: the (robot,
+    epoch) whose merged deltas the owner's map holds already (skipped, counted ``own``), or
+    None. ``fetch()``: the server's snapshot (raises when none answers); None: no catch-up.
+    ``cmap``/``entropy``: a map and its entropy cache to keep (an agent's, which its explorer
+    fuses into); default the prior's. ``on_applied(msg, idx, size)``: called after each applied
+    delta (see :meth:`applied_hook`).
+    ``peer_log``: a ``swarm.log_limit.LogLimiter`` (one line per reason per interval), else
+    the module's logger. ``apply`` and ``load_snapshot`` take ``lock``.
+    """
+
+    def __init__(
+        self,
+        grid: Grid,
+        sensor: SensorModel,
+        *,
+        own: Callable[[], tuple[str, int] | None] | None = None,
+        fetch: Callable[[], Snapshot] | None = None,
+        unshared: Unshared | None = None,
+        max_queued_bytes: int = MAX_QUEUED_MERGED_BYTES,
+        table: EntropyTable | None = None,
+        cmap: CoverageMap | None = None,
+        entropy: EntropyCache | None = None,
+        on_applied: Callable[[DeltaMessage, np.ndarray, int], None] | None = None,
+        peer_log=None,
+        name: str = "replica",
+    ) -> None:
+        self.grid = grid
+        self.map = cmap if cmap is not None else CoverageMap(grid, sensor)
+        self.table = table or default_table()
+        if entropy is None:
+            entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+        self.entropy = entropy
+        self.on_applied = on_applied
+        self.applied = AppliedDeltas()
+        self.counts: Counter[str] = Counter()
+        self.lock = threading.RLock()
+        self.own = own
+        self.fetch = fetch
+        self.unshared = unshared
+        self.name = name
+        self.stream = StreamPosition()
+        self.budget = ByteBudget(max_queued_bytes)
+        self.resync_interval_s = RESYNC_INTERVAL_S
+        self.peer_log = peer_log
+        self._queue: deque[bytes] = deque()
+        self._resync_due = threading.Event()
+        self._last_resync = -math.inf
+        self._resync_wait = 0.0  # the longer wait after failed tries (0: none)
+
+    # -- the receiving side (Zenoh's callback thread) -----------------------------------------
+    def subscribe(self, session: zenoh.Session, key_expr: str) -> zenoh.Subscriber:
+        """Subscribe :meth:`on_sample` to ``key_expr`` (the mission's ``merged``)."""
+        return session.declare_subscriber(key_expr, self.on_sample)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh's callback: :meth:`receive` the sample's payload and attachment; never raises."""
+        try:
+            attachment = None if sample.attachment is None else sample.attachment.to_bytes()
+            self.receive(sample.payload.to_bytes(), attachment)
+        except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
+            log.exception("%s: merged callback failed", self.name)
+
+    def receive(self, payload: bytes, attachment: bytes | None = None) -> bool:
+        """Queue one ``merged`` payload for :meth:`drain`; False when the waiting ones fill the
+        budget (dropped, counted, and a catch-up due). A skipped number or a new server run in
+        ``attachment`` makes a catch-up due too."""
+        missed = self.stream.observe(attachment)
+        if missed is not None:
+            self._warn(f"missed:{missed}", "%s: merged samples missed (%s): catching up", self.name, missed)
+            self._resync_due.set()
+        if not self.budget.take(len(payload)):
+            self.counts["dropped"] += 1
+            self._resync_due.set()
+            self._warn("dropped", "%s: merged delta dropped (queue full): catching up", self.name)
+            return False
+        self._queue.append(payload)
+        return True
+
+    @property
+    def queued(self) -> int:
+        """Payloads waiting for :meth:`drain`."""
+        return len(self._queue)
+
+    @property
+    def resync_due(self) -> bool:
+        """Whether a sample was missed since the last catch-up."""
+        return self._resync_due.is_set()
+
+    # -- the owner's thread ---------------------------------------------------------------------
+    def drain(self, max_s: float | None = None) -> int:
+        """Catch up first when due (and allowed), then apply the queued payloads (for at most
+        ``max_s`` seconds when given); returns how many were applied. A refused payload is
+        counted and logged, never raised."""
+        if self._resync_due.is_set() and self.fetch is not None:
+            self.resync()
+        deadline = None if max_s is None else time.monotonic() + max_s
+        applied = 0
+        while self._queue and (deadline is None or time.monotonic() < deadline):
+            payload = self._queue.popleft()
+            self.budget.give(len(payload))
+            try:
+                applied += self.apply_payload(payload) == "applied"
+            except WireError as exc:
+                self._warn(f"rejected:{exc.kind}", "%s: rejected merged delta: %s", self.name, exc)
+        return applied
+
+    def apply_payload(self, payload: bytes) -> str:
+        """Check and apply one ``merged`` payload: "applied", "duplicate" or "own". Raises
+        WireError (counted ``rejected`` and ``rejected_<kind>``, the map unchanged) for a
+        malformed message, one on another grid, one that changes nothing (the server never
+        sends one), or one that would leave a voxel out of range (``CoverageMap.apply_received``)."""
+        try:
+            msg = DeltaMessage.decode(payload)
+            if not self.grid.matches(msg.grid):
+                raise WireError(f"delta: grid {msg.grid} is not the team map's {self.grid}", "other_grid")
+            if not msg.carries_information():
+                raise WireError(f"delta of {short(msg.robot, 40)} changes nothing", "no_information")
+            return self.apply_message(msg, len(payload))
+        except WireError as exc:
+            self.counts["rejected"] += 1
+            self.counts[f"rejected_{exc.kind}"] += 1
+            raise
+
+    def apply_message(self, msg: DeltaMessage, size: int = 0) -> str:
+        """Apply a decoded delta once (see :meth:`apply_payload`; ``size``: its payload's bytes,
+        for :meth:`applied_hook`). Raises WireError ``out_of_range`` (not counted here)."""
+        own = self.own() if self.own is not None else None
+        if own is not None and (msg.robot, msg.epoch) == own:
+            self.counts["own"] += 1
+            return "own"
+        with self.lock:
+            if (msg.robot, msg.epoch, msg.seq) in self.applied:
+                self.counts["duplicate"] += 1
+                return "duplicate"
+            try:  # whole or nothing: the map is as it was when a voxel would leave its range
+                self.map.apply_received(Delta(msg.idx, msg.dlam, msg.deta))
+            except ValueError as exc:
+                raise WireError(f"delta of {short(msg.robot, 40)}: {exc}", "out_of_range") from exc
+            self.applied.add(msg.robot, msg.epoch, msg.seq)
+            idx = msg.idx.astype(np.int64)
+            self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
+            self.counts["applied"] += 1
+            self.applied_hook(msg, idx, size)
+        return "applied"
+
+    def applied_hook(self, msg: DeltaMessage, idx: np.ndarray, size: int) -> None:
+        """Called under ``lock`` after each applied delta (``idx``: its voxels, int64); a
+        subclass keeps what it derives from the map here (attribution, dirty voxels); by
+        default it calls ``on_applied``."""
+        if self.on_applied is not None:
+            self.on_applied(msg, idx, size)
+
+    def add_local(self, delta: Delta) -> None:
+        """Add information the owner gathered itself (an agent's fused frame): map and entropy."""
+        with self.lock:
+            self.map.apply(delta)
+            idx = delta.idx.astype(np.int64)
+            self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
+
+    def load_snapshot(self, snap: Snapshot, keep: Iterable[Delta] = ()) -> None:
+        """Start from a server snapshot (prior included) plus ``keep`` (what the owner holds that
+        the snapshot does not); the deltas its acks cover count as applied. The arrays are
+        written in place, so whoever holds ``map`` or ``entropy`` sees the new team map.
+        Raises ValueError for a snapshot on another grid."""
+        if not self.grid.matches(snap.grid):
+            raise ValueError(f"the snapshot's grid {snap.grid} is not the team map's {self.grid}")
+        with self.lock:
+            self.map.lam[:] = np.asarray(snap.lam, np.float32).reshape(-1)
+            self.map.eta[:] = np.asarray(snap.eta, np.float32).reshape(-1)
+            for delta in keep:
+                self.map.apply(delta)
+            fresh = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+            self.entropy.values[:] = fresh.values
+            self.entropy.resum()
+            self.applied = AppliedDeltas()
+            self.applied.cover(snap.acks, snap.above)
+            self.loaded_hook(snap)
+
+    def loaded_hook(self, snap: Snapshot) -> None:
+        """Called under ``lock`` after :meth:`load_snapshot` (a subclass resets what it derives)."""
+
+    def resync(self, force: bool = False) -> bool:
+        """Catch up from ``fetch()`` now, unless the last catch-up is under ``resync_interval_s``
+        old (``force``: anyway); True when the snapshot was loaded. On failure the map stays as it
+        is, the catch-up stays due, it is counted ``resync_failed`` and logged, and the wait before
+        the next try doubles (up to MAX_RESYNC_INTERVAL_S)."""
+        now = time.monotonic()
+        wait = max(self.resync_interval_s, self._resync_wait)
+        if self.fetch is None or (not force and now - self._last_resync < wait):
+            return False
+        self._last_resync = now
+        self._resync_due.clear()
+        finish = self.unshared() if self.unshared is not None else None
+        try:
+            snap = self.fetch()
+            self.load_snapshot(snap, finish(snap) if finish is not None else ())
+        except Exception as exc:  # noqa: BLE001 (no server, a bad reply: keep the map, try later)
+            self._resync_due.set()
+            self._resync_wait = min(2 * wait, MAX_RESYNC_INTERVAL_S)
+            self.counts["resync_failed"] += 1
+            self._warn(
+                "resync_failed", "%s: cannot catch up from map/snapshot: %s", self.name, short(exc, 200)
+            )
+            return False
+        self._resync_wait = 0.0
+        self.counts["resyncs"] += 1
+        self._warn(
+            "resync",
+            "%s: caught up from map/snapshot (%d catch-ups so far)",
+            self.name,
+            self.counts["resyncs"],
+        )
+        return True
+
+    # -- reading -------------------------------------------------------------------------------
+    def copy(self) -> tuple[CoverageMap, np.ndarray]:
+        """A consistent copy of the map and its per-voxel entropy (to plan without the lock)."""
+        with self.lock:
+            return self.map.copy(), self.entropy.values.copy()
+
+    @property
+    def entropy_bits(self) -> float:
+        """The map's entropy (bits)."""
+        return float(self.entropy.total)
+
+    def _warn(self, reason: str, msg: str, *args) -> None:
+        if self.peer_log is not None:
+            self.peer_log.warning(reason, msg, *args)
+        else:
+            log.warning(msg, *args)
