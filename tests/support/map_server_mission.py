@@ -141,6 +141,10 @@ class SignedPublisher:
     def put(self, payload: bytes) -> None:
         put_delta(self.pub, self.grant, payload)
 
+    @property
+    def matching_status(self):  # for bus.wait_for_subscribers
+        return self.pub.matching_status
+
 
 class UnsignedPublisher:
     """``delta/<rid>`` of a robot the server issues no epoch to: payloads go without a MAC."""
@@ -192,3 +196,10 @@ def resend_until_acked(client: MapClient, pubs: dict, by_robot: dict, timeout: f
 def all_acked(client: MapClient, expected: dict[str, int], epoch: int = EPOCH) -> bool:
     acks = client.acks()
     return all(acks.get(rid, {}).get(epoch, 0) >= n for rid, n in expected.items())
+
+
+def delta_publisher(session, mission: str, rid: str) -> SignedPublisher:
+    """``delta/<rid>`` under an epoch the server issues now (EPOCH on a fresh store)."""
+    pub = SignedPublisher(session, mission, wait_for_epoch(session, mission, rid, 30))
+    assert bus.wait_for_subscribers([pub.pub], timeout=10.0)
+    return pub

@@ -24,7 +24,14 @@ from swarm.protocol.map_client import MapClient
 from swarm.protocol.merged_stream import MergedNumbering, StreamPosition, decode_position, encode_position
 from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage
-from tests.support.map_server_mission import EPOCH, robot_batches, running_server, small_mission, wait_until
+from tests.support.map_server_mission import (
+    EPOCH,
+    delta_publisher,
+    robot_batches,
+    running_server,
+    small_mission,
+    wait_until,
+)
 
 NO_SHM = "transport/shared_memory/enabled"
 
@@ -79,10 +86,7 @@ def test_a_replica_that_misses_merged_samples_catches_up_to_the_servers_map_exac
                     replica.on_sample(sample)
 
             sub = session.declare_subscriber(bus.key(mission.mission, "merged"), lossy)
-            pubs = {
-                rid: bus.reliable_publisher(session, bus.key(mission.mission, "delta", rid))
-                for rid in payloads
-            }
+            pubs = {rid: delta_publisher(session, mission.mission, rid) for rid in payloads}
             assert bus.wait_for_subscribers(pubs.values(), timeout=10.0)
             total = sum(len(p) for p in payloads.values())
             for seq in range(12):
@@ -119,10 +123,11 @@ def test_after_a_catch_up_the_agent_holds_the_snapshot_plus_its_own_unacked_info
             assert agent.catch_up(timeout=5.0)
             assert agent.team.map is agent.explorer.map and agent.team.entropy is agent.explorer.entropy
             # two own deltas sent and acked (in every later snapshot)
+            agent.sender.start()  # asks map/epoch/r1
+            wait_until(lambda: agent.epoch is not None, 10.0, "r1's epoch")
             for d in own[:2]:
                 agent.team.add_local(d)
                 agent.outbox.add(d)
-                assert bus.wait_for_subscribers([agent._delta_pub], timeout=10.0)
                 agent._share(flush=True)
             wait_until(lambda: agent.query_acks() == 2, 10.0, "the first two own deltas acked")
             agent.outbox.acknowledge(2)
@@ -143,10 +148,7 @@ def test_after_a_catch_up_the_agent_holds_the_snapshot_plus_its_own_unacked_info
                 return real_receive(payload, attachment) if got[0] % 2 else False
 
             agent.team.receive = lossy
-            pub = {
-                rid: bus.reliable_publisher(session, bus.key(mission.mission, "delta", rid))
-                for rid in ("r2", "r3")
-            }
+            pub = {rid: delta_publisher(session, mission.mission, rid) for rid in ("r2", "r3")}
             assert bus.wait_for_subscribers(pub.values(), timeout=10.0)
             mine = {rid: others[rid] for rid in ("r2", "r3")}
             for seq in range(6):
@@ -182,7 +184,7 @@ def test_after_a_catch_up_the_agent_holds_the_snapshot_plus_its_own_unacked_info
 def _ack_latencies(endpoint: str, mission: str, rid: str, payloads: list[bytes], out: list[float]) -> None:
     """One robot: put each delta, then poll ``map/acks`` until it covers it; its latency (s) each."""
     with open_client(endpoint) as session:
-        pub = bus.reliable_publisher(session, bus.key(mission, "delta", rid))
+        pub = delta_publisher(session, mission, rid)
         assert bus.wait_for_subscribers([pub], timeout=10.0)
         client = MapClient(session, mission, timeout=5.0)
         for seq, payload in enumerate(payloads, start=1):
@@ -265,10 +267,7 @@ def test_the_live_view_follows_merged_to_the_servers_map(tmp_path):
     payloads = _payloads(grid, sensor, robots=3, per_robot=4, rays=60, seed=4)
     with running_server(mission, tmp_path / "store") as (server, endpoint):
         with bus.open_session(connect=[endpoint]) as session:
-            pubs = {
-                rid: bus.reliable_publisher(session, bus.key(mission.mission, "delta", rid))
-                for rid in payloads
-            }
+            pubs = {rid: delta_publisher(session, mission.mission, rid) for rid in payloads}
             assert bus.wait_for_subscribers(pubs.values(), timeout=10.0)
             for rid, ps in payloads.items():  # before the view: in its snapshot
                 pubs[rid].put(ps[0])
@@ -309,10 +308,7 @@ def test_the_coordinator_catches_up_after_missed_samples_and_keeps_attributing(t
             team.receive = lossy
             coordinator.start()
             try:
-                pubs = {
-                    rid: bus.reliable_publisher(session, bus.key(mission.mission, "delta", rid))
-                    for rid in payloads
-                }
+                pubs = {rid: delta_publisher(session, mission.mission, rid) for rid in payloads}
                 assert bus.wait_for_subscribers(pubs.values(), timeout=10.0)
                 for seq in range(6):
                     for rid, ps in payloads.items():
