@@ -5,7 +5,7 @@ A robot asks the map server for an epoch with a Zenoh query on
 :class:`EpochGrant`: ``{"v": 2, "robot": rid, "epoch": E, "key": <16 bytes>}``. Every
 ``delta/<rid>`` sample of that epoch then carries, as its Zenoh attachment, the first 16
 bytes of HMAC-SHA256(key, payload) over the exact payload bytes (:func:`delta_mac`). The key
-never leaves the server and that robot: ``merged`` carries the payload without it.
+never leaves the server and that robot: ``merged`` carries the payload, never the MAC.
 """
 
 from __future__ import annotations
