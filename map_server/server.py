@@ -34,7 +34,8 @@ from map_server.recovery import recover
 from map_server.replies import guarded, reply_json
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.store_files import OS_FILES, StoreFiles
-from map_server.team_map import parse_vector, region_of
+from map_server.team_map import merge_kernels, parse_vector, region_of, warm_up_merge
+from swarm.compile_progress import compile_progress
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.protocol import bus
@@ -126,7 +127,9 @@ class MapServer:
     # -- lifecycle -----------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
         """Declare the merged publisher, the queryables and the delta subscriber on ``session``;
-        start the worker."""
+        start the worker. The merge's compiled kernels are loaded first (said while they compile)."""
+        with compile_progress(merge_kernels(), log.info):
+            warm_up_merge(self.team.sensor)
         self.session = session
         key = self.key
         self._merged_pub = bus.dropping_publisher(self.session, key("merged"))

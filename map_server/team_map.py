@@ -286,3 +286,22 @@ def parse_vector(text: str | None, name: str) -> np.ndarray:
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"{name}={shown}: expected 3 finite numbers")
     return np.array(values)
+
+
+def merge_kernels() -> tuple:
+    """The compiled kernels a merge runs (for ``swarm.compile_progress``)."""
+    from swarm.map import coverage_map
+
+    return (coverage_map.add_information,)
+
+
+def warm_up_merge(sensor: SensorModel) -> None:
+    """Run one delta through the merge's checks and its addition on a scratch 2 x 2 x 2 map, so
+    that Numba has loaded (or, on a first run, compiled) the kernels before the first robot's
+    delta arrives: loading them took about half a second, which the first deltas waited."""
+    scratch = MergedMap(Grid((0.0, 0.0, 0.0), 0.1, (2, 2, 2)), sensor)
+    idx = np.array([0, 7], dtype=np.uint32)
+    dlam = np.array([1.0, 2.0], dtype=np.float32)
+    msg = DeltaMessage("warm-up", 1, 1, 0.0, scratch.grid, idx, dlam, 0.5 * dlam)
+    if scratch.admit(msg):
+        scratch.apply(msg)

@@ -78,7 +78,10 @@ def test_a_flood_of_zero_information_deltas_is_neither_logged_nor_sent_on(tmp_pa
         merged.undeclare()
     sent_on = [merged_inbox.get_nowait()[1] for _ in range(merged_inbox.qsize())]
     assert sent_on == [honest]
-    assert stats["rejected"]["no_information"] > len(flood) // 2
+    # what the robot's inbox had room for was refused as no_information, the rest as a full
+    # inbox (how many of each depends on how fast the worker ran): none was logged or applied
+    assert stats["rejected"]["no_information"] > 0
+    assert stats["rejected"]["no_information"] + stats["inbox"]["refused"].get("r4", 0) == len(flood)
     assert stats["wal_records"] == 1 and stats["deltas_applied"] == 1
     assert not any(acks.get("r4", {}).values()) and "r4" not in stats["robots"]  # its epoch: 0
     expected = oracle(mission, [honest])
