@@ -237,7 +237,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=_bundled(Path("configs") / "office.yaml"),
         help="the mission (default configs/office.yaml, 4 robots)",
     )
-    stall.add_argument("--out", type=Path, default=Path("runs") / "bench-stall", help="run folders (default: runs/bench-stall)")
+    stall.add_argument(
+        "--out",
+        type=Path,
+        default=Path("runs") / "bench-stall",
+        help="run folders (default: runs/bench-stall)",
+    )
     stall.add_argument("--connections", type=at_least(0), default=300, help="idle connections (default 300)")
     stall.add_argument("--seed", type=int, default=0, help="the missions' seed (default 0)")
     stall.add_argument("--target-ms", type=float, default=200.0, help="ack p99 target (default 200)")
