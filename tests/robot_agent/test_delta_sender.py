@@ -1,12 +1,10 @@
 """The agent's delta publisher runs off its loop (robot_agent.delta_sender): a link that stops
 draining holds the sender's thread, never the hand-over, and once the link drains again the
 resends (as the agent's ack poll makes them) get every delta acked. The stall is real: a TCP
-relay between the agent's session and the map server that stops reading."""
+relay between the agent's session and the map server that stops reading (swarm.bench.stall_relay)."""
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 from pathlib import Path
 
@@ -14,6 +12,7 @@ import numpy as np
 import pytest
 
 from robot_agent.delta_sender import DeltaSender
+from swarm.bench.stall_relay import StallRelay
 from swarm.map.delta import Delta
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient
@@ -27,52 +26,6 @@ from tests.support.map_server_mission import (
 )
 
 pytestmark = pytest.mark.slow  # real Zenoh sessions, seconds each
-
-
-class StallingRelay:
-    """Forwards TCP between a listening port and ``upstream``; :attr:`stalled` stops reading
-    what the client sends (its socket buffers fill, then its Zenoh queue)."""
-
-    def __init__(self, upstream: tuple[str, int]) -> None:
-        self.upstream = upstream
-        self.stalled = threading.Event()
-        self._server = socket.create_server(("127.0.0.1", 0))
-        self.port = self._server.getsockname()[1]
-        self._closing = threading.Event()
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        while not self._closing.is_set():
-            try:
-                client, _ = self._server.accept()
-            except OSError:
-                return
-            server = socket.create_connection(self.upstream)
-            threading.Thread(target=self._pump, args=(client, server, True), daemon=True).start()
-            threading.Thread(target=self._pump, args=(server, client, False), daemon=True).start()
-
-    def _pump(self, src: socket.socket, dst: socket.socket, from_client: bool) -> None:
-        try:
-            while not self._closing.is_set():
-                if from_client and self.stalled.is_set():
-                    time.sleep(0.01)
-                    continue
-                data = src.recv(65536)
-                if not data:
-                    break
-                dst.sendall(data)
-        except OSError:
-            pass
-        finally:
-            for s in (src, dst):
-                try:
-                    s.close()
-                except OSError:
-                    pass
-
-    def close(self) -> None:
-        self._closing.set()
-        self._server.close()
 
 
 def _full_grid_deltas(grid, sensor, count: int) -> list[Delta]:
@@ -92,14 +45,14 @@ def test_a_link_that_stops_draining_holds_the_sender_not_the_loop(tmp_path: Path
     deltas = _full_grid_deltas(grid, sensor, 300)  # 21 MB
     with running_server(mission, tmp_path / "store") as (_server, endpoint), client_session(endpoint) as tool:
         host, port = endpoint.removeprefix("tcp/").split(":")
-        relay = StallingRelay((host, int(port)))
+        relay = StallRelay((host, int(port)), stall_from="client")
         robot = bus.open_session(connect=[bus.tcp_endpoint(relay.port)])
         try:
             sender = DeltaSender(robot, mission.mission, "r1", grid)
             sender.start()
             wait_until(lambda: sender.epoch is not None, 15, "r1's epoch through the relay")
             client = MapClient(tool, mission.mission, timeout=5.0)
-            relay.stalled.set()
+            relay.stall()
             handed = []
             for seq, delta in enumerate(deltas, start=1):
                 started = time.perf_counter()
@@ -107,7 +60,7 @@ def test_a_link_that_stops_draining_holds_the_sender_not_the_loop(tmp_path: Path
                 handed.append(time.perf_counter() - started)
             stuck = not sender.drain(2.0)  # its put waits on the full link
             worst_ms = max(handed) * 1e3
-            relay.stalled.clear()
+            relay.resume()
             # what the agent's ack poll does: send again what is unacked and not sent lately
             deadline = time.monotonic() + 90
             while (acked := client.acks().get("r1", {}).get(sender.epoch, 0)) < len(deltas):
