@@ -21,7 +21,13 @@ import numpy as np
 
 from map_server.contributions import Contributions
 from map_server.ledger import REJECT_KINDS, DeltaId, Ledger, Rejected
-from swarm.map.coverage_map import CoverageMap, OutOfRange, prior_entropy_bits, prior_information
+from swarm.map.coverage_map import (
+    CoverageMap,
+    OutOfRange,
+    add_information,
+    prior_entropy_bits,
+    prior_information,
+)
 from swarm.map.delta import Delta
 from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
@@ -290,9 +296,7 @@ def parse_vector(text: str | None, name: str) -> np.ndarray:
 
 def merge_kernels() -> tuple:
     """The compiled kernels a merge runs (for ``swarm.compile_progress``)."""
-    from swarm.map import coverage_map
-
-    return (coverage_map.add_information,)
+    return (add_information,)
 
 
 def warm_up_merge(sensor: SensorModel) -> None:

@@ -60,9 +60,7 @@ class LocalMap:
     def recompute_entropy(self) -> None:
         """The entropy of every voxel from the map again, in place (after the map's arrays were
         set whole; the team replica holds the same cache)."""
-        fresh = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
-        self.entropy.values[:] = fresh.values
-        self.entropy.resum()
+        self.entropy.refill_information(self.map.lam, self.map.eta)
 
     @property
     def entropy_bits(self) -> float:

@@ -76,5 +76,12 @@ class EntropyCache:
         mu, sigma = moments(lam, eta)
         return self.update(flat_idx, mu, sigma)
 
+    def refill_information(self, lam, eta) -> float:
+        """Recompute every voxel's entropy in place from information-form beliefs (flat, of the
+        cache's size) and return the total: holders of this cache keep seeing it."""
+        mu, sigma = moments(lam, eta)
+        self.values[:] = (self.table or default_table())(mu, sigma).ravel()
+        return self.resum()
+
     def __len__(self) -> int:
         return self.values.size

@@ -229,9 +229,7 @@ class TeamReplica:
             self.map.eta[:] = np.asarray(snap.eta, np.float32).reshape(-1)
             for delta in keep:
                 self.map.apply(delta)
-            fresh = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
-            self.entropy.values[:] = fresh.values
-            self.entropy.resum()
+            self.entropy.refill_information(self.map.lam, self.map.eta)
             self.applied = AppliedDeltas()
             self.applied.cover(snap.acks, snap.above)
             self.loaded_hook(snap)

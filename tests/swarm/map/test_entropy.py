@@ -294,3 +294,17 @@ def test_cache_constructors_and_errors(table):
     with pytest.raises(IndexError):
         cache.update([10], 0.5, 1.0)
     assert cache.update([], [], []) == cache.total
+
+
+def test_refilling_a_cache_in_place_equals_a_fresh_cache_of_the_new_beliefs():
+    rng = np.random.default_rng(5)
+    lam0 = rng.uniform(1.0, 50.0, 500).astype(np.float32)
+    cache = EntropyCache.from_information(lam0, lam0 * 0.3)
+    values = cache.values  # a holder's reference: it must see the new entropies
+    lam = rng.uniform(1.0, 400.0, 500).astype(np.float32)
+    eta = lam * rng.uniform(0.0, 1.0, 500).astype(np.float32)
+    total = cache.refill_information(lam, eta)
+    fresh = EntropyCache.from_information(lam, eta)
+    assert values is cache.values
+    assert np.array_equal(values, fresh.values)
+    assert total == cache.total == fresh.total
