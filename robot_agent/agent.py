@@ -321,12 +321,7 @@ class Agent:
         asked for, it notes the deltas sent and not acked then (the snapshot holds every one
         acked before it was asked for); the function it returns gives, for the snapshot, the
         noted deltas the snapshot does not hold, oldest first, then the information not sent yet."""
-        while True:
-            try:
-                held = list(self.outbox.unacked.items())  # the ack thread may forget some meanwhile
-                break
-            except RuntimeError:
-                continue
+        held = self.outbox.to_resend()
         robot, epoch = self.robot_id, self.epoch
 
         def finish(snap: Snapshot) -> list[Delta]:

@@ -22,6 +22,7 @@ and counts what it drops.
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -72,6 +73,8 @@ class DeltaOutbox:
         self._held_bits = np.zeros(size, np.float32)
         self.seq = 0
         self.unacked: OrderedDict[int, Delta] = OrderedDict()
+        #: the frame thread adds to ``unacked``, the ack thread forgets and copies it
+        self._unacked_lock = threading.Lock()
         self.stats = OutboxStats()
 
     def add(self, delta: Delta) -> None:
@@ -126,10 +129,11 @@ class DeltaOutbox:
         self._touched[idx] = False
         self._held_bits[idx] = 0
         self.seq += 1
-        self.unacked[self.seq] = delta
-        while len(self.unacked) > self.max_unacked:
-            self.unacked.popitem(last=False)
-            self.stats.dropped_unacked += 1
+        with self._unacked_lock:
+            self.unacked[self.seq] = delta
+            while len(self.unacked) > self.max_unacked:
+                self.unacked.popitem(last=False)
+                self.stats.dropped_unacked += 1
         self.stats.deltas_sent += 1
         self.stats.voxels_sent += len(delta)
         return self.seq, delta
@@ -164,9 +168,11 @@ class DeltaOutbox:
 
     def acknowledge(self, last_contiguous_seq: int) -> None:
         """Forget every delta up to the server's contiguous ack."""
-        for seq in [s for s in self.unacked if s <= last_contiguous_seq]:
-            del self.unacked[seq]
+        with self._unacked_lock:
+            for seq in [s for s in self.unacked if s <= last_contiguous_seq]:
+                del self.unacked[seq]
 
     def to_resend(self) -> list[tuple[int, Delta]]:
-        """Unacked deltas, oldest first, to send again."""
-        return list(self.unacked.items())
+        """Unacked deltas, oldest first (a copy: safe from any thread), to send again."""
+        with self._unacked_lock:
+            return list(self.unacked.items())
