@@ -78,11 +78,12 @@ def test_a_replica_that_misses_merged_samples_catches_up_to_the_servers_map_exac
             client = MapClient(session, mission.mission, timeout=5.0)
             replica = TeamReplica(grid, sensor, fetch=client.snapshot, name="test")
             replica.resync_interval_s = 0.0
-            seen = [0]
+            last = [0]  # the number of the newest sample that reached the subscriber
 
             def lossy(sample: zenoh.Sample) -> None:  # the network loses every third sample
-                seen[0] += 1
-                if seen[0] % 3:
+                (_run, number) = decode_position(sample.attachment.to_bytes())
+                last[0] = max(last[0], number)
+                if number % 3 != 2:  # never the last (total is a multiple of 3)
                     replica.on_sample(sample)
 
             sub = session.declare_subscriber(bus.key(mission.mission, "merged"), lossy)
@@ -92,7 +93,8 @@ def test_a_replica_that_misses_merged_samples_catches_up_to_the_servers_map_exac
             for seq in range(12):
                 for rid, ps in payloads.items():
                     pubs[rid].put(ps[seq])
-            wait_until(lambda: seen[0] == total, 20.0, "every merged sample")
+            # DROP may lose more on a loaded machine: those are gaps too, caught up alike
+            wait_until(lambda: last[0] == total, 20.0, "the last merged sample")
             replica.drain()
             sub.undeclare()
             snap = client.snapshot()
