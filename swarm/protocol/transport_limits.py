@@ -15,6 +15,11 @@ another (a file's own value wins, as for ``transport/link/rx/max_message_size``)
 - ``max_sessions``: the sessions a mission's router keeps at once (two per robot, the robots
   ``--robot-pattern`` may add, the coordinator, the world, tools), :func:`max_sessions_for`;
 - ``lease`` 5 s (a keep-alive every 1.25 s): a robot gone from the radio is noticed in 5 s;
+- a link's queue of data 16 batches (Zenoh's default 2; at most 64 KiB each): the map server
+  sends ``merged`` with congestion control DROP, and a link whose queue is full for 1 ms loses
+  the sample, so with 2 batches a burst of deltas (robots flushing together, resends after an
+  outage) was lost on a busy machine though every subscriber drained; 16 batches (1 MiB a link)
+  hold such a burst, and only a subscriber that stops draining loses samples;
 - on a listening ``tls/`` endpoint, ``tls_handshake_timeout_ms`` 60 s: Zenoh's TLS listener
   pauses 100 ms after every failed handshake, so N idle connections that time out every T s
   cost it N x 0.1 / T of its time; at 60 s, 300 idle connections take half of it, at Zenoh's
@@ -35,6 +40,8 @@ ACCEPT_PENDING = 2048
 ACCEPT_TIMEOUT_MS = 5000
 OPEN_TIMEOUT_MS = 5000
 LEASE_MS = 5000
+#: batches of a link's data queue (Zenoh's default 2)
+DATA_QUEUE_BATCHES = 16
 TLS_HANDSHAKE_TIMEOUT_MS = 60_000
 #: Sessions beside the robots' that a router keeps: coordinator, world, operator, tools, viewers.
 OTHER_SESSIONS = 32
@@ -55,6 +62,7 @@ def team_limits(max_sessions: int) -> dict[str, object]:
         "transport/unicast/open_timeout": OPEN_TIMEOUT_MS,
         "transport/unicast/max_sessions": max_sessions,
         "transport/link/tx/lease": LEASE_MS,
+        "transport/link/tx/queue/size/data": DATA_QUEUE_BATCHES,
     }
 
 

@@ -26,7 +26,15 @@ from swarm.protocol.wire import (
     assign_request_on_key,
     status_on_key,
 )
-from tests.support.coordinator_scene import MapServerStandIn, corridor_map, mission, pose, query, wait_until
+from tests.support.coordinator_scene import (
+    MapServerStandIn,
+    corridor_map,
+    mission,
+    pose,
+    query,
+    wait_until,
+    wait_until_answering,
+)
 
 NAN, INF = float("nan"), float("inf")
 SCALARS = [
@@ -60,6 +68,7 @@ def coordinated():
     params = CoordinationParams(beta=0.1, footprint_radius=2.0)
     coordinator = Coordinator(m, coord_session, params, snapshot_timeout=5.0)
     coordinator.start()
+    wait_until_answering(client, m.mission)
     try:
         yield m, coordinator, server, client
     finally:

@@ -10,7 +10,7 @@ import numpy as np
 from swarm.config import mission_from_dict
 from swarm.map.coverage_map import CoverageMap
 from swarm.protocol import bus
-from swarm.protocol.coord_client import assign_key
+from swarm.protocol.coord_client import assign_key, coordinator_stats
 from swarm.protocol.wire import Pose, Snapshot, Status
 
 MISSION = {
@@ -90,6 +90,16 @@ def wait_until(condition, timeout: float = 10.0) -> bool:
             return True
         time.sleep(0.02)
     return condition()
+
+
+def wait_until_answering(session, name: str, timeout: float = 20.0) -> None:
+    """Wait until the coordinator of mission ``name`` answers ``session`` (its queryables'
+    declarations have reached this session's router): a query asked before that finds no
+    queryable and gets no reply."""
+    deadline = time.monotonic() + timeout
+    while coordinator_stats(session, name, timeout=1.0) is None:
+        assert time.monotonic() < deadline, f"the coordinator of {name} did not answer in {timeout} s"
+        time.sleep(0.05)
 
 
 def query(session, name: str, payload: bytes, timeout: float = 5.0, robot: str = "r1"):
