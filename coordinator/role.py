@@ -22,20 +22,18 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import queue
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 
 import zenoh
 
-from coordinator.assignment import (
-    CoordinationParams,
-)
+from coordinator.answer_report import ANSWER_TIMES_KEPT, answer_time_summary, log_answer
+from coordinator.assignment import CoordinationParams
 from coordinator.defaults import SNAPSHOT_TIMEOUT_S
-from coordinator.state import Answer, CoordinatorState
+from coordinator.state import CoordinatorState
 from swarm.compile_progress import compile_progress
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
@@ -48,9 +46,6 @@ from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
-
-#: The answer times ``coord/stats`` summarises: the most recent this many.
-ANSWER_TIMES_KEPT = 10_000
 
 #: Robots whose latest request (an older one is refused as superseded), or whose newest status,
 #: may wait at once, served in the order they first came; more are refused (busy) or dropped.
@@ -330,7 +325,7 @@ class Coordinator:
         reply = answer.reply.encode()
         self._timed(started)
         query.reply(query.key_expr, reply)
-        _log_answer(answer)
+        log_answer(answer)
 
     def stop(self) -> None:
         """Stop answering and join the threads (the session stays open: the caller owns it)."""
@@ -353,61 +348,3 @@ class Coordinator:
         """Block until ``stop()`` or ``request_stop()`` is called."""
         while not self._stop.wait(0.5):
             pass
-
-
-def answer_time_summary(times_ms: Iterable[float]) -> dict:
-    """``{count, mean, p50, p95, max}`` of answer times in milliseconds (zeros when none)."""
-    times = sorted(float(t) for t in times_ms)
-    if not times:
-        return {"count": 0, "mean": 0.0, "p50": 0.0, "p95": 0.0, "max": 0.0}
-
-    def rank(q: float) -> float:  # nearest-rank percentile
-        return times[max(math.ceil(q * len(times)) - 1, 0)]
-
-    return {
-        "count": len(times),
-        "mean": sum(times) / len(times),
-        "p50": rank(0.50),
-        "p95": rank(0.95),
-        "max": times[-1],
-    }
-
-
-def _log_answer(answer: Answer) -> None:
-    robot = answer.robot
-    c = answer.candidate
-    if c is None and answer.wander is not None:
-        w = answer.wander
-        log.info(
-            "assign %s -> wander to (%.2f, %.2f) gaze %+.0f deg: no eq. 35 target left "
-            "(%d candidates, %d held by others)",
-            robot,
-            w.xy[0],
-            w.xy[1],
-            math.degrees(w.gaze_yaw),
-            answer.candidates,
-            answer.held_by_others,
-        )
-        return
-    if c is None:
-        log.info(
-            "assign %s -> nothing left (%d candidates, %d held by others)",
-            robot,
-            answer.candidates,
-            answer.held_by_others,
-        )
-        return
-    log.info(
-        "assign %s -> stand (%.2f, %.2f) gaze %+.0f deg, looking at (%.2f, %.2f): eq. 35 %.1f bits/m, "
-        "path %.2f m (%d candidates, %d held by others)",
-        robot,
-        c.xy[0],
-        c.xy[1],
-        math.degrees(c.gaze_yaw),
-        c.point[0],
-        c.point[1],
-        c.utility,
-        c.path_cost,
-        answer.candidates,
-        answer.held_by_others,
-    )

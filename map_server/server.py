@@ -1,17 +1,17 @@
 """The map server role over Zenoh (``swarm server``; docs/protocol.md).
 
 Subscribes ``swarm/<mission>/delta/*`` and answers ``map/epoch/<rid>`` with the epochs it
-issues (map_server.admission, map_server.epochs). Zenoh callbacks only enqueue; one worker
-thread admits each payload (epoch, MAC, next seq, information budget), drops duplicates,
-appends the new ones to the write-ahead log and fsyncs (a group commit per batch), applies
-them to the team map exactly once, and republishes each payload unchanged on
-``swarm/<mission>/merged``, numbered (``swarm.protocol.merged_stream``) and with congestion
-control DROP: a subscriber that does not drain loses samples (and catches up from the
-snapshot) instead of holding the worker. The acks of ``map/acks`` therefore only ever cover
-durable deltas. Queryables ``map/stats``, ``map/acks``, ``map/snapshot`` and ``map/region``
-read the map under a lock, so they never see a half-applied delta. The worker compacts the
-store when its log grows past the configured size, and :meth:`MapServer.stop` drains the
-queue and compacts once more.
+issues (map_server.admission, map_server.epochs). Zenoh callbacks only enqueue
+(map_server.intake refuses what it can before reading it); one worker thread admits each
+payload (epoch, MAC, next seq, information budget), drops duplicates, appends the new ones to
+the write-ahead log and fsyncs (a group commit per batch), applies them to the team map exactly
+once, and republishes each payload unchanged on ``swarm/<mission>/merged``, numbered
+(``swarm.protocol.merged_stream``) and with congestion control DROP: a subscriber that does not
+drain loses samples (and catches up from the snapshot) instead of holding the worker. The acks
+of ``map/acks`` therefore only ever cover durable deltas. Queryables ``map/stats``,
+``map/acks``, ``map/snapshot`` and ``map/region`` read the map under a lock, so they never see
+a half-applied delta. The worker compacts the store when its log grows past the configured
+size, and :meth:`MapServer.stop` drains the queue and compacts once more.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import zenoh
 from map_server.admission import Admission
 from map_server.disk_pause import DiskPause
 from map_server.inbox import Inbox
+from map_server.intake import DeltaIntake
 from map_server.ledger import Rejected, describe_grid
 from map_server.limits import mission_bounds
 from map_server.options import ServerOptions, max_payload_for
@@ -109,6 +110,10 @@ class MapServer:
             quarantine=self.quarantine,
             peer_log=self._peer_log,
         )
+        #: the refusals before the inbox, the queueing and the admission (map_server.intake)
+        self.intake = DeltaIntake(
+            self.team, self._lock, self.admission, self._inbox, self.max_payload, self._peer_log
+        )
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
@@ -146,7 +151,7 @@ class MapServer:
         self._declared.append(self.session.declare_queryable(epochs, guarded(self.admission.on_epoch_query)))
         self._worker.start()
         self._delta_sub = self.session.declare_subscriber(
-            bus.key_pattern(self.name, "delta", "*"), self._on_sample
+            bus.key_pattern(self.name, "delta", "*"), self.intake.on_sample
         )
         applied, replayed, torn = self.recovered
         log.info(
@@ -189,47 +194,6 @@ class MapServer:
         """Whether ``delta/<robot>`` is taken (map_server.admission.Admission.accepts_robot)."""
         return self.admission.accepts_robot(robot)
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh's callback: refuse an unknown or quarantined robot or an oversized payload
-        before reading it, else queue it (refused when the robot's queue is full). Never raises
-        into Zenoh. (A quarantined robot's agent, never acked, resends its whole outbox every
-        few seconds: hundreds of payloads a second that need not be copied or decoded.)"""
-        try:
-            robot = str(sample.key_expr).rsplit("/", 1)[-1]
-            size = len(sample.payload)
-            if not self.accepts_robot(robot):
-                self._reject(robot, None, Rejected("unknown_robot", self.admission.unknown_reason(robot)))
-            elif robot in self.team.quarantined:  # checked again when applied (set at run time)
-                self._reject(robot, None, Rejected("quarantined", f"{robot} is quarantined"))
-            elif size > self.max_payload:
-                reason = f"payload of {size:,} bytes over the maximum {self.max_payload:,}"
-                self._reject(robot, None, Rejected("too_large", reason))
-            elif not self._inbox.offer(robot, sample.payload.to_bytes(), _attachment(sample)):
-                refused = self._inbox.refused[robot]
-                self._peer_log.warning(
-                    "inbox_full",
-                    "inbox of %s full: payload refused (#%d; its agent resends it)",
-                    robot,
-                    refused,
-                )
-        except Exception:  # noqa: BLE001 (a callback must never raise into Zenoh)
-            self._peer_log.exception("delta_callback", "delta callback failed")
-
-    def _reject(self, robot: str, msg: DeltaMessage | None, exc: Rejected) -> None:
-        """Count a refused delta under its kind and log it (one line per kind per 10 s, with counts)."""
-        with self._lock:
-            count = self.team.count_rejected(exc.kind)
-        ident = "" if msg is None else f" epoch {msg.epoch} seq {msg.seq}"
-        self._peer_log.warning(
-            f"rejected:{exc.kind}",
-            "rejected delta on delta/%s%s (%s, #%d): %s",
-            short(robot, 40),
-            ident,
-            exc.kind,
-            count,
-            exc,
-        )
-
     def _work(self) -> None:
         while True:
             self._disk.wait_for_retry(self._stopping)
@@ -247,27 +211,13 @@ class MapServer:
                 log.exception("merging a batch of %d deltas failed", len(batch))
             self._log_progress()
 
-    def _admit(self, robot: str, payload: bytes, mac: bytes | None) -> DeltaMessage | None:
-        """The validated delta if it is new, else None (a duplicate, or refused and counted).
-        Whatever one payload raises is confined to it."""
-        try:
-            return self.admission.admit(robot, payload, mac)
-        except Rejected as exc:
-            self._reject(robot, None, exc)
-        except Exception as exc:  # noqa: BLE001 (one delta's failure must not touch the others)
-            self._peer_log.exception(
-                "admit_failure", "unexpected failure admitting a delta of %s", short(robot, 40)
-            )
-            self._reject(robot, None, Rejected("internal_error", f"{type(exc).__name__}: {short(exc)}"))
-        return None
-
     def merge(self, batch: list[tuple[str, bytes, bytes | None]]) -> int:
         """Validate, log durably, apply and republish a batch of (robot, payload, MAC attached);
         returns how many were applied. Each payload is decoded once; a refused one is counted and
         touches nothing else. Called by the worker thread only."""
         admitted: list[tuple[DeltaMessage, bytes]] = []
         for robot, payload, mac in batch:
-            msg = self._admit(robot, payload, mac)
+            msg = self.intake.admit(robot, payload, mac)
             if msg is not None:
                 admitted.append((msg, payload))
         if not admitted:
@@ -293,7 +243,7 @@ class MapServer:
                 with self._lock:
                     self.admission.release(msg)
                 kind = exc.kind if isinstance(exc, Rejected) else "internal_error"
-                self._reject(msg.robot, msg, Rejected(kind, str(exc)))
+                self.intake.reject(msg.robot, msg, Rejected(kind, str(exc)))
         for payload in applied if self._merged_pub is not None else ():
             try:
                 started = time.perf_counter()
@@ -427,9 +377,3 @@ class MapServer:
             )
         self._last_log = (now, n)
         log.info(msg)
-
-
-def _attachment(sample: zenoh.Sample) -> bytes | None:
-    """The bytes attached to a sample (a delta's MAC), or None."""
-    attachment = sample.attachment
-    return None if attachment is None else attachment.to_bytes()

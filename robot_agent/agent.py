@@ -3,8 +3,8 @@
 Takes ``robot/<rid>/frame``, answers every frame with ``robot/<rid>/cmd`` (the simulator's
 lockstep clock waits for it), publishes ``robot/<rid>/status``, and shares voxel deltas
 on ``delta/<rid>`` through the utility-filtered outbox, keeping them until the map
-server's ``map/acks`` says they are durable; robot_agent.delta_sender publishes them from
-its own thread under the epoch the server issued.
+server's ``map/acks`` says they are durable (robot_agent.ack_poller); robot_agent.delta_sender
+publishes them from its own thread under the epoch the server issued.
 
 The team map reaches the agent as the server's ``merged`` stream: every delta of another
 robot (or of an earlier run of this one) is added to the local map once, so the robot
@@ -14,24 +14,23 @@ and one that misses merged samples starts again from a fresh snapshot plus what 
 that the server does not (:meth:`Agent.unshared`). The team map is a
 :class:`swarm.protocol.team_replica.TeamReplica` whose map and entropy the explorer fuses into.
 With coordination on, the agent asks ``coord/assign`` before each decision that chooses a new
-target (``Explorer.wants_target``) and passes the answer in (``TeamAdvice``); the explorer
-chooses by itself (eq. 35) when no coordinator answered in time, and the agent asks again a
-little later.
+target (``Explorer.wants_target``; robot_agent.assignment_requests) and passes the answer in
+(``TeamAdvice``); the explorer chooses by itself (eq. 35) when no coordinator answered in
+time, and the agent asks again a little later.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import threading
 import time
 from collections import Counter
 
-import numpy as np
 import zenoh
 
-from robot_agent.decision import TeamAdvice
+from robot_agent.ack_poller import AckPoller
+from robot_agent.assignment_requests import AssignmentRequests
 from robot_agent.delta_sender import DeltaSender
 from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
@@ -41,11 +40,9 @@ from robot_agent.teammate_statuses import TeammateStatuses
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
 from swarm.map.delta import Delta
-from swarm.navigation.exploration import ExplorationTarget
-from swarm.protocol import bus, replies
+from swarm.protocol import bus
 from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.codec import short
-from swarm.protocol.coord_client import ask_for_target
 from swarm.protocol.map_client import (
     MapClient,
     MapQueryError,
@@ -58,11 +55,7 @@ from swarm.protocol.wire import Cmd, Frame, Pose, Snapshot, Status, WireError
 
 log = logging.getLogger("swarm.agent")
 
-ACK_POLL_S = 2.0
-RESEND_AFTER_S = 5.0
 STATUS_EVERY = 1  # frames: every frame, so that teammates avoid this robot where it is now
-COORDINATOR_TIMEOUT_S = 1.0  # wait this long for coord/assign before choosing alone
-COORDINATOR_RETRY_S = 10.0  # after a silence, choose alone this long before asking again
 PROGRESS_EVERY_S = 10.0  # seconds between progress lines (and "still waiting" lines)
 SHUTDOWN_ACK_WAIT_S = 5.0  # at shutdown, wait this long at most for the server to ack every delta
 
@@ -100,7 +93,11 @@ class Agent:
         self.link = link or WireLink(session, name, robot_id)
         self.sender = DeltaSender(session, name, robot_id, self.explorer.grid, self._sent, self._granted)
         self._status_pub = session.declare_publisher(bus.key(name, "robot", robot_id, "status"))
-        self._acks_key = bus.key(name, "map", "acks")
+        #: map/acks: what the server holds durably is forgotten, what it lacks is sent again
+        acks_key = bus.key(name, "map", "acks")
+        self.acks = AckPoller(
+            session, acks_key, robot_id, self.outbox, self.sender, lambda: self.epoch, self._publish
+        )
         self._frames = FrameInbox()  # the newest frame: older waiting ones are dropped, counted
         self.link.frames.start(self._frames)
         #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
@@ -123,25 +120,23 @@ class Agent:
         #: the teammates' statuses: where they are, for keeping out of their way
         self.statuses = TeammateStatuses(session, name, robot_id, self._peer_log)
         self.coordination = coordination and strategy == "entropy"
-        self.coordinator_counts: Counter[str] = Counter()
-        self._coordinator_quiet_until = 0.0
+        #: coord/assign before each new target (robot_agent.assignment_requests)
+        self.assignments = AssignmentRequests(session, name, robot_id, lambda: self._share(flush=True))
         self._told_target: tuple[float, float] | None = None  # the target of the last status
         self._pose: Pose | None = None
         self.rejected_frames = 0
         self.frames_fused = 0
         self.last_t = 0.0
-        self.acked = 0  # the map server's last contiguous acked seq of this run's deltas
         self.progress_every_s = PROGRESS_EVERY_S
         self._frame_key = self.link.describe()
         self._stop = threading.Event()
-        self._acker = threading.Thread(target=self._poll_acks, daemon=True)
 
     # -- the loop ------------------------------------------------------------------------
     def run(self, max_frames: int | None = None, idle_timeout: float | None = None) -> None:
         """Handle frames until stopped (or ``max_frames``, or ``idle_timeout`` s without a frame)."""
         self.catch_up()
         self.sender.start()
-        self._acker.start()
+        self.acks.start()
         handled = 0
         last_frame = time.monotonic()
         log.info("%s: waiting for frames on %s", self.robot_id, self._frame_key)
@@ -192,6 +187,16 @@ class Agent:
         )
 
     @property
+    def coordinator_counts(self) -> Counter[str]:
+        """The coordinator's answers: ``silent``, ``nothing_left``, ``assigned``, ``flushed``."""
+        return self.assignments.counts
+
+    @property
+    def acked(self) -> int:
+        """The map server's last contiguous acked seq of this run's deltas (0 before any)."""
+        return self.acks.acked
+
+    @property
     def superseded_frames(self) -> int:
         """Frames dropped unanswered because a newer one came before the agent took them."""
         return self._frames.superseded
@@ -228,7 +233,9 @@ class Agent:
         self.frames_fused += 1
         self.outbox.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
-        advice = self._ask_coordinator() if self.coordination and self.explorer.wants_target else None
+        advice = (
+            self.assignments.advice(self._pose) if self.coordination and self.explorer.wants_target else None
+        )
         decision = self.explorer.decide(x, y, frame.pose.ypr[0], frame.t, advice)
         cmd = Cmd(self.robot_id, frame.seq, frame.t, decision.v, decision.omega, decision.tilt)
         target = self.explorer.target
@@ -332,86 +339,7 @@ class Agent:
 
         return finish
 
-    # -- the coordinator -------------------------------------------------------------------
-    def _ask_coordinator(self) -> TeamAdvice:
-        """What the coordinator says before the explorer chooses a target: its target for this
-        robot, or none (choose alone, eq. 35) with, after "nothing left", where the teammates
-        went to look and where they head."""
-        now = time.monotonic()
-        alone = TeamAdvice()  # only a "nothing left" reply says where the others head
-        if self._pose is None or now < self._coordinator_quiet_until:
-            return alone
-        reply = ask_for_target(
-            self.session, self.mission.mission, self.robot_id, self._pose, COORDINATOR_TIMEOUT_S
-        )
-        if reply is None:
-            self.coordinator_counts["silent"] += 1
-            self._coordinator_quiet_until = now + COORDINATOR_RETRY_S
-            return alone
-        if reply.target is None:
-            self.coordinator_counts["nothing_left"] += 1
-            # choosing alone now: not the columns the teammates went to look at
-            views = [np.array(v, dtype=np.float64) for v in reply.views]
-            return TeamAdvice(None, views, [np.array(g, dtype=np.float64) for g in reply.goals])
-        self.coordinator_counts["assigned"] += 1
-        if reply.flush:  # flush on demand: the coordinator lacks what this robot saw there
-            self.coordinator_counts["flushed"] += 1
-            self._share(flush=True)
-        gaze = reply.gaze or (1.0, 0.0, 0.0)
-        xy = np.array(reply.target[:2], dtype=np.float64)
-        return TeamAdvice(
-            ExplorationTarget(xy, math.atan2(gaze[1], gaze[0]), reply.utility, None, "assigned")
-        )
-
-    # -- acknowledgements ----------------------------------------------------------------
-    def _poll_acks(self) -> None:
-        while not self._stop.wait(ACK_POLL_S):
-            acks = self.query_acks(timeout=1.0)
-            if acks is None:
-                continue  # no server yet: keep everything
-            self.outbox.acknowledge(acks)
-            self.acked = max(self.acked, acks)
-            self.sender.forget(acks)
-            self._resend(RESEND_AFTER_S)
-
-    def _resend(self, after_s: float) -> None:
-        """Send again the unacked deltas put over ``after_s`` s ago, oldest first (seq order)."""
-        now = time.monotonic()
-        for seq, delta in self.outbox.to_resend():
-            if now - self.sender.last_sent(seq) > after_s:
-                self.outbox.stats.resent += 1
-                self._publish(seq, delta)
-
-    def query_acks(self, timeout: float = 1.0) -> int | None:
-        """This agent's last contiguous acked seq per the map server, or None if none answers."""
-        if self.epoch is None:
-            return None  # nothing can be acked before the server issued an epoch
-        try:
-            answer = replies.ask(self.session, self._acks_key, timeout=timeout)
-            if answer is None or answer.ok is None:
-                return None
-            acks = json.loads(answer.ok)
-            return int(acks.get(self.robot_id, {}).get(str(self.epoch), 0))
-        except replies.ConflictingReplies as exc:  # someone besides the server answers: trust none
-            log.warning("acks refused: %s", exc)
-        except (zenoh.ZError, ValueError, AttributeError) as exc:
-            log.debug("acks query failed: %s", exc)
-        return None
-
     # -- shutdown ------------------------------------------------------------------------
-    def _await_acks(self, timeout: float) -> None:
-        """Ask ``map/acks``, resending what is unacked, until all is acked, no server, or ``timeout``."""
-        deadline = time.monotonic() + timeout
-        while self.acked < self.outbox.seq and (left := deadline - time.monotonic()) > 0:
-            acks = self.query_acks(timeout=min(1.0, left))
-            if acks is None:
-                return  # no map server answers: nothing to wait for
-            self.outbox.acknowledge(acks)
-            self.acked = max(self.acked, acks)
-            self._resend(1.0)
-            if self.acked < self.outbox.seq:
-                time.sleep(0.05)
-
     def stop(self) -> None:
         self._stop.set()
 
@@ -427,10 +355,9 @@ class Agent:
         sent = self.outbox.stats.deltas_sent - before[0]
         voxels = self.outbox.stats.voxels_sent - before[1]
         self._stop.set()
-        if self._acker.is_alive():
-            self._acker.join(timeout=ACK_POLL_S + 1.5)
+        self.acks.stop()
         self.sender.drain(ack_wait_s)
-        self._await_acks(ack_wait_s)
+        self.acks.await_all(ack_wait_s)
         self.sender.stop()
         log.info(
             "%s: shutdown flush: %s; %d deltas not yet acked by the map server%s",

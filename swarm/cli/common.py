@@ -1,6 +1,7 @@
 """What every command shares: the error line users see, the check of Zenoh endpoints, and
 subcommand parsers that add their arguments only when used (so that ``swarm --help`` does not
-import the roles, OpenCV and the compiled kernels to describe commands it does not run)."""
+import the roles, OpenCV and the compiled kernels to describe commands it does not run), the
+files shipped in the repository that commands default to, and argparse's integer bounds."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import argparse
 import re
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 #: Zenoh link protocols whose address is HOST:PORT.
 _HOST_PORT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
@@ -93,3 +95,23 @@ def complete(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
             for sub in action.choices.values():
                 complete(sub)
     return parser
+
+
+def bundled(relative: Path) -> Path:
+    """A file shipped in the repository, from the project folder or beside an editable install
+    (``relative`` itself when neither has it: the benchmark then says it is missing)."""
+    beside_install = Path(__file__).resolve().parents[2] / relative
+    return next((p for p in (relative, beside_install) if p.exists()), relative)
+
+
+def at_least(lowest: int):
+    """An argparse type: an integer of at least ``lowest`` (else argparse's one-line error)."""
+
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < lowest:
+            raise argparse.ArgumentTypeError(f"must be at least {lowest:,} (got {value})")
+        return value
+
+    parse.__name__ = "integer"  # argparse's word for a value it cannot parse
+    return parse

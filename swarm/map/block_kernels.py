@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from swarm.map.fusion_kernel import voxel_lam
 from swarm.map.ray_batch import BRICK_BITS
+from swarm.map.voxel_information import voxel_lam
 
 #: What ``take_touched`` writes into a voxel's cached entropy while it is being updated.
 MARK = np.float32(-1.0)

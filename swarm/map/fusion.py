@@ -110,7 +110,7 @@ def batch_information(
     of that length, and give no hit (as OctoMap's max range). Rays that leave the grid are
     treated alike at the grid's boundary (mean 0, the sensor model at their true range);
     but a point within the boundary margin (``BOUNDARY_MARGIN_FRACTION``) beyond the
-    boundary is skipped. One measurement's lam is at most ``fusion_kernel.LAM_MAX``, so no
+    boundary is skipped. One measurement's lam is at most ``voxel_information.LAM_MAX``, so no
     finite input gives non-finite information.
 
     ``hit_precedence`` (default ``sensor.hit_precedence``): a voxel holding a return of this

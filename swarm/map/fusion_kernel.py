@@ -27,6 +27,8 @@ hit precedence.
 - ``fuse_rays`` reads out in C order, walking the table's blocks row by row (the pool is read
   once, in order); ``block_kernels.collect_blocks`` reads out block by block.
 - Only the axis that steps gets its next plane parameter (one division per step).
+- Eq. 14 of one voxel (its lam and mean, the damping of a gain sum) is
+  ``swarm.map.voxel_information``'s, inlined into these loops.
 
 Compiled with ``cache=True``: a second process loads the machine code from Numba's cache.
 """
@@ -39,14 +41,14 @@ import numpy as np
 from numba import njit
 
 from swarm.map.ray_batch import BRICK_BITS
-
-#: Upper bound of one measurement's information lam = 1/sigma^2 on one voxel (sigma >= 1e-12).
-#: Eq. 14's damping makes lam grow as exp(2 (d - d_l) / tau), which overflows float32 for rays
-#: longer than about 85 m (tau = 2 m); the bound keeps any finite input finite.
-LAM_MAX = 1e24
-
-#: exp() arguments up to this stay far from float64's overflow and underflow.
-EXP_LIMIT = 600.0
+from swarm.map.voxel_information import (
+    EXP_LIMIT,
+    LAM_MAX,
+    centre_distance,
+    voxel_information,
+    voxel_lam,
+    voxel_mean,
+)
 
 BLOCK = 1 << (3 * BRICK_BITS)  # voxels per block (one brick)
 HALF_DIAGONAL = 0.5 * math.sqrt(3.0)  # of a voxel, in edges
@@ -110,42 +112,6 @@ def _entry(i, j, k, nbj, nbk, first, table, n_blocks):
     m = (1 << b) - 1
     block, n_blocks = _block(((i >> b) * nbj + (j >> b)) * nbk + (k >> b) - first, table, n_blocks)
     return (block << (3 * b)) | ((i & m) << (2 * b)) | ((j & m) << b) | (k & m), n_blocks
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _centre_distance(i, j, k, voxel, centre_offset):
-    """Distance r (float32, metres) from the sensor to the centre of voxel (i, j, k)."""
-    ox = i * voxel + centre_offset[0]
-    oy = j * voxel + centre_offset[1]
-    oz = k * voxel + centre_offset[2]
-    return np.float32(math.sqrt(np.float32(ox * ox + oy * oy + oz * oz)))
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain):
-    """Eq. 14's lam of one voxel at distance ``r32`` and float32 offset ``diff`` = r - d from the ray's end.
-
-    Inside the end voxel's half width lam = 1 / sigma_s^2; in front of it
-    lam = exp(2 (d - e/2 - r) / tau) / sigma_s^2, computed as the ray's gain =
-    exp(2 (d - e/2) / tau) / sigma_s^2 times the voxel's exp(-2 r / tau) when both are finite
-    and non-zero; otherwise, and behind the end, from eq. 14 directly. Bounded by LAM_MAX.
-    """
-    ad = abs(diff)
-    if ad <= half32:
-        return min(inv_s2, LAM_MAX)
-    if diff < 0 and gain > 0.0:
-        arg = two_over_tau * np.float64(r32)
-        if arg < EXP_LIMIT:
-            w = math.exp(-arg)
-            if w > 0.0:
-                return min(gain * w, LAM_MAX)
-    return min(np.float64(math.exp((ad - half32) * two_over_tau32)) * inv_s2, LAM_MAX)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _mean(diff, inv_voxel):
-    """Eq. 14's mean mu of a voxel at float32 offset ``diff`` = r - d from a return (0 in front, 1 behind)."""
-    return min(max(np.float32(0.5) + diff * inv_voxel, np.float32(0.0)), np.float32(1.0))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -281,15 +247,15 @@ def traverse_rays(
             else:
                 marked = gains[q] < 0.0
                 if not (marked and not (hit and last)):
-                    r32 = _centre_distance(i, j, k, voxel, centre_offset)
+                    r32 = centre_distance(i, j, k, voxel, centre_offset)
                     diff = r32 - dr32
                     if diff < -half32 and t_front > 0.0 and not marked:
                         gains[q] += gain
                     else:
-                        lam = _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
+                        lam = voxel_information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
                         sums[q, 0] += lam
                         if hit:
-                            sums[q, 1] += _mean(diff, inv_voxel) * lam
+                            sums[q, 1] += voxel_mean(diff, inv_voxel) * lam
                     updates += 1
             if last:
                 break
@@ -328,23 +294,13 @@ def traverse_rays(
         if bi >= box[1, 0] or bj >= box[1, 1] or bk >= box[1, 2]:
             continue
         q, n_blocks = _entry(bi, bj, bk, nbj, nbk, first, table, n_blocks)
-        r32 = _centre_distance(bi, bj, bk, voxel, centre_offset)
+        r32 = centre_distance(bi, bj, bk, voxel, centre_offset)
         diff = r32 - dr32
-        lam = _information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
+        lam = voxel_information(diff, r32, half32, two_over_tau, two_over_tau32, inv_s2, gain)
         sums[q, 0] += lam
-        sums[q, 1] += _mean(diff, inv_voxel) * lam
+        sums[q, 1] += voxel_mean(diff, inv_voxel) * lam
         updates += 1
     return n_blocks, updates
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def voxel_lam(g, other, i, j, k, voxel, centre_offset, two_over_tau):
-    """A touched voxel's lam from its sums: the gain sum ``g`` times its damping exp(-2 r / tau)
-    (none when ``g`` <= 0), plus ``other``."""
-    total = other
-    if g > 0.0:
-        total += g * math.exp(-two_over_tau * np.float64(_centre_distance(i, j, k, voxel, centre_offset)))
-    return total
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

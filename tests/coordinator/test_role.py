@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from coordinator.answer_report import answer_time_summary
 from coordinator.assignment import CoordinationParams
 from coordinator.command import add_arguments
 from coordinator.replica import TeamMap
-from coordinator.role import Coordinator, answer_time_summary
+from coordinator.role import Coordinator
 from coordinator.state import CoordinatorState, params_from_mission
 from map_server.team_map import MergedMap
 from swarm.map.coverage_map import CoverageMap

@@ -142,7 +142,7 @@ def test_a_quarantined_robots_payloads_are_refused_before_they_are_read(tmp_path
     mission = small_mission()
     server = MapServer(mission, tmp_path / "store", options=ServerOptions(quarantine=("r3",)))
     try:
-        server._on_sample(_Sample(f"swarm/{mission.mission}/delta/r3", b"not even msgpack"))
+        server.intake.on_sample(_Sample(f"swarm/{mission.mission}/delta/r3", b"not even msgpack"))
         stats = server.stats()
         assert stats["rejected"]["quarantined"] == 1 and stats["rejected"]["malformed"] == 0
         assert stats["inbox"]["queued"] == 0

@@ -13,10 +13,10 @@ import numpy as np
 
 from swarm.map.delta import Delta
 from swarm.map.fusion import BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS, BatchResult
-from swarm.map.fusion_kernel import LAM_MAX
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.map.traversal import traverse
+from swarm.map.voxel_information import LAM_MAX
 
 
 def reference_batch_information(

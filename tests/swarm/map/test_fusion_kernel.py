@@ -7,9 +7,9 @@ from swarm.map import fusion, ray_batch
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import entropy_exact
 from swarm.map.fusion import batch_information
-from swarm.map.fusion_kernel import LAM_MAX
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
+from swarm.map.voxel_information import LAM_MAX
 from tests.support.fusion_oracle import reference_batch_information
 from tests.support.numba_cache import second_run_cache_statistics
 

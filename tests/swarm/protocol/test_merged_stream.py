@@ -131,7 +131,7 @@ def test_after_a_catch_up_the_agent_holds_the_snapshot_plus_its_own_unacked_info
                 agent.team.add_local(d)
                 agent.outbox.add(d)
                 agent._share(flush=True)
-            wait_until(lambda: agent.query_acks() == 2, 10.0, "the first two own deltas acked")
+            wait_until(lambda: agent.acks.query() == 2, 10.0, "the first two own deltas acked")
             agent.outbox.acknowledge(2)
             # two more taken from the outbox, as if sent, but lost on the way: not acked
             lost = []
