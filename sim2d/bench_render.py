@@ -30,7 +30,7 @@ def bench(
 ) -> tuple[float, float, float]:
     """(frames per second, ticks per second, CPU ms per frame) rendering ``robots`` robots with ``rig``."""
     renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=0, threads=threads)
-    starts = [(r.start.x, r.start.y, r.start.yaw) for r in mission.robots]
+    starts = [(p.x, p.y, p.yaw) for p in mission.start_poses()]
     starts = (starts * robots)[:robots]
     rng = np.random.default_rng(0)
     frames = ticks = 0

@@ -46,7 +46,8 @@ def _add_mission_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _load(args: argparse.Namespace) -> Mission:
     """The mission of CONFIG, or of --map, or else of ``args.default_config`` (set by the
-    ``swarm sim`` command line, as ``swarm sim run`` takes it), with --robots applied."""
+    ``swarm sim`` command line, as ``swarm sim run`` takes it), with --robots applied.
+    ConfigError when a robot has no start pose (naming the file and ``robots[i].start``)."""
     from swarm.config import ConfigError, load_mission, mission_from_map
 
     if args.config and args.map:
@@ -72,6 +73,7 @@ def _load(args: argparse.Namespace) -> Mission:
                 f"{len(mission.robots)} robots the mission places"
             )
         mission = mission.model_copy(update={"robots": mission.robots[: args.robots]})
+    mission.start_poses()  # the simulated world places every robot: refuse a robot without start
     return mission
 
 
@@ -96,7 +98,7 @@ def run_render(args: argparse.Namespace) -> int:
     try:
         mission = _load(args)
         robot_id = args.robot or mission.robot_ids[0]
-        spec = mission.robot_spec(robot_id)
+        start = mission.start_of(robot_id)
     except (ConfigError, KeyError) as e:
         print(f"swarm: error: {e}", file=sys.stderr)
         return 2
@@ -105,9 +107,7 @@ def run_render(args: argparse.Namespace) -> int:
     if overrides:
         rig = rig.model_validate({**rig.model_dump(), **overrides})
     renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=mission.sim.seed)
-    pose = camera_pose(
-        spec.start.x, spec.start.y, spec.start.yaw, rig.camera_height, math.radians(rig.pitch_deg)
-    )
+    pose = camera_pose(start.x, start.y, start.yaw, rig.camera_height, math.radians(rig.pitch_deg))
     rng = np.random.default_rng(mission.sim.seed)
     left, right = renderer.stereo_pair(pose, rig.noise_std, rng)
     noise = rig.range_noise if rig.mode == "range" else 0.0
@@ -122,7 +122,7 @@ def run_render(args: argparse.Namespace) -> int:
     seen = np.isfinite(depth)
     span = f"{np.nanmin(depth):.2f}-{np.nanmax(depth):.2f} m" if seen.any() else "none"
     print(
-        f"robot {robot_id} at ({spec.start.x:g}, {spec.start.y:g}, yaw {spec.start.yaw:g}): "
+        f"robot {robot_id} at ({start.x:g}, {start.y:g}, yaw {start.yaw:g}): "
         f"{rig.width}x{rig.height}, depth {span}, {seen.mean():.0%} of pixels with a return"
     )
     print(f"wrote left.png right.png depth.png depth.npy to {out}")

@@ -61,8 +61,8 @@ class _Robot:
         self.head = rig.tilt_range_deg > 0
         self.mount_pitch = math.radians(rig.pitch_deg)
         self.height = rig.camera_height
-        spec = mission.robot_spec(rid)
-        self.start = (spec.start.x, spec.start.y, spec.start.yaw)
+        start = mission.start_of(rid)  # where map -> odom is: the simulated robot's start
+        self.start = (start.x, start.y, start.yaw)
         self.node = ctx.node(NODE_NAME, config.namespace)
         pub = self.node.publisher
         self.images = {side: pub(config.topic(side), rm.IMAGE, LOCKSTEP_QOS) for side in ("left", "right")}

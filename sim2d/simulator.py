@@ -56,7 +56,10 @@ class SimSummary:
 
 
 class Simulator:
-    """Lockstep simulator of a mission's robots, talking Zenoh through ``session``."""
+    """Lockstep simulator of a mission's robots, talking Zenoh through ``session``.
+
+    Each robot starts at its ``start`` pose: a mission with a robot without one is refused
+    with a ConfigError naming the file and ``robots[i].start`` (``Mission.start_poses``)."""
 
     def __init__(
         self,
@@ -73,11 +76,12 @@ class Simulator:
         self.plan = plan if plan is not None else mission.load_floor_plan()
         if self.plan is None:
             raise ValueError("the simulator needs a mission with a floor plan")
+        starts = mission.start_poses()  # ConfigError naming robots[i].start when one has none
         body = mission.robot
         self.world = World(self.plan, body.radius, body.max_speed, body.max_turn_rate)
         self.robot_ids = mission.robot_ids
-        for spec in mission.robots:
-            self.world.add_robot(spec.id, spec.start.x, spec.start.y, spec.start.yaw)
+        for rid, start in zip(self.robot_ids, starts, strict=True):
+            self.world.add_robot(rid, start.x, start.y, start.yaw)
         self.seq = 0
         self.dead: set[str] = set()
         self._renderers: dict[str, Renderer] = {}

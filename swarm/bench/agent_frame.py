@@ -27,13 +27,13 @@ from swarm.navigation.traversability import build_traversability
 
 def look_around_map(mission, rid: str, views: int = 16) -> CoverageMap:
     """The map a robot builds turning once on the spot at its start (range frames, 160x120)."""
-    spec = mission.robot_spec(rid)
+    start = mission.start_of(rid)  # the bench renders at the robot's start
     rig = mission.rig_for(rid)
     camera = rig.model_copy(update={"width": 160, "height": 120}).camera()
     renderer = Renderer(mission.load_floor_plan(), camera, seed=0)
     cmap = CoverageMap(mission.workspace.grid(), mission.sensor.model())
-    for yaw in spec.start.yaw + np.linspace(0, 2 * math.pi, views, endpoint=False):
-        pose = camera_pose(spec.start.x, spec.start.y, yaw, rig.camera_height)
+    for yaw in start.yaw + np.linspace(0, 2 * math.pi, views, endpoint=False):
+        pose = camera_pose(start.x, start.y, yaw, rig.camera_height)
         depth = renderer.depth_image(pose, 0.0, None, np.random.default_rng(0))
         points = points_from_depth(depth, camera.fx, camera.fy, camera.cx, camera.cy, pose.xyz, pose.ypr, 5.0)
         cmap.integrate(np.asarray(pose.xyz), points)
@@ -42,13 +42,11 @@ def look_around_map(mission, rid: str, views: int = 16) -> CoverageMap:
 
 def measure(mission, rid: str, width: int, height: int, repeat: int) -> dict:
     """Seconds per frame of each stage at one image size, best of ``repeat``."""
-    spec = mission.robot_spec(rid)
+    start = mission.start_of(rid)  # the bench renders at the robot's start
     rig = mission.rig_for(rid).model_copy(update={"width": width, "height": height, "mode": "stereo"})
     camera = rig.camera()
     renderer = Renderer(mission.load_floor_plan(), camera, seed=0)
-    pose = camera_pose(
-        spec.start.x, spec.start.y, spec.start.yaw, rig.camera_height, math.radians(rig.pitch_deg)
-    )
+    pose = camera_pose(start.x, start.y, start.yaw, rig.camera_height, math.radians(rig.pitch_deg))
     left, right = renderer.stereo_pair(pose)
     matcher = matcher_for_rig(rig)
     max_range = mission.sensor.max_range

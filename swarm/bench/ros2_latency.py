@@ -141,11 +141,11 @@ def run(config: Path, frames: int = 60, width: int = 640, height: int = 480, raw
         missions = {path: load_mission(file) for path, file in files.items()}
         mission = missions["ros2"]
         rig = mission.rig_for("r1")
-        spec = mission.robot_spec("r1")
+        start = mission.start_of("r1")
         renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=0)
         views = []
-        for yaw in spec.start.yaw + np.linspace(0, 2 * math.pi, 12, endpoint=False):
-            pose = camera_pose(spec.start.x, spec.start.y, yaw, rig.camera_height)
+        for yaw in start.yaw + np.linspace(0, 2 * math.pi, 12, endpoint=False):
+            pose = camera_pose(start.x, start.y, yaw, rig.camera_height)
             views.append((pose, *renderer.stereo_pair(pose, rig.noise_std, np.random.default_rng(0))))
         in_hands = frame_paths(missions, rig.camera(), views, max(frames, 100), raw)
         in_hands = _report(

@@ -8,6 +8,9 @@ Paths inside a mission (``floor_plan``, rig files) are relative to the mission f
 Rigs: the top-level ``rig`` is the default; ``rigs`` holds named variants (each a set of
 overrides of the default rig); a robot's ``rig`` is a name from ``rigs``, a path to a
 rig YAML file (overrides too) or an inline mapping of overrides.
+A robot's ``start`` is where the simulator places it: optional in the file, required by the
+simulator alone (``Mission.start_poses``: a ConfigError naming ``robots[i].start``); the other
+roles take a robot's pose from its frames.
 """
 
 from importlib import import_module

@@ -50,7 +50,8 @@ def mission_from_dict(
 
 
 def check_mission(mission: Mission) -> None:
-    """Cross-field checks: unique ids, rigs, starts inside the workspace and in free space."""
+    """Cross-field checks: unique ids, rigs, and the starts given inside the workspace and in
+    free space (a robot without ``start`` is checked by the simulator: ``Mission.start_poses``)."""
     where = mission.source or "<mission>"
 
     def fail(field: str, problem: str) -> None:
@@ -68,7 +69,9 @@ def check_mission(mission: Mission) -> None:
         _resolve_rig(mission, overrides, f"rigs.{name}")
 
     lo, hi = mission.workspace.lo, mission.workspace.hi
-    for i, robot in enumerate(mission.robots):
+    #: (index in robots, robot) of the robots with a start pose
+    placed = [(i, robot) for i, robot in enumerate(mission.robots) if robot.start is not None]
+    for i, robot in placed:
         x, y = robot.start.x, robot.start.y
         if not (lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]):
             fail(
@@ -93,40 +96,40 @@ def check_mission(mission: Mission) -> None:
             plan = mission.load_floor_plan()
         except FloorPlanError as e:
             fail("floor_plan", str(e))
-        starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
-        clearance = plan.clearance(starts)
+        starts = np.array([[r.start.x, r.start.y] for _, r in placed]).reshape(-1, 2)
+        clearance = plan.clearance(starts) if len(placed) else np.zeros(0)
         radius = mission.robot.radius
-        for i, robot in enumerate(mission.robots):
+        for k, (i, robot) in enumerate(placed):
             at = f"({robot.start.x:g}, {robot.start.y:g})"
-            if clearance[i] <= 0:
+            if clearance[k] <= 0:
                 fail(
                     f"robots[{i}].start",
-                    f"{at} lies inside a wall/box of the floor plan{_free_hint(plan, starts[i], radius)}",
+                    f"{at} lies inside a wall/box of the floor plan{_free_hint(plan, starts[k], radius)}",
                 )
-            if clearance[i] < radius:
+            if clearance[k] < radius:
                 fail(
                     f"robots[{i}].start",
-                    f"{at} is {clearance[i]:.3f} m from a wall/box, closer than the robot "
-                    f"radius {radius:g} m{_free_hint(plan, starts[i], radius)}",
+                    f"{at} is {clearance[k]:.3f} m from a wall/box, closer than the robot "
+                    f"radius {radius:g} m{_free_hint(plan, starts[k], radius)}",
                 )
             if plan.ros_map is not None:
-                (row, col), (rows, cols) = plan.ros_map.to_cell(starts[i]), plan.ros_map.shape
+                (row, col), (rows, cols) = plan.ros_map.to_cell(starts[k]), plan.ros_map.shape
                 if not (0 <= row < rows and 0 <= col < cols):
                     fail(
                         f"robots[{i}].start",
                         f"{at} is outside the image of {plan.ros_map.source}"
-                        f"{_free_hint(plan, starts[i], radius)}",
+                        f"{_free_hint(plan, starts[k], radius)}",
                     )
                 if not plan.ros_map.free[row, col]:
                     fail(
                         f"robots[{i}].start",
                         f"{at} is not on the mapped floor: the cell (row {rows - 1 - row}, column {col} of "
                         f"{plan.ros_map.source.name}'s image) is unknown"
-                        f"{_free_hint(plan, starts[i], radius)}",
+                        f"{_free_hint(plan, starts[k], radius)}",
                     )
 
-    for i, a in enumerate(mission.robots):
-        for b in mission.robots[:i]:
+    for k, (i, a) in enumerate(placed):
+        for _, b in placed[:k]:
             gap = math.hypot(a.start.x - b.start.x, a.start.y - b.start.y)
             if gap < 2 * mission.robot.radius:
                 fail(

@@ -20,6 +20,7 @@ from swarm.config.models import (
     CoordinationConfig,
     ExplorationConfig,
     FloorPlanRef,
+    Pose2D,
     RigConfig,
     RobotBodyConfig,
     RobotSpec,
@@ -77,6 +78,38 @@ class Mission(Section):
             if spec.id == robot_id:
                 return spec
         raise KeyError(f"no robot {robot_id!r} in mission {self.mission!r}")
+
+    def start_of(self, robot_id: str) -> Pose2D:
+        """A robot's start pose, where the simulator places it (m, m, rad).
+
+        Raises ConfigError naming the file and ``robots[i].start`` when the mission gives none
+        (a mission of real robots needs none: their poses come from their frames), KeyError
+        when the mission has no such robot.
+        """
+        spec = self.robot_spec(robot_id)
+        if spec.start is None:
+            raise ConfigError(self._missing_starts([self.robots.index(spec)]))
+        return spec.start
+
+    def start_poses(self) -> list[Pose2D]:
+        """Every robot's start pose, in the order of ``robots``: what the simulated world needs.
+
+        Raises ConfigError, one line naming the file and each robot's missing ``robots[i].start``.
+        """
+        missing = [i for i, spec in enumerate(self.robots) if spec.start is None]
+        if missing:
+            raise ConfigError(self._missing_starts(missing))
+        return [spec.start for spec in self.robots]
+
+    def _missing_starts(self, indices: list[int]) -> str:
+        fields = ", ".join(f"robots[{i}].start" for i in indices)
+        robots = ", ".join(repr(self.robots[i].id) for i in indices)
+        verb, whom, each = ("is", "robot", "") if len(indices) == 1 else ("are", "robots", " each")
+        return (
+            f"{self.source or '<mission>'}: {fields}: {verb} required by the simulator, which places "
+            f"{whom} {robots} there: give{each} start: {{x: X, y: Y, yaw: YAW}} (m, m, rad); without the "
+            "simulator the robots' poses come from their frames (docs/deployment.md)"
+        )
 
     def rig_for(self, robot_id: str) -> RigConfig:
         """The resolved rig of a robot (its own overrides applied to the default rig)."""
@@ -159,6 +192,8 @@ class Mission(Section):
         if self.prior_map is not None:
             data["prior_map"] = str(self.prior_map_path())
         for robot in data["robots"]:
+            if robot.get("start", ...) is None:
+                del robot["start"]  # a robot whose pose comes from its frames
             rig = robot.get("rig")
             if isinstance(rig, str) and rig.endswith((".yaml", ".yml")):
                 robot["rig"] = str(user_path(rig, self._base_dir).resolve())

@@ -317,8 +317,15 @@ class FloorPlanRef(Section):
 
 
 class RobotSpec(Section):
+    """One robot of the mission: its id, where the simulator places it, its rig and ROS 2 link.
+
+    ``start`` is the simulator's starting pose; the simulator requires it
+    (``Mission.start_poses``). Every other role takes a robot's pose from its frames, so a
+    mission of real robots (or of ROS 2 robots localised by their own tf) leaves it out.
+    """
+
     id: str = Field(pattern=NAME_PATTERN)
-    start: Pose2D
+    start: Pose2D | None = None
     rig: str | dict[str, Any] | None = None
     #: overrides of the mission's ``ros2`` section for this robot (``swarm.config.ros2``)
     ros2: dict[str, Any] | None = None

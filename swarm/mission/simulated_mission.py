@@ -58,8 +58,8 @@ def confined_robots(mission: Mission, share: float = 0.5) -> list[str]:
     areas[0] = 0.0
     largest = float(areas.max())
     out = []
-    for robot in mission.robots:
-        row, col = ros_map.to_cell(np.array([robot.start.x, robot.start.y]))
+    for robot, start in zip(mission.robots, mission.start_poses(), strict=True):
+        row, col = ros_map.to_cell(np.array([start.x, start.y]))
         inside = 0 <= row < fits.shape[0] and 0 <= col < fits.shape[1]
         area = float(areas[labels[row, col]]) if inside else 0.0
         if area < share * largest:
@@ -99,7 +99,7 @@ def _floor_the_planner_never_reaches(
 
     from sim2d.observability import planner_floor
 
-    starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
+    starts = np.array([[p.x, p.y] for p in mission.start_poses()])
     cells = ros_map.to_cell(starts)
     inside = (
         (cells[:, 0] >= 0)
@@ -146,8 +146,10 @@ def stereo_only(mission: Mission) -> None:
 
 def resolve_mission(args: argparse.Namespace, default_config: str) -> Mission:
     """The mission of ``swarm sim run``: CONFIG, or --map, or the bundled default; --robots applied;
-    refused when too large to simulate (``check_simulation_size``)."""
+    refused when too large to simulate (``check_simulation_size``) or when a robot has no start
+    pose (naming the file and ``robots[i].start``: the simulated world places every robot)."""
     mission = _resolve_mission(args, default_config)
+    mission.start_poses()
     check_simulation_size(mission)
     return mission
 

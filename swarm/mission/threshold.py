@@ -54,7 +54,7 @@ def observable_mask_of(mission: Mission) -> np.ndarray:
 
     grid = mission.workspace.grid()
     plan = mission.load_floor_plan()
-    starts = np.array([[r.start.x, r.start.y] for r in mission.robots])
+    starts = np.array([[p.x, p.y] for p in mission.start_poses()])
     rays = observable_voxels(plan, grid, starts, ObservabilityModel.for_mission(mission))
     box = observable_mask(
         np.zeros(grid.shape, np.float32), grid, (mission.workspace.lo, mission.workspace.hi)

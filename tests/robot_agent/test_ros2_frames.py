@@ -195,12 +195,14 @@ def test_bad_input_is_counted_by_name_and_leaves_the_map_of_the_good_frames(sess
 @pytest.mark.slow
 def test_a_robots_own_router_other_domain_and_humble(recording):
     """``ros2.connect``: the agent's link opens a client session of its own to the robot's router;
-    the domain and the distro (Humble: ``TypeHashNotSupported`` in the keys) come from the settings."""
+    the domain and the distro (Humble: ``TypeHashNotSupported`` in the keys) come from the settings.
+    The mission gives the robot no start pose: a ROS 2 robot's pose comes from its tf."""
     endpoint = bus.tcp_endpoint(bus.free_port())
     robot_router = bus.open_session(listen=[endpoint], timestamping=True)
     team = bus.open_session(listen=[bus.tcp_endpoint(bus.free_port())])  # the agent's team session
     data = default_mission(recording).model_dump(mode="json")
     data["ros2"] = {"connect": [endpoint], "domain_id": 42, "distro": "humble"}
+    del data["robots"][0]["start"]
     mission = mission_from_dict(data)
     link = Ros2Link.open(mission, "r1", team)
     inbox = FrameInbox()
@@ -212,7 +214,8 @@ def test_a_robots_own_router_other_domain_and_humble(recording):
         assert player.wait_for_agent(10)
         pair = next(recording.pairs(0, 1))
         player.send(pair)
-        assert _take(inbox).frame() is not None
+        frame = _take(inbox).frame()
+        assert frame is not None and np.allclose(frame.pose.xyz, recording.positions()[0], atol=0.05)
         key = link.frames._subs[0].entity.key
         assert key.startswith("42/r1/left/image_raw/sensor_msgs::msg::dds_::Image_/") and key.endswith(
             "TypeHashNotSupported"

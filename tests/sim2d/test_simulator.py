@@ -10,7 +10,7 @@ import time
 import pytest
 
 from sim2d.simulator import Simulator
-from swarm.config import Mission, mission_from_dict
+from swarm.config import ConfigError, Mission, mission_from_dict
 from swarm.protocol import bus
 from swarm.protocol.wire import Cmd, Frame, TruthPoses
 from tests.support.paths import CONFIGS
@@ -193,6 +193,20 @@ def test_run_does_not_start_when_no_agent_ever_came(sessions):
         assert summary.reason == "no_agents" and summary.ticks == 0 and summary.dead == ["r1", "r2"]
     finally:
         sim.close()
+
+
+def test_a_robot_without_a_start_pose_is_refused_naming_the_field(sessions):
+    """The world places each robot at its start: a mission that leaves one out (real robots'
+    missions may) is refused before anything is published, naming the file and the field."""
+    sim_side, _ = sessions
+    data = small_mission(agent_timeout_s=1.0).model_dump(mode="json")
+    data["robots"][1].pop("start")
+    mission = mission_from_dict(data, source=CONFIGS / "nostart.yaml", base_dir=CONFIGS)
+    with pytest.raises(ConfigError) as err:
+        Simulator(mission, sim_side)
+    assert str(err.value).startswith(
+        f"{CONFIGS / 'nostart.yaml'}: robots[1].start: is required by the simulator"
+    )
 
 
 def test_tilt_head_points_the_camera_within_its_range(sessions):

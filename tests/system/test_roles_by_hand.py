@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
@@ -170,3 +171,61 @@ def test_coordinator_waits_reports_and_refuses_another_mission(lab_server, tmp_p
     assert other.finish() == 2, other.text
     line = other.wait_for("swarm: error:")
     assert "--mission" in line and "'elsewhere'" in line and "'lab'" in line
+
+
+def test_a_team_without_start_poses_by_hand_takes_the_poses_from_the_frames(tmp_path: Path):
+    """configs/office_robots.yaml gives no start poses (real robots): a map server, `swarm
+    coordinator` and `swarm agent` run it, the test is r2's driver. The agent answers every
+    frame, tells the team the pose of the frame it answered, and its deltas reach the server."""
+    import math
+
+    import numpy as np
+
+    from swarm.protocol import bus
+    from swarm.protocol.wire import Camera, Cmd, Frame, Pose, Status
+
+    config = ROOT / "configs" / "office_robots.yaml"
+    mission = load_mission(config)
+    assert all(r.start is None for r in mission.robots)
+    rig = mission.rig_for("r2")
+    camera = Camera(
+        rig.width, rig.height, rig.fx, rig.fx, (rig.width - 1) / 2, (rig.height - 1) / 2, rig.baseline
+    )
+    depth = np.full((rig.height, rig.width), 2.0, np.float32)
+    with running_server(mission, tmp_path / "store") as (server, endpoint):
+        coordinator = Role("coordinator", "--config", str(config), "--connect", endpoint)
+        agent = Role("agent", "--id", "r2", "--config", str(config), "--connect", endpoint,
+                     "--progress-every", "1")  # fmt: skip
+        driver = bus.open_session(connect=[endpoint])
+        try:
+            coordinator.wait_for("waiting for requests on swarm/office_robots/coord/assign")
+            agent.wait_for("r2: waiting for frames on swarm/office_robots/robot/r2/frame")
+            cmd_sub, commands = bus.subscribe_queue(driver, bus.key("office_robots", "robot", "r2", "cmd"))
+            status_sub, statuses = bus.subscribe_queue(
+                driver, bus.key("office_robots", "robot", "r2", "status")
+            )
+            frames = bus.reliable_publisher(driver, bus.key("office_robots", "robot", "r2", "frame"))
+            assert bus.wait_for_subscribers([frames], timeout=10.0)
+            x, y, yaw, sent = 11.0, 7.0, 1.0, {}  # anywhere in the workspace: no start to agree with
+            for seq in range(1, 21):
+                t = 0.5 * seq
+                pose = Pose((x, y, rig.camera_height), (yaw, 0.0, 0.0))
+                sent[t] = pose
+                frames.put(Frame("r2", seq, t, pose, camera, depth=depth).encode())
+                cmd = Cmd.decode(commands.get(timeout=30.0)[1])
+                assert cmd.seq == seq, (cmd, seq)
+                yaw += 0.5 * cmd.omega  # the driver's robot moves as told for one frame period
+                x, y = x + 0.5 * cmd.v * math.cos(yaw), y + 0.5 * cmd.v * math.sin(yaw)
+            told = [Status.decode(statuses.get(timeout=10.0)[1]) for _ in range(20)]
+            assert [s.pose for s in told] == [sent[s.t] for s in told]
+            cmd_sub.undeclare()
+            status_sub.undeclare()
+        finally:
+            driver.close()
+            assert agent.stop() == 0, agent.text
+            assert coordinator.stop() == 0, coordinator.text
+        final = agent.wait_for("r2: final, after the shutdown flush:")
+        assert "20 frames fused" in final, final
+        # the coordinator answered it, from the poses its statuses carry (no start to begin from)
+        assert re.search(r"coordinator \{[^}]*'(assigned|nothing_left)'", final), final
+        assert server.team.stats()["robots"]["r2"]["deltas"] > 0, server.team.stats()

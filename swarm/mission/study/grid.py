@@ -220,13 +220,14 @@ def expand_grid(spec: StudySpec, capacity: Mapping[Path, int]) -> tuple[list[Cel
 
 
 def mission_capacity(spec: StudySpec) -> dict[Path, int]:
-    """The most robots each source's mission places (for a ROS map: the most of those asked for)."""
+    """The most robots each source's mission places (for a ROS map: the most of those asked for).
+    StudyError when a mission's robot has no start pose (the simulator needs every one)."""
     from swarm.config import ConfigError, load_mission, mission_from_map
 
     capacity: dict[Path, int] = {}
     for path in spec.configs:
         try:
-            capacity[path] = len(load_mission(path).robots)
+            capacity[path] = len(load_mission(path).start_poses())
         except ConfigError as exc:
             raise StudyError(f"CONFIG: {exc}") from exc
     for path in spec.maps:

@@ -60,6 +60,31 @@ def test_nan_origin_map_is_one_error_line_from_every_command(site, capsys, argv)
     assert NAN_ORIGIN in err and "workspace" not in err and "Traceback" not in err, err
 
 
+NO_START = (
+    "office_robots.yaml: robots[0].start, robots[1].start, robots[2].start: are required by the simulator"
+)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sim", "{c}/office_robots.yaml", "--out", "{d}/r"],
+        ["sim", "run", "{c}/office_robots.yaml", "--ros2", "--out", "{d}/r"],
+        ["sim", "world", "{c}/office_robots.yaml"],
+        ["sim", "world", "{c}/office_robots.yaml", "--ros2"],
+        ["sim", "render", "{c}/office_robots.yaml", "--out", "{d}/v"],
+        ["study", "{c}/office_robots.yaml", "--robots", "1", "--seeds", "0", "--out", "{d}/s"],
+    ],
+)
+def test_the_simulator_refuses_robots_without_start_in_one_line(tmp_path, capsys, argv):
+    """A mission of real robots leaves ``start`` out; every command that simulates it says which
+    fields it needs, and writes nothing."""
+    code, err = run(capsys, *(a.format(c=CONFIGS, d=tmp_path) for a in argv))
+    assert code == 2 and err.count("\n") == 1 and NO_START in err and "Traceback" not in err, err
+    assert "'r1', 'r2', 'r3'" in err and "docs/deployment.md" in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_missing_image_behind_tilde_is_one_line(site, capsys):
     code, err = run(capsys, "sim", "render", "--map", site / "tilde.yaml", "--out", site / "v")
     assert code == 2 and err.count("\n") == 1

@@ -48,7 +48,8 @@ def base(**changes) -> dict:
 @pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))
 def test_shipped_configs_load(name):
     mission = load_mission(CONFIGS / f"{name}.yaml")
-    assert mission.load_floor_plan().count > 0
+    if mission.floor_plan is not None:  # a mission of real robots needs none (office_robots)
+        assert mission.load_floor_plan().count > 0
     if mission.stop.observable_fraction is not None and mission.stop.entropy_threshold_bits is None:
         return  # the simulator resolves H_th (tests/sim2d/test_observability.py)
     assert mission.threshold_bits() > 0
@@ -168,6 +169,12 @@ def robot(x: float = 1.0, y: float = 1.0, **more) -> list[dict]:
         ({"robots": []}, r"robots: list should have at least 1 item"),
         ({"robots": [{"id": "r 1", "start": {"x": 1, "y": 1}}]}, r"robots\[0\]\.id: string should match"),
         ({"robots": [{"id": "r1", "start": {"x": 1}}]}, r"robots\[0\]\.start\.y: is required"),
+        ({"robots": [{"start": {"x": 1, "y": 1}}]}, r"robots\[0\]\.id: is required$"),
+        ({"workspace": {"lo": [0, 0, 0]}}, r"workspace\.hi: is required$"),
+        (
+            {"robots": [{"id": "r1", "start": None}, {"id": "r2", "start": {}}]},
+            r"robots\[1\]\.start\.x: is required\n.*robots\[1\]\.start\.y: is required$",
+        ),
         ({"sensro": {}}, r"sensro: unknown field \(did you mean sensor\?\)"),
         ({"sensor": {"max_rnage": 4}}, r"sensor\.max_rnage: unknown field \(did you mean max_range\?\)"),
         ({"robots": [{"id": "r1", "strat": {"x": 1, "y": 1}}]}, r"robots\[0\]\.strat: .*mean start\?"),
@@ -185,7 +192,53 @@ def test_validation_messages_name_the_field(tmp_path, changes, expected):
     path = write_mission(tmp_path, base(**changes))
     with pytest.raises(ConfigError, match=expected) as err:
         load_mission(path)
-    assert str(err.value).startswith(str(path))
+    assert all(line.startswith(f"{path}: ") for line in str(err.value).splitlines())
+
+
+def test_a_mission_without_workspace_names_file_and_field(tmp_path):
+    data = base()
+    del data["workspace"]
+    path = write_mission(tmp_path, data)
+    with pytest.raises(ConfigError, match=r"^\S*m\.yaml: workspace: is required$"):
+        load_mission(path)
+
+
+def test_robots_without_start_load_and_only_the_simulator_asks_for_it(tmp_path):
+    """Real robots take their poses from their frames: ``start`` may be left out, for some
+    robots or all; the starts given are still checked, and asking for a missing one (what the
+    simulator does) names the file and each missing ``robots[i].start``."""
+    robots = [{"id": "r1"}, {"id": "r2", "start": {"x": 1.0, "y": 1.0}}, {"id": "r3", "start": None}]
+    path = write_mission(tmp_path, base(robots=robots))
+    mission = load_mission(path)
+    assert [r.start for r in mission.robots][::2] == [None, None]
+    assert mission.start_of("r2").x == 1.0
+    with pytest.raises(ConfigError, match=r"robots\[0\]\.start: is required by the simulator") as err:
+        mission.start_of("r1")
+    assert str(err.value).startswith(f"{path}: ") and "'r1'" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        mission.start_poses()
+    assert str(err.value).startswith(
+        f"{path}: robots[0].start, robots[2].start: are required by the simulator"
+    )
+    assert "'r1', 'r3'" in str(err.value) and "\n" not in str(err.value)
+    again = mission_from_dict(yaml.safe_load(mission.to_yaml()), source=tmp_path / "copy.yaml")
+    assert [r.start for r in again.robots] == [r.start for r in mission.robots]
+    assert "start" not in yaml.safe_load(mission.to_yaml())["robots"][0]
+    # a start given is checked as before, beside robots without one
+    robots[1]["start"] = {"x": 2.1, "y": 1.4}  # inside the box
+    with pytest.raises(ConfigError, match=r"robots\[1\]\.start: .*inside a wall/box"):
+        load_mission(write_mission(tmp_path, base(robots=robots)))
+
+
+def test_the_shipped_mission_of_real_robots_has_no_starts():
+    mission = load_mission(CONFIGS / "office_robots.yaml")
+    assert mission.robot_ids == ["r1", "r2", "r3"] and all(r.start is None for r in mission.robots)
+    assert mission.floor_plan is None and mission.threshold_bits() == 6.2e5
+    assert mission.ros2_for("r2").topic("left") == "/r2/left/image_raw"
+    # docs/deployment.md shows this file
+    page = (CONFIGS.parent / "docs" / "deployment.md").read_text()
+    shown = page.split("## A mission of real robots")[1].split("```yaml\n")[1].split("```")[0]
+    assert mission_from_dict(yaml.safe_load(shown)).model_dump() == mission.model_dump()
 
 
 def test_duplicate_and_overlapping_robots(tmp_path):
