@@ -55,8 +55,9 @@ VARIANTS: dict[str, dict] = {
     "block 7": {"block_size": 7},
     "scale 0.5": {"scale": 0.5},
     "refine": {"refine_subpixel": True},
-    # The peer: plain OpenCV SGBM with the settings issue 17 calls sensible (block 5, P1/P2 = 8/32 x
-    # block^2, uniqueness 10, speckle filter, left-right check 1), without our padding or texture filter.
+    # The peer: plain OpenCV SGBM with the settings of OpenCV's stereo_match sample (P1/P2 = 8/32 x
+    # block^2, uniqueness 10, speckle filter, left-right check 1) at block 5, without our padding or
+    # texture filter.
     "opencv sgbm": {"mode": "sgbm", "pad_border": False, "min_texture": 0.0},
 }
 
