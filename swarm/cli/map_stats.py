@@ -45,9 +45,14 @@ def stats_summary(stats: dict) -> list[str]:
         acked, last = figures.get("acked_seq"), figures.get("last_seq")
         note = " (quarantined)" if figures.get("quarantined") else ""
         updates = f"{figures.get('voxel_updates', 0):,} voxel updates"
-        acks = f"acked {acked} of {last} in its latest run"
+        acks = f"acked {_count(acked)} of {_count(last)} in its latest run"
         lines.append(f"  {robot}: {figures.get('deltas', 0):,} deltas, {updates}, {acks}{note}")
     if not stats.get("robots"):
         lines.append("  no robot's delta yet")
     lines.append("(swarm map stats --json: every figure)")
     return lines
+
+
+def _count(value) -> str:
+    """An integer with thousands separators; anything else (None: not told) as it is."""
+    return f"{value:,}" if isinstance(value, int) else str(value)

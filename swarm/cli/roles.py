@@ -117,10 +117,10 @@ def _run_agent(args: argparse.Namespace) -> int:
         if mismatch is None:  # after the shutdown flush: the final figures
             stats = agent.outbox.stats
             print(
-                f"{args.robot_id}: final, after the shutdown flush: {agent.frames_fused} frames fused, "
-                f"{stats.deltas_sent} deltas ({stats.voxels_sent} voxels, {stats.bytes_sent} bytes) sent "
-                f"({stats.released_held} voxels of them under share_min_bits, past max_held_bits), "
-                f"{agent.acked} acked, {stats.resent} resent; merged {dict(agent.merged_counts)}; "
+                f"{args.robot_id}: final, after the shutdown flush: {agent.frames_fused:,} frames fused, "
+                f"{stats.deltas_sent:,} deltas ({stats.voxels_sent:,} voxels, {stats.bytes_sent:,} bytes) "
+                f"sent ({stats.released_held:,} voxels of them under share_min_bits, past max_held_bits), "
+                f"{agent.acked:,} acked, {stats.resent:,} resent; merged {dict(agent.merged_counts)}; "
                 f"coordinator {dict(agent.coordinator_counts)}; targets {dict(agent.explorer.target_kinds)}; "
                 f"drives given up {dict(agent.explorer.give_ups)}; "
                 f"coordinator targets declined (near one it gave up) {agent.explorer.declined_assignments}; "

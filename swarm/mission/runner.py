@@ -251,8 +251,8 @@ def run_mission(
                     last_wait_print = now
                     print(
                         f"[{now - started:6.1f} s] starting: the world waits for the agents of "
-                        f"{', '.join(mission.robot_ids)} (a first run compiles their kernels into "
-                        "Numba's cache, a minute or two)",
+                        f"{', '.join(mission.robot_ids)} (each starts its process and loads its "
+                        "kernels from Numba's cache, compiled by the runner)",
                         flush=True,
                     )
                     continue

@@ -1,6 +1,6 @@
 """The map server's bounds without Zenoh: an honest office mission fits the information bound,
 the ledger stays bounded, and hostile payloads interleaved with valid deltas (Hypothesis) never
-stop a valid one from being applied exactly once (issue 19)."""
+stop a valid one from being applied exactly once."""
 
 from __future__ import annotations
 

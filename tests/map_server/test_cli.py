@@ -86,7 +86,7 @@ def test_map_get_point_and_box(served, capsys):
     np.testing.assert_allclose([r["entropy_bits"] for r in rows], h, atol=1e-3)
     code, out, _ = swarm(capsys, *base, "--box", "0.5,0.5,0.2,0.6,0.6,0.3")  # the table form
     assert code == 0 and len(out.strip().splitlines()) == 1 + 1 and "E[C]" in out
-    code, _, err = swarm(capsys, *base, "--point", "9,9,9")  # issue 18: an error, not exit 0
+    code, _, err = swarm(capsys, *base, "--point", "9,9,9")  # an error, not exit 0
     assert code == 2 and err.count("\n") == 1 and "--point 9,9,9: outside the map's workspace" in err
     code, _, err = swarm(capsys, *base, "--point", "nan,1,1")
     assert code == 2 and "must be finite" in err
@@ -139,7 +139,7 @@ def test_server_refuses_a_store_of_another_mission(tmp_path: Path, capsys):
 
 
 def test_map_tools_find_the_servers_mission_or_name_both(served, capsys, tmp_path: Path):
-    """Issue 18 case 7: without --mission the tools use the only mission that answers; a
+    """Without --mission the tools use the only mission that answers; a
     --mission or --config naming another mission is an error naming both."""
     endpoint, _central = served
     code, out, err = swarm(capsys, "map", "stats", "--connect", endpoint, "--json")

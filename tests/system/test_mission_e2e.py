@@ -29,7 +29,7 @@ def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
     summary = {k: v for k, v in metrics.items() if k != "entropy_curve"}
     assert metrics["reached_threshold"] is True, f"{summary}\n{proc.stdout}\n{logs}"
     assert metrics["final_entropy_bits"] <= 8000
-    # issue 18 case 9: the last figures printed are metrics.json's, after the shutdown flush
+    # the last figures printed are metrics.json's, after the shutdown flush
     final = [line for line in proc.stdout.splitlines() if line.startswith("final, after the shutdown flush")]
     assert len(final) == 1, proc.stdout
     assert f"H={metrics['final_entropy_bits']:,.0f} bits" in final[0] and "the flush brought" in final[0]

@@ -153,7 +153,11 @@ def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts,
         _wait(settled, 120, "the resends", list(logs.values()))
         agent.send_signal(signal.SIGTERM)
         agent.wait(timeout=60)
-        sent = int(re.search(r"(\d+) deltas \(\d+ voxels", logs["agent"].read_text()).group(1))
+        sent = int(
+            re.search(r"(\d[\d,]*) deltas \([\d,]+ voxels", logs["agent"].read_text())
+            .group(1)
+            .replace(",", "")
+        )
         assert sent > applied_at_cut, "the robot produced no delta during the outage"
 
         def all_applied() -> bool:

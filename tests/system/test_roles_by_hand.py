@@ -1,4 +1,4 @@
-"""The roles run by hand, as on real robots (issue 18, cases 5, 7 and 9): real `swarm` processes
+"""The roles run by hand, as on real robots: real `swarm` processes
 over real Zenoh loopback sessions, against a map server of the lab mission.
 
 Each role says where it connects and what it waits for (endpoint, key), reports progress

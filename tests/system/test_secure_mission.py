@@ -36,7 +36,7 @@ def test_secure_mission_reaches_its_threshold(tmp_path: Path):
     assert re.search(r"listening on tls/127\.0\.0\.1:\d+", server_log)
     assert re.search(r" 0 rejected", server_log)
     agent_log = (out / "agent-r1.log").read_text()
-    assert re.search(r"\b[1-9]\d* deltas \(\d+ voxels", agent_log), logs
+    assert re.search(r"\b[1-9][\d,]* deltas \([\d,]+ voxels", agent_log), logs
     for identity in ("server", "coordinator", "world", "tool", "agent-r1", "source-r1"):
         assert (out / "security" / identity / "zenoh.json5").is_file()
 

@@ -1,4 +1,4 @@
-"""Depth pictures (issue 18 case 10): one colour rule (near red, far blue, no return black), a
+"""Depth pictures: one colour rule (near red, far blue, no return black), a
 colour bar in metres, `stereo depth --out` never a NumPy file under a picture's name, and
 `--help` text on every option of every command."""
 

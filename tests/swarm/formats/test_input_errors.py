@@ -101,7 +101,7 @@ def test_non_finite_floor_plan_values_name_the_key(tmp_path, plan, field):
 
 
 def test_floor_plan_with_nan_map_is_refused_from_a_mission(tmp_path):
-    """Issue 18 case 1: a mission's floor_plan map with a NaN origin no longer gives a world without walls."""
+    """A mission's floor_plan map with a NaN origin is refused, not taken as a world without walls."""
     (tmp_path / "m.pgm").write_bytes(b"P5 3 3 255\n" + bytes(9))
     write(tmp_path / "map.yaml", "image: m.pgm\nresolution: 0.1\norigin: [0.0, 0.0, .nan]\n")
     path = write(tmp_path / "m.yaml", mission(floor_plan="map.yaml"))

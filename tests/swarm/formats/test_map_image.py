@@ -122,7 +122,7 @@ def test_broken_images_name_the_cause(tmp_path, content, words):
 
 
 def test_maxval_100_floor_is_free_as_map_server_reads_it(tmp_path):
-    """Issue 18 case 3: floor pixels 100 of maxval 100 are white, so free, not unknown."""
+    """Floor pixels 100 of maxval 100 are white, so free, not unknown."""
     (tmp_path / "site.pgm").write_bytes(pgm(room(free=100, wall=0), 100))
     ros_map = load_ros_map(write_map(tmp_path, "site.pgm"))
     assert ros_map.free.sum() == 18 * 18 and ros_map.occupied.sum() == 20 * 20 - 18 * 18
@@ -213,7 +213,7 @@ def test_map_yaml_errors_name_the_key(tmp_path, keys, field):
 
 
 def test_map_saver_minus_nan_origin_in_a_mission_is_refused(tmp_path):
-    """Issue 18 case 1: ``origin: [0.0, 0.0, -nan]`` as a map saver writes it (not YAML's .nan)."""
+    """``origin: [0.0, 0.0, -nan]`` as a map saver writes it (not YAML's .nan)."""
     (tmp_path / "site.pgm").write_bytes(pgm(room(255, 0), 255))
     (tmp_path / "map.yaml").write_text(
         "image: site.pgm\nresolution: 0.1\norigin: [0.0, 0.0, -nan]\nnegate: 0\n"
@@ -238,7 +238,7 @@ def test_map_saver_minus_nan_origin_in_a_mission_is_refused(tmp_path):
 
 
 def test_image_path_tilde_is_expanded(tmp_path, monkeypatch):
-    """Issue 18 case 2: ``image: ~/site.pgm`` names the user's home (map_server would not expand it)."""
+    """``image: ~/site.pgm`` names the user's home (map_server would not expand it)."""
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     (tmp_path / "home").mkdir()
     (tmp_path / "home" / "site.pgm").write_bytes(pgm(room(255, 0), 255))
