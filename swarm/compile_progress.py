@@ -59,11 +59,15 @@ def compile_progress(kernels: Sequence, say: Callable[[str], None] | None, role:
 
 
 class _Progress(event.Listener):
-    """A ``numba:compile`` listener: one line as each top-level kernel starts compiling."""
+    """A ``numba:compile`` listener: one line as each top-level kernel starts compiling.
+
+    ``count`` is the number of kernels compiled: a kernel compiled again for other argument
+    types (a second signature) is said as such and not counted twice."""
 
     def __init__(self, say: Callable[[str], None], prefix: str, expected: int) -> None:
         self.say, self.prefix, self.expected = say, prefix, expected
         self.count = 0
+        self._numbers: dict[str, int] = {}  # kernel name -> its number in the lines
         self._depth = 0
         self._lock = threading.Lock()
 
@@ -72,15 +76,24 @@ class _Progress(event.Listener):
             self._depth += 1
             if self._depth > 1:  # a kernel the compiling one calls: part of it
                 return
-            self.count += 1
-            self.expected = max(self.expected, self.count)
-            if self.count == 1:
-                self.say(
-                    f"{self.prefix}compiling kernels (first run): {self.expected} are not in Numba's cache "
-                    f"({cache_location()}) yet; once, tens of seconds to minutes by the machine..."
-                )
             func = ev.data["dispatcher"].py_func
             name = f"{func.__module__}.{func.__qualname__}"
+            if name in self._numbers:
+                number = self._numbers[name]
+                self.say(
+                    f"{self.prefix}compiling kernel {number} of {self.expected} again, "
+                    f"for other argument types: {name}"
+                )
+                return
+            self.count += 1
+            self._numbers[name] = self.count
+            self.expected = max(self.expected, self.count)
+            if self.count == 1:
+                verb = "is" if self.expected == 1 else "are"
+                self.say(
+                    f"{self.prefix}compiling kernels (first run): {self.expected} {verb} not in Numba's "
+                    f"cache ({cache_location()}) yet; once, tens of seconds to minutes by the machine..."
+                )
             self.say(f"{self.prefix}compiling kernel {self.count} of {self.expected}: {name}")
 
     def on_end(self, _ev: event.Event) -> None:

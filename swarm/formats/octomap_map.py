@@ -153,7 +153,7 @@ def export_bt(path, cmap: CoverageMap, max_sigma: float = DEFAULT_MAX_SIGMA, ali
     nodes = write_bt(path, leaves.resolution, leaves.key, leaves.occupied)
     occupied = int(leaves.occupied.sum())
     shift = [shown(s, 6) for s in leaves.shift]  # metres, without float noise or -0.0
-    moved = f", moved by {shift} m to OctoMap's lattice" if any(leaves.shift) else ""
+    moved = f", moved by {shift} m to OctoMap's lattice" if any(s != 0 for s in shift) else ""
     return (
         f"{path}: OctoMap tree at {leaves.resolution:g} m, {occupied:,} occupied and "
         f"{len(leaves.key) - occupied:,} free voxels ({nodes:,} nodes after pruning){moved}"

@@ -138,7 +138,8 @@ def test_a_replays_map_exports_to_octomap_as_it_is(euroc_asl_run, tmp_path, caps
         main(["map", "export", "--from", str(euroc_asl_run / "map.npz"), "--out", str(tmp_path / "m.bt")])
         == 0
     )
-    assert "OctoMap tree at 0.1 m" in capsys.readouterr().out and "moved by" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "OctoMap tree at 0.1 m" in out and "moved by" not in out, out
 
 
 def test_the_default_workspace_holds_the_box_on_the_lattice():

@@ -68,6 +68,31 @@ def test_a_first_run_says_which_kernel_compiles_and_a_second_says_nothing(tmp_pa
     assert _run(WARM_UP, str(tmp_path), env=cache) == ""  # loaded from the cache: not a word
 
 
+TWO_SIGNATURES = """
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import kernels
+from swarm.compile_progress import compile_progress
+
+with compile_progress([kernels.total], print):
+    kernels.total(np.ones(3))
+    kernels.total(np.ones(3, np.int32))  # the same kernel compiled again, for int32
+"""
+
+
+@pytest.mark.slow
+def test_a_kernel_compiled_for_two_argument_types_counts_once(tmp_path) -> None:
+    (tmp_path / "kernels.py").write_text(KERNELS)
+    lines = _run(TWO_SIGNATURES, str(tmp_path), env={"NUMBA_CACHE_DIR": str(tmp_path / "cache")}).splitlines()
+    assert lines[0].startswith("compiling kernels (first run): 1 is not in Numba's cache"), lines
+    assert lines[1:3] == [
+        "compiling kernel 1 of 1: kernels.total",
+        "compiling kernel 1 of 1 again, for other argument types: kernels.total",
+    ], lines
+    assert lines[3].startswith("compiled 1 kernel(s) in ") and len(lines) == 4, lines
+
+
 WHAT_COMPILES = """
 import json, sys
 from numba.core.registry import CPUDispatcher
