@@ -32,7 +32,12 @@ class Ground:
 
     def note_position(self, x: float, y: float) -> None:
         """Add (x, y) to the swept path when the robot has moved SWEPT_STEP since the last one."""
-        if not self.swept or np.hypot(x - self.swept[-1][0], y - self.swept[-1][1]) > SWEPT_STEP:
+        if not self.swept:
+            self.swept.append((x, y))
+            return
+        dx, dy = x - self.swept[-1][0], y - self.swept[-1][1]
+        # either step alone past SWEPT_STEP decides it; hypot only of steps that cannot overflow
+        if abs(dx) > SWEPT_STEP or abs(dy) > SWEPT_STEP or np.hypot(dx, dy) > SWEPT_STEP:
             self.swept.append((x, y))
 
     def refresh(self, cmap: CoverageMap) -> TraversabilityGrid:

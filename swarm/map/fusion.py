@@ -132,7 +132,8 @@ def batch_information(
     ends, d, returned, counts = ray_batch.prepare_rays(
         origin, points, lo, hi, e, sensor.reach, BOUNDARY_MARGIN_FRACTION, BOUNDARY_MARGIN_VOXELS, lo
     )
-    start = (origin - lo) / e
+    with np.errstate(over="ignore"):  # an origin past 1e307 m: no ray reaches the grid, start unused
+        start = (origin - lo) / e
     box = kernel.grid_box(grid.shape)
     rays = len(ends)
     if discretize and rays:
