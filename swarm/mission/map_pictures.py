@@ -250,7 +250,7 @@ def plot_slices(
             ax.draw_artist(picture)
         for artist in over_images:
             artist.axes.draw_artist(artist) if artist.axes is not None else fig.draw_artist(artist)
-        path = out / f"band_{n:02d}_z{za:.2f}-{zb:.2f}m.png"
+        path = out / f"band_{n:02d}_z{za:.2f}_to_{zb:.2f}m.png"  # z-0.60_to_-0.20m: signs stay readable
         Image.fromarray(np.asarray(fig.canvas.buffer_rgba())).save(path)
         written.append(path)
     plt.close(fig)

@@ -66,7 +66,7 @@ def test_one_picture_set_for_every_run_without_negative_zeros_in_its_names(tmp_p
         "slices/",
     )
     bands = sorted(n for n in names if n.startswith("slices/"))
-    assert bands[0] == "slices/band_00_z0.00-0.40m.png", bands  # not z-0.00
+    assert bands[0] == "slices/band_00_z0.00_to_0.40m.png", bands  # not z-0.00
     assert all("-0.00" not in n for n in names)
     for p in written:
         assert cv2.imread(str(p)) is not None, p

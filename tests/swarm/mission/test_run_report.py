@@ -188,7 +188,7 @@ def test_write_run_folder(tmp_path):
         assert npz["mu"].shape == GRID.shape and npz["expected_coverage"].dtype == np.float32
     assert (out / "config.yaml").read_text() == "mission: box\n"
     slices = sorted((out / "slices").glob("band_*.png"))
-    assert [p.name for p in slices] == ["band_00_z0.00-0.40m.png", "band_01_z0.40-0.80m.png"]
+    assert [p.name for p in slices] == ["band_00_z0.00_to_0.40m.png", "band_01_z0.40_to_0.80m.png"]
     for name in ("entropy.png", "top_view.png", "map_3d.png", *(f"slices/{p.name}" for p in slices)):
         image = cv2.imread(str(out / name))
         assert image is not None, name
