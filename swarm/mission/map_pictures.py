@@ -10,7 +10,7 @@ E[C] as in the top view, seen from above at an angle, with the paths drawn over 
 map (height under 30% of its length) is drawn with z stretched to 30%, and the z label says
 so. Past ``max_voxels`` voxels an even subsample is drawn (the title says how many of how many).
 
-``slices/band_NN_zA-Bm.png``: one picture per height band (``band_m`` metres of voxel layers,
+``slices/band_NN_zA_to_Bm.png``: one picture per height band (``band_m`` metres of voxel layers,
 at most ``max_bands`` bands), two panels: the largest E[C] among the band's known voxels per
 column (unknown light blue, paths on top), and the mean entropy of the band's voxels per
 column in bits (0 = certain, 7 = the uninformative prior).
