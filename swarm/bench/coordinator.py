@@ -46,6 +46,8 @@ PHASE_HOOKS = (
     ("copy", "swarm.protocol.team_replica:TeamReplica", "copy"),
     ("planning", "coordinator.state:CoordinatorState", "_reach"),
     ("candidates", "coordinator.state:CoordinatorState", "candidates_for"),
+    ("candidates", "coordinator.state:CoordinatorState", "cached_candidates"),
+    ("entropy", "coordinator.state:CoordinatorState", "_slab"),
     ("entropy", "swarm.navigation.search_context:SearchContext", "build"),
     ("entropy", "swarm.navigation.exploration", "entropy_gradient"),
     ("entropy", "swarm.navigation.exploration", "target_scores"),
