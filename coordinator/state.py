@@ -31,7 +31,7 @@ from swarm.navigation.exploration import (
     rank_entropy_targets,
     wander_target,
 )
-from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.planner import cost_map, nearest_free_cell
 from swarm.navigation.traversability import build_traversability, robot_band_top
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
 from swarm.protocol.message_size import sources_of_deltas
@@ -188,11 +188,12 @@ class CoordinatorState:
         return rig, trav, self._cost_map(trav, pose)
 
     def _cost_map(self, trav, pose: Pose) -> np.ndarray:
-        """GridPlanner.cost_map from the robot's cell (the nearest free one when it is not free)."""
+        """The planner's cost map (``GridPlanner.cost_map``'s values) from the robot's cell (the
+        nearest free one when it is not free)."""
         cell = tuple(int(c) for c in trav.cell_of(np.array(pose.xyz[:2])))
         if not trav.is_free(np.array(cell)):
             cell = nearest_free_cell(trav, cell) or cell
-        return GridPlanner(trav).cost_map(cell)
+        return cost_map(trav, cell)
 
     def candidates_for(self, robot: str, pose: Pose, cmap: CoverageMap, entropy: np.ndarray, reach=None):
         """Eq. 35 candidates of the team map with ``robot``'s path costs (whole map, spread out),
