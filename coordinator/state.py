@@ -19,6 +19,7 @@ from coordinator.assignment import (
     teammates_share,
 )
 from coordinator.assignment_book import AssignmentBook
+from coordinator.floor_cache import FloorCache, SweptFloor
 from coordinator.replica import TeamMap
 from coordinator.target_cache import SlabCache, TargetCache
 from swarm.config import Mission
@@ -109,6 +110,9 @@ class CoordinatorState:
         robots = sources_of_deltas(len(mission.robot_ids))
         self.team = TeamMap(mission.workspace.grid(), sensor, max_robots=robots)
         self.targets = TargetCache(self.team.grid, self.team.changes)
+        grid = self.team.grid
+        self.floor = FloorCache(self.team.changes, mission.robot.radius)
+        self._swept_floor = SweptFloor(grid.shape[:2], grid.lo[:2], grid.voxel, mission.robot.radius)
         self.book = AssignmentBook(self.params)
         self.counts: Counter[str] = Counter()
         self._book_lock = threading.Lock()
@@ -126,7 +130,10 @@ class CoordinatorState:
         if last is None or np.hypot(*(xy - last)) > SWEPT_STEP:
             self._last_xy[robot] = xy
             self._swept.append((float(xy[0]), float(xy[1])))
+            self._swept_floor.add(self._swept[-1])
             if len(self._swept) > MAX_SWEPT:
+                for old in self._swept[: len(self._swept) - MAX_SWEPT]:
+                    self._swept_floor.drop(old)
                 del self._swept[: len(self._swept) - MAX_SWEPT]
 
     def _viewed(self, robot: str, view) -> None:
@@ -173,8 +180,19 @@ class CoordinatorState:
     def _rig(self, robot: str):
         return self.mission.rig_for(robot) if robot in self.mission.robot_ids else self.mission.rig
 
-    def _reach(self, robot: str, pose: Pose, cmap: CoverageMap):
-        """(rig, traversability, planner cost map from the robot's cell) on ``cmap``."""
+    def _reach(self, robot: str, pose: Pose):
+        """(rig, traversability, planner cost map from the robot's cell) on the team map, from
+        the per-tile cache (:class:`coordinator.floor_cache.FloorCache`; call with the
+        replica's lock held): :meth:`_reach_full`'s."""
+        rig = self._rig(robot)
+        self._check_pose(pose)
+        with self._book_lock:
+            swept = self._swept_floor.mask()
+        trav = self.floor.traversability(self.team.map, robot_band_top(rig.camera_height), swept)
+        return rig, trav, self._cost_map(trav, pose)
+
+    def _reach_full(self, robot: str, pose: Pose, cmap: CoverageMap):
+        """(rig, traversability, planner cost map from the robot's cell) on ``cmap``, from scratch."""
         rig = self._rig(robot)
         self._check_pose(pose)
         with self._book_lock:
@@ -200,8 +218,8 @@ class CoordinatorState:
         computed from scratch on ``cmap`` and its per-voxel ``entropy``: the oracle of
         :meth:`cached_candidates`.
 
-        ``reach``: what :meth:`_reach` gives for this robot and map, if already computed."""
-        return self._ranked(pose, cmap, entropy, reach or self._reach(robot, pose, cmap), None)
+        ``reach``: what :meth:`_reach_full` gives for this robot and map, if already computed."""
+        return self._ranked(pose, cmap, entropy, reach or self._reach_full(robot, pose, cmap), None)
 
     def cached_candidates(self, robot: str, pose: Pose, reach=None, slab: SlabCache | None = None):
         """:meth:`candidates_for` on the team map as it is, from the per-tile cache
@@ -211,7 +229,7 @@ class CoordinatorState:
         if slab is None or reach is None:
             with self.team.lock:
                 slab = self._slab(self._rig(robot))
-                reach = reach or self._reach(robot, pose, self.team.map)
+                reach = reach or self._reach(robot, pose)
         return self._ranked(pose, self.team.map, self.team.entropy.values, reach, slab)
 
     def _slab(self, rig) -> SlabCache:
@@ -272,7 +290,7 @@ class CoordinatorState:
                 log.info("released the target of %s: %s", robot, reason)
             with self.team.lock:  # the cache and the traversability read the replica's voxels
                 slab = self._slab(self._rig(request.robot))
-                reach = self._reach(request.robot, request.pose, self.team.map)
+                reach = self._reach(request.robot, request.pose)
             found = self.cached_candidates(request.robot, request.pose, reach, slab)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
             # teammates' ground: one mask for the scores and the wander

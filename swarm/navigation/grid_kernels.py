@@ -157,6 +157,26 @@ def disc_cells(xy, origin_x, origin_y, res, nx, ny, r):
 
 
 @njit(cache=True, nogil=True)
+def disc_count(counts, px, py, origin_x, origin_y, res, r, step):
+    """Add ``step`` to ``counts`` (nx, ny) int64 on the cells ``disc_cells`` gives for the one
+    point (px, py) (same arithmetic, so the same cells; nothing for a non-finite point):
+    a count of discs per cell, kept as points come and go."""
+    nx, ny = counts.shape
+    if not (math.isfinite(px) and math.isfinite(py)):
+        return
+    reach = int(math.ceil(r / res)) + 1
+    rr = r * r
+    ci = int(math.floor((px - origin_x) / res))
+    cj = int(math.floor((py - origin_y) / res))
+    for i in range(max(ci - reach, 0), min(ci + reach + 1, nx)):
+        cx = origin_x + (i + 0.5) * res - px
+        for j in range(max(cj - reach, 0), min(cj + reach + 1, ny)):
+            cy = origin_y + (j + 0.5) * res - py
+            if cx * cx + cy * cy <= rr:
+                counts[i, j] += step
+
+
+@njit(cache=True, nogil=True)
 def grid_graph(free, node_of, diagonal):
     """The planner's graph, both directions, as CSR arrays (indptr, indices int32; weights float64).
 

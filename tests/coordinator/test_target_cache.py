@@ -47,6 +47,16 @@ def same_candidates(a, b) -> None:
         assert x.gaze_yaw == y.gaze_yaw and x.utility == y.utility and x.path_cost == y.path_cost
 
 
+def same_floor(state: CoordinatorState, robot: str, pose: Pose) -> None:
+    """The kept traversability and cost map are build_traversability's and the planner's."""
+    _, full, full_cost = state._reach_full(robot, pose, state.team.copy()[0])
+    with state.team.lock:
+        _, kept, kept_cost = state._reach(robot, pose)
+    for name in ("free", "occupied", "unknown"):
+        assert np.array_equal(getattr(full, name), getattr(kept, name)), name
+    assert np.array_equal(full_cost, kept_cost)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_cached_candidates_equal_the_whole_map_pass_after_random_deltas(seed):
     rng = np.random.default_rng(seed)
@@ -73,6 +83,7 @@ def test_cached_candidates_equal_the_whole_map_pass_after_random_deltas(seed):
         full = state.candidates_for(robot, pose, *state.team.copy())
         cached = state.cached_candidates(robot, pose)
         same_candidates(full, cached)
+        same_floor(state, robot, pose)
         checked += len(full)
         if step % 4 == 3:  # answers use the cache too, and leave it as the oracle finds it
             state.answer(AssignRequest(robot, pose), now=float(step))
@@ -106,3 +117,17 @@ def test_changed_tiles_mark_the_tiles_whose_differences_read_a_voxel():
     mask = np.zeros((nx - 3, ny), dtype=bool)
     mask[-1, -1] = True
     assert tiles_any(mask).tolist() == [[False, False], [False, True]]
+
+
+def test_the_swept_floor_follows_the_positions_kept_and_dropped(monkeypatch):
+    monkeypatch.setattr("coordinator.state.MAX_SWEPT", 7)
+    rng = np.random.default_rng(3)
+    state = CoordinatorState(mission_from_dict(MISSION))
+    for k in range(1, 6):
+        state.team.apply_message(frame(state, rng, "r1", k))
+    for step in range(30):
+        xy = (rng.uniform(0.0, 19.2), rng.uniform(0.0, 12.8))
+        state._moved("r2", (xy[0], xy[1], 0.4))
+        if step % 5 == 4:
+            assert len(state._swept) <= 7
+            same_floor(state, "r2", Pose((xy[0], xy[1], 0.4), (0.0, 0.0, 0.0)))
