@@ -180,16 +180,14 @@ class CoordinatorState:
     def _rig(self, robot: str):
         return self.mission.rig_for(robot) if robot in self.mission.robot_ids else self.mission.rig
 
-    def _reach(self, robot: str, pose: Pose):
-        """(rig, traversability, planner cost map from the robot's cell) on the team map, from
-        the per-tile cache (:class:`coordinator.floor_cache.FloorCache`; call with the
-        replica's lock held): :meth:`_reach_full`'s."""
+    def _floor(self, robot: str, pose: Pose):
+        """(rig, traversability) of the team map from the per-tile cache (:class:`FloorCache`;
+        call with the replica's lock held): :meth:`_reach_full`'s."""
         rig = self._rig(robot)
         self._check_pose(pose)
         with self._book_lock:
             swept = self._swept_floor.mask()
-        trav = self.floor.traversability(self.team.map, robot_band_top(rig.camera_height), swept)
-        return rig, trav, self._cost_map(trav, pose)
+        return rig, self.floor.traversability(self.team.map, robot_band_top(rig.camera_height), swept)
 
     def _reach_full(self, robot: str, pose: Pose, cmap: CoverageMap):
         """(rig, traversability, planner cost map from the robot's cell) on ``cmap``, from scratch."""
@@ -224,12 +222,13 @@ class CoordinatorState:
     def cached_candidates(self, robot: str, pose: Pose, reach=None, slab: SlabCache | None = None):
         """:meth:`candidates_for` on the team map as it is, from the per-tile cache
         (:class:`coordinator.target_cache.TargetCache`): the same list, without whole-map
-        passes but for the planner's. Without ``slab`` and ``reach`` (what :meth:`_slab` and
-        :meth:`_reach` give now) it takes the replica's lock to bring the cache up to date."""
+        passes but for the planner's. Without ``slab`` and ``reach`` (:meth:`_slab`, and
+        :meth:`_floor` with its cost map) it takes the replica's lock to bring the caches up to date."""
         if slab is None or reach is None:
             with self.team.lock:
                 slab = self._slab(self._rig(robot))
-                reach = reach or self._reach(robot, pose)
+                rig, trav = self._floor(robot, pose)
+            reach = reach or (rig, trav, self._cost_map(trav, pose))
         return self._ranked(pose, self.team.map, self.team.entropy.values, reach, slab)
 
     def _slab(self, rig) -> SlabCache:
@@ -288,9 +287,10 @@ class CoordinatorState:
                 self.counts["released"] += len(released)
             for robot, reason in released:
                 log.info("released the target of %s: %s", robot, reason)
-            with self.team.lock:  # the cache and the traversability read the replica's voxels
+            with self.team.lock:  # the caches read the changed tiles' voxels
                 slab = self._slab(self._rig(request.robot))
-                reach = self._reach(request.robot, request.pose)
+                rig, trav = self._floor(request.robot, request.pose)
+            reach = (rig, trav, self._cost_map(trav, request.pose))
             found = self.cached_candidates(request.robot, request.pose, reach, slab)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
             # teammates' ground: one mask for the scores and the wander

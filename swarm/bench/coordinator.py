@@ -45,6 +45,8 @@ STEP_M = 0.4
 PHASE_HOOKS = (
     ("copy", "swarm.protocol.team_replica:TeamReplica", "copy"),
     ("planning", "coordinator.state:CoordinatorState", "_reach"),
+    ("planning", "coordinator.state:CoordinatorState", "_floor"),
+    ("planning", "coordinator.state:CoordinatorState", "_cost_map"),
     ("candidates", "coordinator.state:CoordinatorState", "candidates_for"),
     ("candidates", "coordinator.state:CoordinatorState", "cached_candidates"),
     ("entropy", "coordinator.state:CoordinatorState", "_slab"),

@@ -51,7 +51,8 @@ def same_floor(state: CoordinatorState, robot: str, pose: Pose) -> None:
     """The kept traversability and cost map are build_traversability's and the planner's."""
     _, full, full_cost = state._reach_full(robot, pose, state.team.copy()[0])
     with state.team.lock:
-        _, kept, kept_cost = state._reach(robot, pose)
+        _, kept = state._floor(robot, pose)
+    kept_cost = state._cost_map(kept, pose)
     for name in ("free", "occupied", "unknown"):
         assert np.array_equal(getattr(full, name), getattr(kept, name)), name
     assert np.array_equal(full_cost, kept_cost)
