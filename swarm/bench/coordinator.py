@@ -239,6 +239,7 @@ def run(
     explore_s = time.perf_counter() - t0
     state.answer(AssignRequest(team.ids[0], team.pose(0)), now=0.0)  # loads the compiled kernels
     known = float(np.count_nonzero(state.team.map.known_mask())) / state.team.grid.size
+    before = _cache_counts(state, None)
     times: list[float] = []
     phases: dict[str, float] = defaultdict(float)
     outcomes = defaultdict(int)
@@ -278,6 +279,7 @@ def run(
         "phases": dict(phases),
         "outcomes": dict(outcomes),
         "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "cache": _cache_counts(state, before),
         "profile": top,
     }
 
@@ -296,6 +298,14 @@ def format_figures(figures: dict) -> str:
         + ", ".join(_phase(k, figures["phases"].get(k, 0.0) * 1e3, len(t), total) for k in PHASES),
         f"  peak memory (ru_maxrss): {figures['maxrss_mb']:.0f} MB",
     ]
+    cache = figures.get("cache")
+    if cache:
+        n = len(t)
+        lines.insert(
+            3,
+            f"  per answer: {cache['tiles'] / n:.1f} tiles of eq. 35 fields redone, standing cells "
+            f"{cache['stands'] / n:.1f} searched and {cache['memo'] / n:.1f} from the memo",
+        )
     if figures.get("profile"):
         lines.append(figures["profile"])
     return "\n".join(lines)
@@ -303,3 +313,13 @@ def format_figures(figures: dict) -> str:
 
 def _phase(name: str, ms: float, answers: int, total_ms: float) -> str:
     return f"{name} {ms / answers:.1f} ms ({ms / total_ms:.0%})"
+
+
+def _cache_counts(state: CoordinatorState, before: dict | None) -> dict | None:
+    """The target cache's counts (tiles redone, standing cells searched / remembered) since
+    ``before``; None for a coordinator without the cache."""
+    slabs = getattr(getattr(state, "targets", None), "_slabs", None)
+    if slabs is None:
+        return None
+    now = {k: sum(c.counts[k] for c in slabs.values()) for k in ("tiles", "stands", "memo")}
+    return now if before is None else {k: now[k] - before[k] for k in now}
