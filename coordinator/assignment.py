@@ -166,19 +166,24 @@ def teammates_share(points, teammates_ground: np.ndarray, lo, voxel: float, radi
         raise ValueError(f"voxel must be > 0 and radius >= 0, got {voxel!r} and {radius!r}")
     if len(pts) == 0:
         return np.zeros(0)
+    # the disc, row by row: offsets dy in [-w, w] on row dx (w = -1: none), as the test
+    # (dx^2 + dy^2) e^2 <= R^2 has them (growing with |dy|, so each row is one run)
     reach = int(math.floor(radius / voxel))
     d = np.arange(-reach, reach + 1)
-    dx, dy = np.meshgrid(d, d, indexing="ij")
-    inside = (dx * dx + dy * dy) * voxel * voxel <= radius * radius
-    offsets = np.stack([dx[inside], dy[inside]], axis=-1)  # (M, 2)
-    cells = np.floor((pts - np.asarray(lo, dtype=np.float64)[:2]) / voxel).astype(np.int64)
-    around = cells[:, None, :] + offsets[None, :, :]  # (K, M, 2)
+    inside = (d[:, None] * d[:, None] + d[None, :] * d[None, :]) * voxel * voxel <= radius * radius
+    w = (inside.sum(axis=1) - 1) // 2  # (D,)
     nx, ny = mask.shape
-    valid = (around[..., 0] >= 0) & (around[..., 0] < nx) & (around[..., 1] >= 0) & (around[..., 1] < ny)
-    ix = np.clip(around[..., 0], 0, nx - 1)
-    iy = np.clip(around[..., 1], 0, ny - 1)
-    hits = (mask[ix, iy] & valid).sum(axis=1)
-    total = valid.sum(axis=1)
+    prefix = np.zeros((nx, ny + 1), dtype=np.int64)  # cells of the mask before column j, per row
+    np.cumsum(mask, axis=1, out=prefix[:, 1:])
+    cells = np.floor((pts - np.asarray(lo, dtype=np.float64)[:2]) / voxel).astype(np.int64)
+    rows = cells[:, :1] + d[None, :]  # (K, D)
+    ok = (rows >= 0) & (rows < nx) & (w[None, :] >= 0)
+    j0 = np.clip(cells[:, 1:] - w[None, :], 0, ny)
+    j1 = np.clip(cells[:, 1:] + w[None, :] + 1, 0, ny)
+    width = np.where(ok, np.maximum(j1 - j0, 0), 0)
+    r = np.clip(rows, 0, nx - 1)
+    hits = np.where(width > 0, prefix[r, np.maximum(j1, j0)] - prefix[r, j0], 0).sum(axis=1)
+    total = width.sum(axis=1)
     return np.where(total > 0, hits / np.maximum(total, 1), 0.0)
 
 
@@ -287,9 +292,11 @@ class ObservedColumns:
     does not make a room mapped by a teammate one's own. Feeds f_r(t) (:func:`teammates_share`).
 
     ``shape`` is the grid's (nx, ny, nz); voxel indices are flat in C order, so a voxel's
-    column is its index // nz. Each robot costs 8 bytes per cell and a pass in
-    :meth:`teammates_ground`: at most ``max_robots`` robots are credited (the first to come;
-    None: no bound), since on an open bus anyone can put deltas of invented robots on ``merged``.
+    column is its index // nz. Each robot costs 8 bytes per cell: at most ``max_robots``
+    robots are credited (the first to come; None: no bound), since on an open bus anyone can
+    put deltas of invented robots on ``merged``. Per cell the largest total, its robot and
+    the largest total of the other robots are kept as deltas come (totals only grow), so
+    :meth:`teammates_ground` is one pass over the cells whatever the number of robots.
     """
 
     def __init__(self, shape: Sequence[int], max_robots: int | None = None) -> None:
@@ -298,6 +305,11 @@ class ObservedColumns:
         self._nz = nz
         self.max_robots = max_robots
         self._by_robot: dict[str, np.ndarray] = {}
+        self._index: dict[str, int] = {}
+        n = nx * ny
+        self._best = np.zeros(n)  # the largest total of the cell
+        self._owner = np.full(n, -1, dtype=np.int64)  # a robot with it (-1: none yet)
+        self._second = np.zeros(n)  # the largest total of the robots other than the owner
 
     def add(self, robot: str, voxels, information) -> bool:
         """Credit ``robot`` with ``information`` (dlam, >= 0) on ``voxels`` (flat indices); False
@@ -311,18 +323,30 @@ class ObservedColumns:
             if self.max_robots is not None and len(self._by_robot) >= self.max_robots:
                 return False
             total = self._by_robot[robot] = np.zeros(self.shape[0] * self.shape[1])
+            self._index[robot] = len(self._index)
         total += np.bincount(cells, weights=info, minlength=total.size)
+        self._raise(self._index[robot], np.unique(cells), total)
         return True
+
+    def _raise(self, k: int, cells: np.ndarray, total: np.ndarray) -> None:
+        """Robot ``k``'s totals of ``cells`` grew to ``total[cells]``: update best, owner, second."""
+        v = total[cells]
+        best = self._best[cells]
+        own = self._owner[cells] == k
+        up = ~own & (v > best)  # k overtakes the owner, who becomes the best of the others
+        rest = ~own & ~up
+        self._second[cells[up]] = best[up]
+        self._owner[cells[up]] = k
+        self._best[cells[own | up]] = v[own | up]
+        self._second[cells[rest]] = np.maximum(self._second[cells[rest]], v[rest])
 
     def robots(self) -> list[str]:
         return sorted(self._by_robot)
 
     def teammates_ground(self, robot: str) -> np.ndarray:
         """(nx, ny): cells to which some other robot brought more information than ``robot``."""
-        others = np.zeros(self.shape[0] * self.shape[1])
-        for rid, total in self._by_robot.items():
-            if rid != robot:
-                np.maximum(others, total, out=others)
+        k = self._index.get(robot, -2)
+        others = np.where(self._owner == k, self._second, self._best)
         mine = self._by_robot.get(robot)
         theirs = others > (0.0 if mine is None else mine)
         return theirs.reshape(self.shape)

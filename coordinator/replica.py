@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from coordinator.assignment import ObservedColumns
+from coordinator.target_cache import ChangedTiles
+from swarm.map.delta import Delta
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol.team_replica import TeamReplica
@@ -29,13 +31,22 @@ class TeamMap(TeamReplica):
         ``replica``: the keyword arguments of ``TeamReplica`` (``fetch``, ``peer_log``, ...)."""
         super().__init__(grid, sensor, name="coordinator", **replica)
         self.columns = ObservedColumns(grid.shape, max_robots)
+        #: the tiles of columns whose voxels changed, for the coordinator's caches
+        self.changes = ChangedTiles(grid.shape)
 
     def applied_hook(self, msg: DeltaMessage, idx: np.ndarray, size: int) -> None:
+        self.changes.mark(idx)
         if not self.columns.add(msg.robot, idx, msg.dlam):
             self.counts["unattributed"] += 1  # applied, but the robot's ground is not tracked
 
+    def add_local(self, delta: Delta) -> None:
+        super().add_local(delta)
+        self.changes.mark(delta.idx.astype(np.int64))
+
     def loaded_hook(self, snap: Snapshot) -> None:
-        """A snapshot does not say which robot saw what: attribution goes on from later deltas."""
+        """A snapshot does not say which robot saw what: attribution goes on from later deltas
+        (every tile counts as changed)."""
+        self.changes.mark_all()
 
     def teammates_ground(self, robot: str) -> np.ndarray:
         """(nx, ny): x-y cells to which other robots brought more information than ``robot``."""

@@ -19,7 +19,9 @@ from coordinator.assignment import (
     teammates_share,
 )
 from coordinator.assignment_book import AssignmentBook
+from coordinator.floor_cache import FloorCache, SweptFloor
 from coordinator.replica import TeamMap
+from coordinator.target_cache import SlabCache, TargetCache
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.navigation.exploration import (
@@ -30,7 +32,7 @@ from swarm.navigation.exploration import (
     rank_entropy_targets,
     wander_target,
 )
-from swarm.navigation.planner import GridPlanner, nearest_free_cell
+from swarm.navigation.planner import cost_map, nearest_free_cell
 from swarm.navigation.traversability import build_traversability, robot_band_top
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
 from swarm.protocol.message_size import sources_of_deltas
@@ -107,6 +109,10 @@ class CoordinatorState:
         # the ground of every source a map server may take deltas from is tracked, no more
         robots = sources_of_deltas(len(mission.robot_ids))
         self.team = TeamMap(mission.workspace.grid(), sensor, max_robots=robots)
+        self.targets = TargetCache(self.team.grid, self.team.changes)
+        grid = self.team.grid
+        self.floor = FloorCache(self.team.changes, mission.robot.radius)
+        self._swept_floor = SweptFloor(grid.shape[:2], grid.lo[:2], grid.voxel, mission.robot.radius)
         self.book = AssignmentBook(self.params)
         self.counts: Counter[str] = Counter()
         self._book_lock = threading.Lock()
@@ -124,7 +130,10 @@ class CoordinatorState:
         if last is None or np.hypot(*(xy - last)) > SWEPT_STEP:
             self._last_xy[robot] = xy
             self._swept.append((float(xy[0]), float(xy[1])))
+            self._swept_floor.add(self._swept[-1])
             if len(self._swept) > MAX_SWEPT:
+                for old in self._swept[: len(self._swept) - MAX_SWEPT]:
+                    self._swept_floor.drop(old)
                 del self._swept[: len(self._swept) - MAX_SWEPT]
 
     def _viewed(self, robot: str, view) -> None:
@@ -168,9 +177,21 @@ class CoordinatorState:
         return released
 
     # -- answers ----------------------------------------------------------------------------
-    def _reach(self, robot: str, pose: Pose, cmap: CoverageMap):
-        """(rig, traversability, planner cost map from the robot's cell) on ``cmap``."""
-        rig = self.mission.rig_for(robot) if robot in self.mission.robot_ids else self.mission.rig
+    def _rig(self, robot: str):
+        return self.mission.rig_for(robot) if robot in self.mission.robot_ids else self.mission.rig
+
+    def _floor(self, robot: str, pose: Pose):
+        """(rig, traversability) of the team map from the per-tile cache (:class:`FloorCache`;
+        call with the replica's lock held): :meth:`_reach_full`'s."""
+        rig = self._rig(robot)
+        self._check_pose(pose)
+        with self._book_lock:
+            swept = self._swept_floor.mask()
+        return rig, self.floor.traversability(self.team.map, robot_band_top(rig.camera_height), swept)
+
+    def _reach_full(self, robot: str, pose: Pose, cmap: CoverageMap):
+        """(rig, traversability, planner cost map from the robot's cell) on ``cmap``, from scratch."""
+        rig = self._rig(robot)
         self._check_pose(pose)
         with self._book_lock:
             swept = np.array(self._swept, dtype=np.float64).reshape(-1, 2)
@@ -180,28 +201,67 @@ class CoordinatorState:
             robot_radius=self.mission.robot.radius,
             swept=swept,
         )
+        return rig, trav, self._cost_map(trav, pose)
+
+    def _cost_map(self, trav, pose: Pose) -> np.ndarray:
+        """The planner's cost map (``GridPlanner.cost_map``'s values) from the robot's cell (the
+        nearest free one when it is not free)."""
         cell = tuple(int(c) for c in trav.cell_of(np.array(pose.xyz[:2])))
         if not trav.is_free(np.array(cell)):
             cell = nearest_free_cell(trav, cell) or cell
-        return rig, trav, GridPlanner(trav).cost_map(cell)
+        return cost_map(trav, cell)
 
     def candidates_for(self, robot: str, pose: Pose, cmap: CoverageMap, entropy: np.ndarray, reach=None):
-        """Eq. 35 candidates of the team map with ``robot``'s path costs (whole map, spread out).
+        """Eq. 35 candidates of the team map with ``robot``'s path costs (whole map, spread out),
+        computed from scratch on ``cmap`` and its per-voxel ``entropy``: the oracle of
+        :meth:`cached_candidates`.
 
-        ``reach``: what :meth:`_reach` gives for this robot and map, if already computed."""
-        rig, trav, cost = reach or self._reach(robot, pose, cmap)
+        ``reach``: what :meth:`_reach_full` gives for this robot and map, if already computed."""
+        return self._ranked(pose, cmap, entropy, reach or self._reach_full(robot, pose, cmap), None)
+
+    def cached_candidates(self, robot: str, pose: Pose, reach=None, slab: SlabCache | None = None):
+        """:meth:`candidates_for` on the team map as it is, from the per-tile cache
+        (:class:`coordinator.target_cache.TargetCache`): the same list, without whole-map
+        passes but for the planner's. Without ``slab`` and ``reach`` (:meth:`_slab`, and
+        :meth:`_floor` with its cost map) it takes the replica's lock to bring the caches up to date."""
+        if slab is None or reach is None:
+            with self.team.lock:
+                slab = self._slab(self._rig(robot))
+                rig, trav = self._floor(robot, pose)
+            reach = reach or (rig, trav, self._cost_map(trav, pose))
+        return self._ranked(pose, self.team.map, self.team.entropy.values, reach, slab)
+
+    def _slab(self, rig) -> SlabCache:
+        """The cached slab of the layer holding ``rig``'s camera (call with the replica's lock)."""
+        grid = self.team.grid
+        k0 = int(np.floor((float(rig.camera_height) - grid.lo[2]) / grid.voxel))
+        return self.targets.slab(self.team.map, self.team.entropy.values, k0)
+
+    def _ranked(self, pose: Pose, cmap: CoverageMap, entropy: np.ndarray, reach, slab: SlabCache | None):
+        rig, trav, cost = reach
         grid = cmap.grid
         whole_map = float(np.linalg.norm(grid.hi[:2] - grid.lo[:2])) + grid.voxel
         c = self.mission.coordination
         ctx = SearchContext.build(
-            cmap, entropy, (pose.xyz[0], pose.xyz[1], pose.ypr[0]), rig.camera_height, trav, cost
+            cmap,
+            entropy,
+            (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
+            rig.camera_height,
+            trav,
+            cost,
+            slab=None if slab is None else slab.beliefs,
         )
+        options = SearchOptions(radius=whole_map)
+        cached = {}
+        if slab is not None and slab.k0 == ctx.k0:
+            cached = {"slab": slab.fields, "stand": self.targets.standing(slab, ctx.reach, options.view)}
         return rank_entropy_targets(
             ctx,
-            SearchOptions(radius=whole_map),
+            options,
             limit=c.max_candidates,
             min_separation=c.candidate_spacing,
             max_rejects=c.max_candidates,
+            **cached,
         )
 
     def _check_pose(self, pose: Pose) -> None:
@@ -227,9 +287,11 @@ class CoordinatorState:
                 self.counts["released"] += len(released)
             for robot, reason in released:
                 log.info("released the target of %s: %s", robot, reason)
-            cmap, entropy = self.team.copy()
-            reach = self._reach(request.robot, request.pose, cmap)
-            found = self.candidates_for(request.robot, request.pose, cmap, entropy, reach)
+            with self.team.lock:  # the caches read the changed tiles' voxels
+                slab = self._slab(self._rig(request.robot))
+                rig, trav = self._floor(request.robot, request.pose)
+            reach = (rig, trav, self._cost_map(trav, request.pose))
+            found = self.cached_candidates(request.robot, request.pose, reach, slab)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
             # teammates' ground: one mask for the scores and the wander
             theirs = self.team.teammates_ground(request.robot) if self.params.overlap_weight > 0 else None
@@ -253,7 +315,7 @@ class CoordinatorState:
                 # at all on the team map, "nothing left" lets the agent fall back on its own
                 # (eq. 35 on its map, then the 3-D frontier views the coordinator does not plan).
                 if chosen is None and found:
-                    wander = self._wander(request.pose, cmap, entropy, reach, held, theirs)
+                    wander = self._wander(request.pose, slab, reach, held, theirs)
                 goal = chosen.xy if chosen is not None else None if wander is None else wander.xy
                 if goal is not None:
                     self.book.hold(request.robot, goal, now)
@@ -285,8 +347,7 @@ class CoordinatorState:
     def _wander(
         self,
         pose: Pose,
-        cmap: CoverageMap,
-        entropy: np.ndarray,
+        slab: SlabCache,
         reach,
         held: np.ndarray,
         theirs: np.ndarray | None,
@@ -296,14 +357,15 @@ class CoordinatorState:
         targets while it can be."""
         rig, trav, cost = reach
         ctx = SearchContext.build(
-            cmap,
-            entropy,
+            self.team.map,  # its grid and sensor: the slab's beliefs come from the cache
+            self.team.entropy.values,
             (pose.xyz[0], pose.xyz[1], pose.ypr[0]),
             rig.camera_height,
             trav,
             cost,
             exclude=list(held),
             exclude_radius=self.params.footprint_radius,
+            slab=slab.beliefs,
         )
         return wander_target(ctx, 2.0 * self.mission.exploration.radius, self._rng, avoid=theirs)
 

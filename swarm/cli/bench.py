@@ -1,5 +1,6 @@
 """``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, sparse map, ROS 2
-map); the map server's are swarm.cli.bench_server's, the ROS 2 path's swarm.cli.bench_ros2's."""
+map); the map server's are swarm.cli.bench_server's, the ROS 2 path's swarm.cli.bench_ros2's,
+the coordinator's swarm.cli.bench_coordinator's."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from swarm.cli import bench_ros2, bench_server
+from swarm.cli import bench_coordinator, bench_ros2, bench_server
 from swarm.cli.common import at_least, bundled, fail
 
 DEFAULT_SCAN = bundled(Path("data") / "octomap" / "scan.dat.bz2")
@@ -135,6 +136,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sparse.add_argument("--no-site", action="store_true", help="skip the campus")
     sparse.set_defaults(run=_run_bench_sparse)
     bench_server.register(bsub)
+    bench_coordinator.register(bsub)
     ros2 = bsub.add_parser(
         "ros2-map",
         help="cost and bytes of the team map's ROS 2 topics (swarm map ros2), office and large map",

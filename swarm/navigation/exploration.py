@@ -41,7 +41,7 @@ and shape), as :func:`swarm.navigation.traversability.build_traversability` make
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -67,6 +67,7 @@ __all__ = [
     "frontier_cells",
     "last_look_target",
     "rank_entropy_targets",
+    "slab_fields",
     "wander_target",
 ]
 
@@ -76,6 +77,13 @@ __all__ = [
 DEFAULT_MIN_STEP_BITS = 2.0
 #: Candidates the standing-point check rejects before the radius is widened anyway.
 MAX_TRIES = 64
+
+#: The eq. 32-35 fields of the slab (:func:`slab_fields`): the projected gradient grad H_G
+#: (nx, ny, 3), its norm (nx, ny) and the eq. 35 score (nx, ny, float64, bits/m).
+SlabFields = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: Where to stand to view a slab column: :func:`swarm.navigation.standing_points.standing_cell`'s
+#: signature (a caller may memoise it).
+StandingFn = Callable[[SearchContext, int, int, np.ndarray, ViewGeometry], "tuple[int, int] | None"]
 
 
 @dataclass(frozen=True)
@@ -190,6 +198,8 @@ def rank_entropy_targets(
     limit: int | None = None,
     min_separation: float = 0.0,
     max_rejects: int = MAX_TRIES,
+    slab: SlabFields | None = None,
+    stand: StandingFn = standing_cell,
 ) -> list[EntropyCandidate]:
     """Entropy targets (eq. 30-35) in the order ``choose_target("entropy", ...)`` tries them.
 
@@ -200,13 +210,14 @@ def rank_entropy_targets(
     utility. ``min_separation`` (m) skips a voxel column closer than that to one already listed
     (a spread-out list for the coordinator); ``limit`` caps the length; ``max_rejects``
     candidates without a standing point end a ring early. Empty when nothing viewable beats
-    the threshold (no wandering here).
+    the threshold (no wandering here). ``slab``: the context's :func:`slab_fields`, if kept
+    already (a cache; None: computed here); ``stand``: ``standing_cell`` or a memo of it.
     """
     if limit is not None and limit < 1:
         raise ValueError(f"limit must be >= 1, got {limit}")
     if max_rejects < 1:
         raise ValueError(f"max_rejects must be >= 1, got {max_rejects}")
-    found = _entropy_candidates(ctx, options, max_rejects, min_separation)
+    found = _entropy_candidates(ctx, options, max_rejects, min_separation, slab, stand)
     out: list[EntropyCandidate] = []
     for candidate in found:
         out.append(candidate)
@@ -265,8 +276,41 @@ def _entropy_target(
     return random_cell_target(ctx, 2.0 * options.radius, rng, "wander", 0.0)
 
 
+def slab_fields(H_slab: np.ndarray, voxel: float, slab_cov: np.ndarray, yaw: float = 0.0) -> SlabFields:
+    """Eq. 32 (backward differences) on the slab, projected on the motion plane (eq. 33), and
+    the eq. 35 score |grad H_G| (1 - E[C]) of each slab column.
+
+    ``H_slab`` (nx, ny, 1 | 2): entropy (bits) of the layer below the slab and of the slab (the
+    slab alone at the lowest layer), ``slab_cov`` (nx, ny): E[C] of the slab voxels, ``yaw``
+    the robot's (rad; a ground robot's plane is horizontal whatever its yaw). Element-wise
+    but for the differences, so a block of columns with one column of halo before it in x
+    and y gives the same values as the whole slab (the coordinator's cache relies on it).
+    """
+    G = entropy_gradient(H_slab, voxel)[:, :, -1]
+    G = project_on_plane(G, robot_axes(yaw)[2])
+    gnorm = np.sqrt(np.einsum("ijk,ijk->ij", G, G))
+    score = target_scores(gnorm, slab_cov, np.arange(gnorm.size)).reshape(gnorm.shape)
+    return G, gnorm, score
+
+
+def _all_columns_within(grid, position: np.ndarray, k0: int, xi: float) -> bool:
+    """Whether eq. 30's neighbourhood of radius ``xi`` holds every column of layer ``k0``
+    (``candidate_voxels``' test at the farthest corner column, same arithmetic)."""
+    nx, ny, _ = grid.shape
+    o, e = grid.origin, grid.voxel
+    dx = o[0] + (np.array([0, nx - 1]) + 0.5) * e - position[0]
+    dy = o[1] + (np.array([0, ny - 1]) + 0.5) * e - position[1]
+    dz = o[2] + (k0 + 0.5) * e - position[2]
+    return bool(np.max(dx**2) + np.max(dy**2) + dz**2 <= xi * xi)
+
+
 def _entropy_candidates(
-    ctx: SearchContext, options: SearchOptions, max_rejects: int = MAX_TRIES, min_separation: float = 0.0
+    ctx: SearchContext,
+    options: SearchOptions,
+    max_rejects: int = MAX_TRIES,
+    min_separation: float = 0.0,
+    slab: SlabFields | None = None,
+    stand: StandingFn = standing_cell,
 ) -> Iterator[EntropyCandidate]:
     """Eq. 35 candidates with a standing point, best first within xi, then 2 xi, 4 xi, ...
 
@@ -284,43 +328,49 @@ def _entropy_candidates(
     view = options.view
     if not ctx.reach.any():
         return
-    # eq. 32 on the slab (one layer below it for the z difference), projected (eq. 33)
+    # eq. 32 on the slab (one layer below it for the z difference), projected (eq. 33), eq. 35
     k0 = ctx.k0
-    G = entropy_gradient(H[:, :, max(k0 - 1, 0) : k0 + 1], e)[:, :, -1]
-    G = project_on_plane(G, robot_axes(ctx.yaw)[2])
-    gnorm = np.sqrt(np.einsum("ijk,ijk->ij", G, G))
-    score = target_scores(gnorm, ctx.slab_cov, np.arange(nx * ny)).reshape(nx, ny)  # eq. 35
+    if slab is None:
+        slab = slab_fields(H[:, :, max(k0 - 1, 0) : k0 + 1], e, ctx.slab_cov, ctx.yaw)
+    G, gnorm, score = slab
     open_ = ctx.in_view(view.far) & ctx.allowed & (score > min_score)
     # distance to the farthest slab voxel: beyond it, widening adds nothing
     far = np.linalg.norm(np.maximum(ctx.position - grid.lo, grid.hi - ctx.position)[:2]) + e
     z = grid.lo[2] + (k0 + 0.5) * e
-    taken: list[np.ndarray] = []
+    taken = np.empty((0, 2))  # the yielded columns' centres, in order (grown by doubling)
+    n_taken = 0
     xi = float(options.radius)
     while open_.any():
-        flat = candidate_voxels(grid.shape, e, grid.origin, ctx.position, xi)  # eq. 30
-        cols = flat // nz
-        cols = cols[open_.ravel()[cols]]
+        if _all_columns_within(grid, ctx.position, k0, xi):
+            cols = np.flatnonzero(open_.ravel())  # eq. 30 holds the whole layer
+        else:
+            flat = candidate_voxels(grid.shape, e, grid.origin, ctx.position, xi)  # eq. 30
+            cols = flat // nz
+            cols = cols[open_.ravel()[cols]]
         tries = 0
         for c in cols[np.argsort(-score.ravel()[cols], kind="stable")]:
             i, j = divmod(int(c), ny)
             if not open_[i, j]:
                 continue
             here = ctx.centre(i, j)
-            if taken and min_separation > 0:
-                if np.min(np.linalg.norm(np.asarray(taken) - here, axis=1)) < min_separation:
+            if n_taken and min_separation > 0:
+                if np.min(np.linalg.norm(taken[:n_taken] - here, axis=1)) < min_separation:
                     continue
             g = G[i, j, :2] / gnorm[i, j]
-            stand = standing_cell(ctx, i, j, g, view)
+            cell = stand(ctx, i, j, g, view)
             open_[i, j] = False
-            if stand is not None:
-                taken.append(here)
+            if cell is not None:
+                if n_taken == len(taken):
+                    taken = np.concatenate([taken, np.empty((max(len(taken), 16), 2))])
+                taken[n_taken] = here
+                n_taken += 1
                 yield EntropyCandidate(
                     voxel=int(c) * nz + k0,
                     point=np.array([here[0], here[1], z]),
-                    xy=ctx.centre(*stand),
+                    xy=ctx.centre(*cell),
                     gaze_yaw=math.atan2(g[1], g[0]),  # eq. 34, towards higher entropy
                     utility=float(score[i, j]),
-                    path_cost=0.0 if stand == ctx.start else float(ctx.cost[stand]),
+                    path_cost=0.0 if cell == ctx.start else float(ctx.cost[cell]),
                 )
                 continue
             tries += 1

@@ -157,6 +157,26 @@ def disc_cells(xy, origin_x, origin_y, res, nx, ny, r):
 
 
 @njit(cache=True, nogil=True)
+def disc_count(counts, px, py, origin_x, origin_y, res, r, step):
+    """Add ``step`` to ``counts`` (nx, ny) int64 on the cells ``disc_cells`` gives for the one
+    point (px, py) (same arithmetic, so the same cells; nothing for a non-finite point):
+    a count of discs per cell, kept as points come and go."""
+    nx, ny = counts.shape
+    if not (math.isfinite(px) and math.isfinite(py)):
+        return
+    reach = int(math.ceil(r / res)) + 1
+    rr = r * r
+    ci = int(math.floor((px - origin_x) / res))
+    cj = int(math.floor((py - origin_y) / res))
+    for i in range(max(ci - reach, 0), min(ci + reach + 1, nx)):
+        cx = origin_x + (i + 0.5) * res - px
+        for j in range(max(cj - reach, 0), min(cj + reach + 1, ny)):
+            cy = origin_y + (j + 0.5) * res - py
+            if cx * cx + cy * cy <= rr:
+                counts[i, j] += step
+
+
+@njit(cache=True, nogil=True)
 def grid_graph(free, node_of, diagonal):
     """The planner's graph, both directions, as CSR arrays (indptr, indices int32; weights float64).
 
@@ -278,3 +298,93 @@ def segment_is_free(free, ax, ay, bx, by):
         if i < 0 or j < 0 or i >= nx or j >= ny or not free[i, j]:
             return False
     return True
+
+
+@njit(cache=True, nogil=True)
+def _sift_up(keys, cells, pos, k):
+    while k > 0:
+        parent = (k - 1) // 2
+        if keys[parent] <= keys[k]:
+            break
+        keys[parent], keys[k] = keys[k], keys[parent]
+        cells[parent], cells[k] = cells[k], cells[parent]
+        pos[cells[k]] = k
+        pos[cells[parent]] = parent
+        k = parent
+
+
+@njit(cache=True, nogil=True)
+def _sift_down(keys, cells, pos, k, n):
+    while True:
+        small = k
+        left, right = 2 * k + 1, 2 * k + 2
+        if left < n and keys[left] < keys[small]:
+            small = left
+        if right < n and keys[right] < keys[small]:
+            small = right
+        if small == k:
+            break
+        keys[small], keys[k] = keys[k], keys[small]
+        cells[small], cells[k] = cells[k], cells[small]
+        pos[cells[k]] = k
+        pos[cells[small]] = small
+        k = small
+
+
+@njit(cache=True, nogil=True)
+def grid_distances(free, si, sj, diagonal):
+    """Path lengths (cells, float64 (nx, ny); inf: not reached) from cell (si, sj) over the
+    planner's graph (``grid_graph``'s moves) without building it: Dijkstra with an indexed
+    binary heap (each cell in it at most once, its key lowered in place).
+
+    A shortest distance is the least left-to-right float sum of move costs over the paths to
+    a cell whatever order the edges are relaxed in (float addition is monotone), so it equals
+    scipy's on ``grid_graph`` bit for bit. All inf when the start is outside or not free.
+    """
+    nx, ny = free.shape
+    dist = np.full((nx, ny), np.inf)
+    if not (0 <= si < nx and 0 <= sj < ny) or not free[si, sj]:
+        return dist
+    flat = dist.ravel()
+    pos = np.full(nx * ny, -1, np.int64)  # place in the heap; -2: settled
+    keys = np.empty(nx * ny)
+    cells = np.empty(nx * ny, np.int64)
+    n = 1
+    keys[0], cells[0], pos[si * ny + sj] = 0.0, si * ny + sj, 0
+    flat[si * ny + sj] = 0.0
+    while n > 0:
+        c, d = cells[0], keys[0]
+        pos[c] = -2
+        n -= 1
+        if n > 0:
+            keys[0], cells[0] = keys[n], cells[n]
+            pos[cells[0]] = 0
+            _sift_down(keys, cells, pos, 0, n)
+        i, j = c // ny, c % ny
+        for di in range(-1, 2):
+            ni = i + di
+            if ni < 0 or ni >= nx:
+                continue
+            for dj in range(-1, 2):
+                nj = j + dj
+                if (di == 0 and dj == 0) or nj < 0 or nj >= ny or not free[ni, nj]:
+                    continue
+                m = ni * ny + nj
+                if pos[m] == -2:
+                    continue
+                if di != 0 and dj != 0:
+                    if not (free[ni, j] and free[i, nj]):
+                        continue  # no corner cutting
+                    nd = d + diagonal
+                else:
+                    nd = d + 1.0
+                if nd < flat[m]:
+                    flat[m] = nd
+                    if pos[m] < 0:
+                        pos[m] = n
+                        keys[n], cells[n] = nd, m
+                        n += 1
+                    else:
+                        keys[pos[m]] = nd
+                    _sift_up(keys, cells, pos, pos[m])
+    return dist

@@ -135,6 +135,16 @@ class GridPlanner:
         return shorten_path(self.grid, points) if shorten else points
 
 
+def cost_map(grid: TraversabilityGrid | np.ndarray, start: tuple[int, int]) -> np.ndarray:
+    """``GridPlanner(grid).cost_map(start)`` (metres; cells for a bare array; inf where
+    unreachable), the same values, without building the graph: for one query per grid (the
+    coordinator plans each request on a new grid). Compiled (``grid_kernels.grid_distances``)."""
+    free = np.ascontiguousarray(_free_of(grid))
+    resolution = grid.resolution if isinstance(grid, TraversabilityGrid) else 1.0
+    dist = kernels.grid_distances(free, int(start[0]), int(start[1]), math.sqrt(2.0))
+    return dist * resolution if resolution != 1.0 else dist
+
+
 def plan_path(grid: TraversabilityGrid, start_xy: np.ndarray, goal_xy: np.ndarray) -> np.ndarray | None:
     """One-off shortest path in world coordinates (see ``GridPlanner.plan``); None when unreachable."""
     return GridPlanner(grid).plan(start_xy, goal_xy)
@@ -207,7 +217,9 @@ def warm_up_kernels() -> tuple:
         add_information,
         kernels.band_occupancy,
         kernels.disc_cells,
+        kernels.disc_count,
         kernels.grid_graph,
+        kernels.grid_distances,
         kernels.inflate_blocked,
         kernels.segment_is_free,
         stand_for,
@@ -216,7 +228,8 @@ def warm_up_kernels() -> tuple:
 
 def warm_up() -> None:
     """Load (on a fresh install: compile into Numba's cache) the compiled navigation kernels
-    (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks;
+    (``swarm.navigation.grid_kernels``: traversability grid, planner graph, segment checks, the
+    graphless cost map and swept-floor counts of the coordinator;
     ``swarm.navigation.view_kernels``: where to stand for a 3-D view) now, not on the first
     decision, by planning once on a tiny map and searching one standing point. The view search
     runs only once the slab is explored, minutes into a mission: compiling it then stalled an
@@ -232,6 +245,8 @@ def warm_up() -> None:
     cmap.eta[:] = 0.0
     trav = build_traversability(cmap, robot_radius=0.1, swept=np.full((1, 2), 0.4))
     GridPlanner(trav).plan(np.array([0.35, 0.35]), np.array([0.45, 0.45]))
+    cost_map(trav, (3, 3))
+    kernels.disc_count(np.zeros((8, 8), dtype=np.int64), 0.4, 0.4, 0.0, 0.0, 0.1, 0.1, 1)
     # the argument types of view_targets._stand_for (C-contiguous arrays, Python scalars)
     cells = np.ones((4, 4), dtype=bool)
     centres = (np.arange(4) + 0.5) * 0.1

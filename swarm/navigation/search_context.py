@@ -63,6 +63,7 @@ class SearchContext:
         exclude_radius: float = 1.0,
         keep_away: Sequence[np.ndarray] = (),
         keep_away_radius: float = 0.0,
+        slab: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> SearchContext:
         """The context of one search on ``cmap`` with its per-voxel ``entropy`` (bits, flat).
 
@@ -73,7 +74,9 @@ class SearchContext:
         ``nearest_free_cell`` when inflation blocks the robot's own cell). Targets and standing
         points stay farther than ``exclude_radius`` (m) from the x-y points ``exclude`` (other
         robots' targets, recently failed ones) and than ``keep_away_radius`` from ``keep_away``
-        (where teammates head). ValueError when the grids or the sensor height do not fit."""
+        (where teammates head). ``slab``: (known (nx, ny) bool, E[C] (nx, ny)) of the slab
+        voxels when kept already (the coordinator's cache; None: read from ``cmap``, a pass over
+        the whole map). ValueError when the grids or the sensor height do not fit."""
         grid = cmap.grid
         if np.shape(entropy) != (grid.size,):
             raise ValueError(
@@ -107,9 +110,10 @@ class SearchContext:
             reach[start] = True
         else:
             start = np.unravel_index(int(np.argmin(cost)), cost.shape)
-        slab = np.arange(nx * ny, dtype=np.int64) * nz + k0
-        known = cmap.known_mask()[slab].reshape(nx, ny)
-        cov = expected_coverage(cmap.mean(slab), cmap.sigma(slab)).reshape(nx, ny)
+        if slab is None:
+            known, cov = slab_beliefs(cmap, k0)
+        else:
+            known, cov = slab
         return cls(
             cmap=cmap,
             entropy=np.asarray(entropy),
@@ -154,6 +158,17 @@ class SearchContext:
         unk = self.trav.unknown & ~self.trav.occupied
         d2 = (self.cx[:, None] - self.cx[i]) ** 2 + (self.cy[None, :] - self.cy[j]) ** 2
         return float(np.count_nonzero(unk & (d2 <= max_range**2))) * self.voxel**2
+
+
+def slab_beliefs(cmap: CoverageMap, k0: int, cols: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(known, E[C]) of layer ``k0``'s voxels of the columns ``cols`` (flat i * ny + j, any
+    shape; None: all, (nx, ny)): lam above the prior's, and the expected coverage (float64)."""
+    nx, ny, nz = cmap.grid.shape
+    cols = np.arange(nx * ny, dtype=np.int64).reshape(nx, ny) if cols is None else np.asarray(cols, np.int64)
+    flat = cols.ravel() * nz + k0
+    known = (cmap.lam[flat] > cmap.known_threshold()).reshape(cols.shape)
+    cov = expected_coverage(cmap.mean(flat), cmap.sigma(flat)).reshape(cols.shape)
+    return known, cov
 
 
 def grow(mask: np.ndarray, square: bool) -> np.ndarray:

@@ -184,6 +184,46 @@ def test_observed_columns_give_each_cell_to_the_robot_that_brought_it_most_infor
         cols.add("a", flat[:2], [1.0])
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_teammates_ground_kept_as_deltas_come_equals_the_pass_over_every_robot(seed):
+    # the kept best / owner / second-best per cell against the maximum over the others' totals,
+    # with ties (integer information), robots arriving late and a robot never heard
+    rng = np.random.default_rng(seed)
+    shape = (9, 7, 4)
+    cols = ObservedColumns(shape)
+    robots = ["a", "b", "c", "d"]
+    for _ in range(40):
+        robot = robots[int(rng.integers(len(robots)))]
+        voxels = rng.integers(0, 9 * 7 * 4, int(rng.integers(1, 30)))
+        cols.add(robot, voxels, rng.integers(0, 3, len(voxels)).astype(float))
+        for asker in [*robots, "nobody"]:
+            mine = cols._by_robot.get(asker, np.zeros(63))
+            others = np.zeros(63)
+            for rid, total in cols._by_robot.items():
+                if rid != asker:
+                    others = np.maximum(others, total)
+            assert np.array_equal(cols.teammates_ground(asker), (others > mine).reshape(9, 7))
+
+
+@pytest.mark.parametrize("radius", [0.0, 0.3, 1.0, 1.3, 2.2])
+def test_teammates_share_near_and_off_the_grid_edges(radius):
+    rng = np.random.default_rng(int(radius * 10))
+    lo, voxel = np.array([0.0, 0.0]), 0.25
+    mask = rng.random((11, 8)) < 0.5
+    points = np.column_stack([rng.uniform(-1.5, 4.5, 60), rng.uniform(-1.5, 3.5, 60)])
+    got = teammates_share(points, mask, lo, voxel, radius)
+    for p, share in zip(points, got, strict=True):
+        own = np.floor((p - lo) / voxel).astype(int)
+        hits = total = 0
+        for i in range(mask.shape[0]):
+            for j in range(mask.shape[1]):
+                di, dj = i - own[0], j - own[1]
+                if (di * di + dj * dj) * voxel * voxel <= radius * radius:
+                    total += 1
+                    hits += bool(mask[i, j])
+        assert share == (hits / total if total else 0.0)
+
+
 def test_teammates_ground_lowers_a_target_but_never_hides_it():
     # Two equal targets, equally far: A lies in ground only a teammate has seen.
     pos = np.array([[0.0, 0.0], [10.0, 0.0]])

@@ -11,7 +11,7 @@ from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
 from swarm.navigation import grid_kernels as kernels
 from swarm.navigation.grid_kernels import CERTAIN_BOUND
-from swarm.navigation.planner import GridPlanner
+from swarm.navigation.planner import GridPlanner, cost_map
 from swarm.navigation.probing import optimistic_traversability
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, inflate
 from swarm.navigation.view_kernels import clear_line, stand_for
@@ -187,6 +187,19 @@ def test_band_occupancy_bound_never_decides_against_expected_coverage(threshold:
     assert 0.05 * n < len(column) < 0.8 * n  # the bound decides many, not all
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_the_graphless_cost_map_equals_the_planners_bit_for_bit(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 70)), int(rng.integers(1, 70)))
+    free = rng.random(shape) < rng.uniform(0.3, 0.95)
+    for resolution in (1.0, 0.1, 0.05):
+        grid = TraversabilityGrid(free, ~free, np.zeros_like(free), (0.0, 0.0), resolution)
+        starts = [(int(rng.integers(0, shape[0])), int(rng.integers(0, shape[1]))) for _ in range(3)]
+        for start in [*starts, (-1, 0), (shape[0], 0)]:
+            assert np.array_equal(cost_map(grid, start), GridPlanner(grid).cost_map(start))
+    assert np.array_equal(cost_map(free, (0, 0)), GridPlanner(free).cost_map((0, 0)))  # a bare array
+
+
 @pytest.mark.slow
 def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> None:
     """Numba's own statistics after the agent's warm-up of planning: a fresh interpreter hits the cache."""
@@ -195,9 +208,9 @@ def test_a_second_process_loads_the_navigation_kernels_from_numbas_cache() -> No
         "from swarm.navigation import grid_kernels as k, planner, view_kernels as v\n"
         "planner.warm_up()",
         "(k.band_occupancy, k.inflate_blocked, k.disc_cells, k.grid_graph, k.segment_is_free,"
-        " c.add_information, v.stand_for)",
+        " k.grid_distances, k.disc_count, c.add_information, v.stand_for)",
     )
-    assert len(stats) == 7
+    assert len(stats) == 9
     for name, (hits, misses) in stats.items():
         assert hits >= 1 and misses == 0, (name, stats)
 
