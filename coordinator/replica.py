@@ -19,7 +19,7 @@ from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage, Snapshot
 
 
-class TeamMap(TeamReplica):
+class CoordinatorReplica(TeamReplica):
     """The coordinator's team map: a ``TeamReplica`` and the ground each robot observed.
 
     Thread-safe as a ``TeamReplica`` is (``lock``). ``counts`` also holds ``unattributed``:

@@ -10,7 +10,7 @@ When the only eq. 35 targets are held by others it wanders the robot on its own 
 long as anything unknown is in view; when the team map has none at all it answers "nothing
 left", and the agent chooses alone (its own eq. 35, then its 3-D frontier views).
 
-Layers: :class:`TeamMap` (the replica: ``swarm.protocol.team_replica``, plus attribution),
+Layers: :class:`CoordinatorReplica` (the replica: ``swarm.protocol.team_replica``, plus attribution),
 :class:`CoordinatorState` (the replica, who holds what, and the planning of one answer; no
 I/O, callable from tests) and :class:`Coordinator` (the Zenoh side: one worker thread applies
 merged deltas and statuses in arrival order, one thread answers queries one at a time, the

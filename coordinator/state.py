@@ -20,7 +20,7 @@ from coordinator.assignment import (
 )
 from coordinator.assignment_book import AssignmentBook
 from coordinator.floor_cache import FloorCache, SweptFloor
-from coordinator.replica import TeamMap
+from coordinator.replica import CoordinatorReplica
 from coordinator.target_cache import SlabCache, TargetCache
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
@@ -108,7 +108,7 @@ class CoordinatorState:
         sensor = replace(mission.sensor.model(), hit_range=mission.sensor_reach())
         # the ground of every source a map server may take deltas from is tracked, no more
         robots = sources_of_deltas(len(mission.robot_ids))
-        self.team = TeamMap(mission.workspace.grid(), sensor, max_robots=robots)
+        self.team = CoordinatorReplica(mission.workspace.grid(), sensor, max_robots=robots)
         self.targets = TargetCache(self.team.grid, self.team.changes)
         grid = self.team.grid
         self.floor = FloorCache(self.team.changes, mission.robot.radius)

@@ -41,7 +41,7 @@ def tree(tmp_path: Path) -> Path:
         ("map_server/server.py", "import sim2d.render", "map_server may not import sim2d"),
         (
             "ros2_map/role.py",
-            "from coordinator.replica import TeamMap",
+            "from coordinator.replica import CoordinatorReplica",
             "ros2_map may not import coordinator",
         ),
         (

@@ -55,7 +55,7 @@ PHASE_HOOKS = (
     ("entropy", "swarm.navigation.exploration", "target_scores"),
     ("entropy", "swarm.navigation.exploration", "slab_scores"),
     ("assignment", "coordinator.state:CoordinatorState", "_teammates_shares"),
-    ("assignment", "coordinator.replica:TeamMap", "teammates_ground"),
+    ("assignment", "coordinator.replica:CoordinatorReplica", "teammates_ground"),
     ("assignment", "coordinator.state", "best_target"),
     ("assignment", "coordinator.state:CoordinatorState", "_wander"),
 )

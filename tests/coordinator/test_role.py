@@ -20,7 +20,7 @@ from scipy import ndimage
 from coordinator.answer_report import answer_time_summary
 from coordinator.assignment import CoordinationParams
 from coordinator.command import add_arguments
-from coordinator.replica import TeamMap
+from coordinator.replica import CoordinatorReplica
 from coordinator.role import Coordinator
 from coordinator.state import CoordinatorState, params_from_mission
 from map_server.team_map import MergedMap
@@ -231,7 +231,7 @@ def test_a_replica_started_from_a_snapshot_adds_no_delta_twice_even_beyond_the_a
     snap = Snapshot.decode(server.snapshot().encode())
     assert snap.acks == {"r9": {1: 0}} and snap.above == {"r9": {1: [2, 3]}}
 
-    replica = TeamMap(grid, sensor)
+    replica = CoordinatorReplica(grid, sensor)
     replica.load_snapshot(snap)
     assert [replica.apply_payload(msg.encode()) for msg in (d3, d1, d2, d1)] == [
         "duplicate",
