@@ -16,6 +16,17 @@ from tests.support.paths import TEST_DATA
 pytest.importorskip("rosbags")
 
 
+def _compressed_pair_bag(tmp_path, fmt: str, data: np.ndarray):
+    """A one-pair bag whose left and right images are the same CompressedImage (``fmt``, ``data``)."""
+    path = _bag(tmp_path, 1)
+    with DriverBag(path, 1) as bag:
+        msg = bag.t["sensor_msgs/msg/CompressedImage"](header=bag.header(1.0), format=fmt, data=data)
+        for topic in ("/left", "/right"):
+            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
+        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    return path
+
+
 def _mosaic(bgr: np.ndarray, pattern: str) -> np.ndarray:
     """The Bayer mosaic a sensor with ``pattern`` (first two rows, e.g. rggb) records of ``bgr``."""
     out = np.zeros(bgr.shape[:2], bgr.dtype)
@@ -168,14 +179,7 @@ def test_a_png_compressed_bayer_image_is_demosaiced(tmp_path, pattern):
     bgr = _colour()
     gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
     data = np.frombuffer(cv2.imencode(".png", _mosaic(bgr, pattern))[1].tobytes(), np.uint8)
-    path = _bag(tmp_path, 1)
-    with DriverBag(path, 1) as bag:
-        msg = bag.t["sensor_msgs/msg/CompressedImage"](
-            header=bag.header(1.0), format=f"bayer_{pattern}8; png compressed ", data=data
-        )
-        for topic in ("/left", "/right"):
-            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
-        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    path = _compressed_pair_bag(tmp_path, f"bayer_{pattern}8; png compressed ", data)
     (pair,) = BagRecording(path, "/left", "/right", "/pose", CALIB).pairs()
     error = np.abs(to_gray8(pair.left).astype(int) - gray)[2:-2, 2:-2]
     assert error.mean() < 1.0 and error.max() <= 3, (error.mean(), error.max())
@@ -191,12 +195,7 @@ def test_a_png_compressed_bayer_image_is_demosaiced(tmp_path, pattern):
 )
 def test_compressed_images_that_do_not_decode_are_named(tmp_path, fmt, data, words):
     """An empty CompressedImage raised OpenCV's '!buf.empty()' assertion as a traceback."""
-    path = _bag(tmp_path, 1)
-    with DriverBag(path, 1) as bag:
-        msg = bag.t["sensor_msgs/msg/CompressedImage"](header=bag.header(1.0), format=fmt, data=data)
-        for topic in ("/left", "/right"):
-            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
-        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    path = _compressed_pair_bag(tmp_path, fmt, data)
     with pytest.raises(RecordingError) as info:
         list(BagRecording(path, "/left", "/right", "/pose", CALIB).pairs())
     assert str(info.value).startswith("/left: ") and words in str(info.value), str(info.value)
@@ -220,12 +219,7 @@ def test_compressed_colour_gives_the_gray_of_its_colours(tmp_path, fmt, order):
     }
     ext = ".jpg" if "jpeg" in fmt else ".png"
     data = np.frombuffer(cv2.imencode(ext, stored[order].astype(np.uint8))[1].tobytes(), np.uint8)
-    path = _bag(tmp_path, 1)
-    with DriverBag(path, 1) as bag:
-        msg = bag.t["sensor_msgs/msg/CompressedImage"](header=bag.header(1.0), format=fmt, data=data)
-        for topic in ("/left", "/right"):
-            bag.write(topic, "sensor_msgs/msg/CompressedImage", msg, 1.0)
-        bag.pose("/pose", 1.0, [0, 0, 1], [1, 0, 0, 0])
+    path = _compressed_pair_bag(tmp_path, fmt, data)
     (pair,) = BagRecording(path, "/left", "/right", "/pose", CALIB).pairs()
     error = np.abs(to_gray8(pair.left).astype(int) - want)
     assert error.max() <= (6 if ext == ".jpg" else 0), error.max()
