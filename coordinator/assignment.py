@@ -48,6 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm.config import Mission
+
 __all__ = [
     "CoordinationParams",
     "ObservedColumns",
@@ -350,3 +352,23 @@ class ObservedColumns:
         mine = self._by_robot.get(robot)
         theirs = others > (0.0 if mine is None else mine)
         return theirs.reshape(self.shape)
+
+
+def params_from_mission(mission: Mission) -> CoordinationParams:
+    """The assignment parameters of a mission's ``coordination`` section.
+
+    The footprint radius defaults to min(2 xi, sensor reach): two robots whose targets are
+    at least 2 xi apart choose their next targets (within xi of where they stand, eq. 30)
+    from disjoint neighbourhoods, and nothing beyond the sensor's reach (its max range, or
+    the rigs' hit range when shorter: ``Mission.sensor_reach``) is seen from a target.
+    """
+    c = mission.coordination
+    footprint = c.footprint_radius
+    if footprint is None:
+        footprint = min(2.0 * mission.exploration.radius, mission.sensor_reach())
+    return CoordinationParams(
+        beta=c.beta,
+        footprint_radius=footprint,
+        overlap_weight=c.overlap_weight,
+        robot_timeout_s=c.robot_timeout_s,
+    )

@@ -16,6 +16,7 @@ import numpy as np
 from coordinator.assignment import (
     CoordinationParams,
     best_target,
+    params_from_mission,
     teammates_share,
 )
 from coordinator.assignment_book import AssignmentBook
@@ -55,26 +56,6 @@ RECENT_RADIUS = 1.0
 #: Robot positions kept as swept (known empty) floor, and the spacing between them (m).
 MAX_SWEPT = 50_000
 SWEPT_STEP = 0.05
-
-
-def params_from_mission(mission: Mission) -> CoordinationParams:
-    """The assignment parameters of a mission's ``coordination`` section.
-
-    The footprint radius defaults to min(2 xi, sensor reach): two robots whose targets are
-    at least 2 xi apart choose their next targets (within xi of where they stand, eq. 30)
-    from disjoint neighbourhoods, and nothing beyond the sensor's reach (its max range, or
-    the rigs' hit range when shorter: ``Mission.sensor_reach``) is seen from a target.
-    """
-    c = mission.coordination
-    footprint = c.footprint_radius
-    if footprint is None:
-        footprint = min(2.0 * mission.exploration.radius, mission.sensor_reach())
-    return CoordinationParams(
-        beta=c.beta,
-        footprint_radius=footprint,
-        overlap_weight=c.overlap_weight,
-        robot_timeout_s=c.robot_timeout_s,
-    )
 
 
 # ---------------------------------------------------------------------------------------
