@@ -42,7 +42,7 @@ from swarm.protocol import bus, replies
 from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.codec import short
 from swarm.protocol.mailbox import Mailbox
-from swarm.protocol.map_client import BUSY, BUSY_PAUSE_S
+from swarm.protocol.map_client import MapClient, MapQueryError
 from swarm.protocol.wire import AssignRequest, Snapshot, WireError
 
 log = logging.getLogger("coordinator")
@@ -148,22 +148,14 @@ class Coordinator:
         )
 
     def _fetch_snapshot(self) -> Snapshot:
-        """The map server's snapshot, asking again while the server answers "busy" (it takes few
-        whole-map queries at once) and ``snapshot_timeout`` is not over. Raises ConnectionError
-        when none answers, ValueError for an error reply or a bad snapshot."""
-        deadline = time.monotonic() + self.snapshot_timeout
-        while True:
-            left = max(deadline - time.monotonic(), 0.05)
-            answer = replies.ask(self.session, bus.key(self.name, "map", "snapshot"), left)
-            busy = answer is not None and answer.ok is None and BUSY in str(answer.error)
-            if not busy or time.monotonic() + BUSY_PAUSE_S >= deadline:
-                break
-            time.sleep(BUSY_PAUSE_S)
-        if answer is None:
-            raise ConnectionError("no map server answered map/snapshot")
-        if answer.ok is None:
-            raise ValueError(f"map/snapshot answered an error: {answer.error}")
-        return Snapshot.decode(answer.ok)
+        """The map server's snapshot, streamed in chunks through ``MapClient`` (which asks again
+        while the server answers "busy" and each window within ``snapshot_timeout``). Raises
+        ConnectionError when none answers, ValueError for an error reply or a bad snapshot."""
+        client = MapClient(self.session, self.name, timeout=self.snapshot_timeout)
+        try:
+            return client.snapshot()
+        except MapQueryError as exc:
+            raise ValueError(str(exc)) from exc
 
     def _load_snapshot(self) -> None:
         """Start the replica from the map server's snapshot when one answers (else the prior)."""

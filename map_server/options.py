@@ -10,9 +10,11 @@ from map_server.admission import QUARANTINE_AFTER
 from map_server.epochs import MAX_LIVE_EPOCHS
 from map_server.limits import BURST_S
 from map_server.query_gate import MAX_QUERIES, MAX_QUERIES_PER_REQUESTER, QUERY_WORKERS
+from map_server.snapshot_stream import IDLE_S, MAX_STREAMS, MAX_STREAMS_PER_REQUESTER
 from map_server.store import LOG_RESERVE_BYTES
 from swarm.config import Mission
 from swarm.map.grid import Grid
+from swarm.protocol.map_chunks import CHUNK_BYTES
 from swarm.protocol.message_size import PATTERN_ROBOTS, frame_bytes, message_limit
 
 #: Robot ids ``--robot-pattern`` admits at most (first come): each costs the server 8 bytes
@@ -52,6 +54,13 @@ class ServerOptions:
     max_queries_per_requester: int = MAX_QUERIES_PER_REQUESTER
     query_workers: int = QUERY_WORKERS
     max_message_bytes: int | None = None
+    #: streamed answers (map_server.snapshot_stream): voxel bytes per chunk, streams held, of
+    #: one requester, their bytes in all (None: 4 copies of the map, at least 64 MiB), idle expiry
+    chunk_bytes: int = CHUNK_BYTES
+    max_streams: int = MAX_STREAMS
+    max_streams_per_requester: int = MAX_STREAMS_PER_REQUESTER
+    max_stream_bytes: int | None = None
+    stream_idle_s: float = IDLE_S
     #: free bytes a compaction leaves for the log (it is put off otherwise; map_server.store)
     log_reserve_bytes: int = LOG_RESERVE_BYTES
 

@@ -33,6 +33,7 @@ from map_server.options import ServerOptions, max_payload_for
 from map_server.query_gate import QueryGate
 from map_server.recovery import recover
 from map_server.replies import guarded, reply_json
+from map_server.snapshot_stream import HeldStream, MapStreams, StreamCache, held_region, held_snapshot
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.store_files import OS_FILES, StoreFiles
 from map_server.team_map import merge_kernels, parse_vector, region_of, warm_up_merge
@@ -92,6 +93,17 @@ class MapServer:
         )
         self._queries = QueryGate(
             self.options.max_queries, self.options.max_queries_per_requester, self.options.query_workers
+        )
+        #: the streamed map/snapshot and map/region answers held (map_server.snapshot_stream)
+        o = self.options
+        self.streams = MapStreams(
+            StreamCache(
+                o.max_streams,
+                o.max_streams_per_requester,
+                o.max_stream_bytes or max(4 * 8 * grid.size, 64 << 20),
+                o.stream_idle_s,
+            ),
+            o.chunk_bytes,
         )
         #: what a remote peer makes the server log: one line per reason per 10 s, with counts
         self._peer_log = LogLimiter(log)
@@ -316,6 +328,7 @@ class MapServer:
             "queued": len(self._inbox),
             "inbox": self._inbox.stats(),
             "queries": self._queries.stats(),
+            "streams": self.streams.cache.stats(),
             "max_payload_bytes": self.max_payload,
             "uptime_s": round(time.monotonic() - self._started, 3),
             "epochs_issued": self.admission.epochs_issued,
@@ -339,22 +352,31 @@ class MapServer:
         reply_json(query, {r: {str(e): s for e, s in by_epoch.items()} for r, by_epoch in acks.items()})
 
     def _on_snapshot(self, query: zenoh.Query) -> None:
+        self.streams.answer(query, self._snapshot_stream)
+
+    def _snapshot_stream(self, _query: zenoh.Query) -> HeldStream:
+        """The stream of a new ``map/snapshot`` answer: a copy of the map, its acks and seqs at
+        one point of the ledger (or the held copy of the same map version)."""
         with self._lock:
-            snap = self.team.snapshot()
-        query.reply(query.key_expr, snap.encode())
+            version = self.team.version
+            held = self.streams.cache.current_snapshot(version)
+            if held is not None:
+                return held
+            snap, deltas = self.team.snapshot(), len(self.team.ledger)
+        return held_snapshot(snap, deltas, version, self.streams.chunk_bytes)
 
     def _on_region(self, query: zenoh.Query) -> None:
+        self.streams.answer(query, self._region_stream)
+
+    def _region_stream(self, query: zenoh.Query) -> HeldStream:
+        """The stream of a new ``map/region`` answer; ValueError for a bad box."""
         params = query.parameters
-        try:
-            lo = parse_vector(params.get("lo"), "lo")
-            hi = parse_vector(params.get("hi"), "hi")
-            idx = self.team.region_indices(lo, hi)
-        except ValueError as exc:
-            query.reply_err(f"map/region: {short(exc, 200)}".encode())
-            return
+        lo = parse_vector(params.get("lo"), "lo")
+        hi = parse_vector(params.get("hi"), "hi")
+        idx = self.team.region_indices(lo, hi)
         with self._lock:  # only the gather: a flood of large regions cannot hold the worker back
             values = self.team.gather(idx)
-        query.reply(query.key_expr, region_of(self.team.grid, idx, *values).encode())
+        return held_region(region_of(self.team.grid, idx, *values), self.streams.chunk_bytes)
 
     # -- progress ------------------------------------------------------------------------
     def _log_progress(self, force: bool = False) -> None:

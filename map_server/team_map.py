@@ -74,6 +74,9 @@ class MergedMap:
         self.rejected: Counter[str] = Counter()
         self.duplicates = 0
         self._pending: dict[DeltaId, float] = {}  # admitted, not yet applied: their information
+        #: counts every change of the map (an applied delta, a quarantine): two snapshots of one
+        #: version are the same map (map_server.snapshot_stream serves one copy to both)
+        self.version = 0
 
     def _repair(self) -> int:
         """Reset to the prior every voxel a store written by an older server may hold with
@@ -157,6 +160,7 @@ class MergedMap:
         self._pending.pop(ident, None)
         self.ledger.add(ident)
         self.updates[msg.robot] += len(idx)
+        self.version += 1
 
     def quarantine(self, robot: str) -> bool:
         """Refuse ``robot``'s further deltas and take its applied ones out of the map: the map is
@@ -171,6 +175,7 @@ class MergedMap:
         self.cmap.eta[:] = eta
         self.entropy = EntropyCache.from_information(self.cmap.lam, self.cmap.eta, table=default_table())
         self.known = int(np.count_nonzero(self.cmap.known_mask()))
+        self.version += 1
         return True
 
     def count_rejected(self, kind: str) -> int:

@@ -22,8 +22,10 @@ from swarm.formats.shown_numbers import shown
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.sensor_model import SensorModel
 from swarm.protocol import bus
-from swarm.protocol.replies import ConflictingReplies, ask
-from swarm.protocol.wire import Region, Snapshot, WireError
+from swarm.protocol.map_chunks import REGION_KIND, SNAPSHOT_KIND, WINDOW
+from swarm.protocol.map_stream import Progress, StreamFailed, fetch_stream
+from swarm.protocol.replies import Answers, ConflictingReplies, ask, ask_all
+from swarm.protocol.wire import Region, Snapshot
 
 DEFAULT_TIMEOUT_S = 5.0
 
@@ -61,6 +63,8 @@ class MapClient:
         self.timeout = float(timeout)
         self.endpoint = endpoint
         self._owns = owns_session
+        #: chunks asked per query of a streamed answer (each window within ``timeout``)
+        self.window = WINDOW
 
     @classmethod
     def connect(
@@ -103,14 +107,16 @@ class MapClient:
         raw = self._json("acks")
         return {r: {int(e): int(s) for e, s in by_epoch.items()} for r, by_epoch in raw.items()}
 
-    def snapshot(self) -> Snapshot:
-        """The whole team map (prior included) and the acks."""
-        return self._decode(Snapshot, self._get("snapshot"))
+    def snapshot(self, progress: Progress | None = None) -> Snapshot:
+        """The whole team map (prior included) and the deltas it holds (acks and the seqs above
+        them), as one consistent state of the server's map: streamed in chunks
+        (``swarm.protocol.map_stream``); ``progress(received, chunks)`` after each chunk."""
+        return self._stream("snapshot", SNAPSHOT_KIND, "", progress).snapshot()
 
-    def region(self, lo, hi) -> Region:
-        """Beliefs of the voxels the box [lo, hi] (world metres) touches."""
+    def region(self, lo, hi, progress: Progress | None = None) -> Region:
+        """Beliefs of the voxels the box [lo, hi] (world metres) touches, streamed in chunks."""
         params = f"lo={_vec(lo)};hi={_vec(hi)}"
-        return self._decode(Region, self._get("region", params))
+        return self._stream("region", REGION_KIND, params, progress).region()
 
     def point(self, p) -> Region:
         """The belief of the voxel holding point ``p`` (empty outside the grid)."""
@@ -124,29 +130,40 @@ class MapClient:
         except ValueError as exc:
             raise MapQueryError(f"map/{part}: the reply is not JSON: {exc}") from exc
 
-    @staticmethod
-    def _decode(message_type, payload: bytes):
+    def _stream(self, part: str, kind: str, first: str, progress: Progress | None):
+        """The assembled stream of ``map/<part>`` (each window of chunks within ``timeout``)."""
         try:
-            return message_type.decode(payload)
-        except WireError as exc:
-            raise MapQueryError(f"unreadable reply: {exc}") from exc
+            return fetch_stream(lambda params: self._window(part, params), kind, first, self.window, progress)
+        except StreamFailed as exc:
+            key = bus.key(self.mission, "map", part)
+            raise MapQueryError(str(exc) if str(exc).startswith(key) else f"{key}: {exc}") from exc
 
     def _get(self, part: str, parameters: str = "") -> bytes:
+        return self._answered(part, parameters, False).ok
+
+    def _window(self, part: str, parameters: str) -> Answers:
+        """The replies to one query of a stream: chunks, or the error (not "busy") to resume from."""
+        return self._answered(part, parameters, True)
+
+    def _answered(self, part: str, parameters: str, many: bool):
         key = bus.key(self.mission, "map", part)
         selector = f"{key}?{parameters}" if parameters else key
         deadline = time.monotonic() + self.timeout
         while True:
             # A query that no queryable matches yet (a server still starting, or one whose
             # declarations have not reached this session) ends at once with no reply: ask again.
+            left = max(deadline - time.monotonic(), 0.05)
             try:
-                answer = ask(self.session, selector, timeout=max(deadline - time.monotonic(), 0.05))
+                answer = ask_all(self.session, selector, left) if many else ask(self.session, selector, left)
             except ConflictingReplies as exc:
                 raise ConflictingMapReplies(str(exc)) from exc
             if answer is not None:
-                if answer.ok is not None:
-                    return answer.ok
+                if answer.error is None or (many and answer.ok):
+                    return answer
                 # the server takes few whole-map queries at once: ask again while time is left
                 if BUSY not in str(answer.error) or time.monotonic() + BUSY_PAUSE_S >= deadline:
+                    if many:
+                        return answer
                     raise MapQueryError(str(answer.error))
                 time.sleep(BUSY_PAUSE_S)
                 continue

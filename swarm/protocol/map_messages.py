@@ -27,7 +27,8 @@ V1_DELTA_HINT = (
 MAX_AXIS = 1 << 20
 
 
-def _grid(value: Any, kind: str) -> Grid:
+def grid_field(value: Any, kind: str) -> Grid:
+    """The ``grid`` field of a message of ``kind``; WireError when malformed or too large."""
     if not isinstance(value, dict):
         raise WireError(f"{kind}: grid must be a map with origin, voxel, shape")
     origin = codec.vec3(codec.require(value, "origin", kind), "grid.origin", kind)
@@ -109,7 +110,7 @@ class DeltaMessage:
     def decode(cls, payload: Any, versions: tuple[int, ...] = (codec.DELTA_VERSION,)) -> DeltaMessage:
         kind = cls.KIND
         msg = codec.unpack(payload, kind, versions, V1_DELTA_HINT)
-        grid = _grid(codec.require(msg, "grid", kind), kind)
+        grid = grid_field(codec.require(msg, "grid", kind), kind)
         idx = codec.indices(codec.require(msg, "idx", kind), kind, grid.size)
         n = len(idx)
         dlam = codec.raw(codec.require(msg, "dlam", kind), "<f4", n, "dlam", kind)
@@ -125,6 +126,17 @@ class DeltaMessage:
             dlam=dlam,
             deta=deta,
         )
+
+
+def ledger_fields(acks: dict[str, dict[int, int]], above: dict[str, dict[int, list[int]]]) -> dict:
+    """A snapshot's ``acks`` and ``above`` as the wire carries them (epochs as decimal strings)."""
+    return {
+        "acks": {str(r): {str(int(e)): int(s) for e, s in by_epoch.items()} for r, by_epoch in acks.items()},
+        "above": {
+            str(r): {str(int(e)): sorted(int(s) for s in seqs) for e, seqs in by_epoch.items()}
+            for r, by_epoch in above.items()
+        },
+    }
 
 
 # -- map/snapshot reply -------------------------------------------------------------------
@@ -149,32 +161,31 @@ class Snapshot:
     KIND = "snapshot"
 
     def encode(self) -> bytes:
-        return codec.pack(
-            self.KIND,
-            {
-                "grid": self.grid.to_dict(),
-                "lam": codec.le(np.ravel(self.lam), "<f4"),
-                "eta": codec.le(np.ravel(self.eta), "<f4"),
-                "acks": {
-                    str(r): {str(int(e)): int(s) for e, s in by_epoch.items()}
-                    for r, by_epoch in self.acks.items()
-                },
-                "above": {
-                    str(r): {str(int(e)): sorted(int(s) for s in seqs) for e, seqs in by_epoch.items()}
-                    for r, by_epoch in self.above.items()
-                },
-            },
-        )
+        fields = {
+            "grid": self.grid.to_dict(),
+            "lam": codec.le(np.ravel(self.lam), "<f4"),
+            "eta": codec.le(np.ravel(self.eta), "<f4"),
+        }
+        return codec.pack(self.KIND, fields | self.ledger_fields())
+
+    def ledger_fields(self) -> dict:
+        """``acks`` and ``above`` as the wire carries them (epochs as decimal strings)."""
+        return ledger_fields(self.acks, self.above)
 
     @classmethod
     def decode(cls, payload: Any) -> Snapshot:
         kind = cls.KIND
         msg = codec.unpack(payload, kind)
-        grid = _grid(codec.require(msg, "grid", kind), kind)
+        grid = grid_field(codec.require(msg, "grid", kind), kind)
         lam = codec.raw(codec.require(msg, "lam", kind), "<f4", grid.size, "lam", kind)
         eta = codec.raw(codec.require(msg, "eta", kind), "<f4", grid.size, "eta", kind)
         if not np.all(np.isfinite(lam)) or not np.all(np.isfinite(eta)) or np.any(lam <= 0):
             raise WireError(f"{kind}: lam must be finite and > 0, eta finite")
+        return cls(grid, lam, eta, *cls.ledger_of(msg, kind))
+
+    @staticmethod
+    def ledger_of(msg: dict, kind: str) -> tuple[dict[str, dict[int, int]], dict[str, dict[int, list[int]]]]:
+        """``(acks, above)`` of a decoded message of ``kind``; WireError when malformed."""
         acks = codec.require(msg, "acks", kind)
         if not isinstance(acks, dict) or not all(isinstance(v, dict) for v in acks.values()):
             raise WireError(f"{kind}: acks must be a map robot -> {{epoch: seq}}")
@@ -199,7 +210,7 @@ class Snapshot:
             }
             for r, by_epoch in above.items()
         }
-        return cls(grid, lam, eta, acks, above)
+        return acks, above
 
 
 # -- map/region reply ---------------------------------------------------------------------
@@ -241,7 +252,7 @@ class Region:
     def decode(cls, payload: Any) -> Region:
         kind = cls.KIND
         msg = codec.unpack(payload, kind)
-        grid = _grid(codec.require(msg, "grid", kind), kind)
+        grid = grid_field(codec.require(msg, "grid", kind), kind)
         idx = codec.indices(codec.require(msg, "idx", kind), kind, grid.size)
         n = len(idx)
         values = {

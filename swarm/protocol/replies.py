@@ -65,3 +65,57 @@ def ask(session: zenoh.Session, selector: str, timeout: float, payload: bytes | 
         raise ConflictingReplies(f"{selector}: {len(answers)} different answers, none taken ({who})")
     (ok, error), ids = next(iter(answers.items()))
     return Answer(ok, error, tuple(ids))
+
+
+#: What Zenoh's own error reply says when a query's timeout ends before its last reply.
+TIMEOUT = "Timeout"
+
+
+@dataclass(frozen=True)
+class Answers:
+    """The replies to a query answered in several replies: the ``ok`` payloads in the order
+    they came, the ``error`` text if one came, the repliers, and whether the timeout ended it."""
+
+    ok: tuple[bytes, ...]
+    error: str | None
+    repliers: tuple[str, ...]
+    timed_out: bool
+
+
+def ask_all(session: zenoh.Session, selector: str, timeout: float) -> Answers | None:
+    """Query ``selector`` and return every reply of the one replier, or None when nothing
+    replied in time (Zenoh's own timeout reply aside). Raises :class:`ConflictingReplies`
+    when several repliers answered differently, and ``zenoh.ZError`` when it cannot be sent."""
+    by_replier: dict[str, list[tuple[bytes | None, str | None]]] = {}
+    timed_out = False
+    replies = session.get(
+        selector,
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        timeout=timeout,
+    )
+    for reply in replies:
+        replier = getattr(reply, "replier_id", None)
+        if reply.ok is not None:
+            content = (reply.ok.payload.to_bytes(), None)
+        else:
+            text = reply.err.payload.to_bytes().decode("utf-8", errors="replace")
+            if replier is None and text == TIMEOUT:
+                timed_out = True
+                continue
+            content = (None, text)
+        by_replier.setdefault(_replier(reply), []).append(content)
+    if not by_replier:
+        return None
+    distinct = {tuple(contents) for contents in by_replier.values()}
+    if len(distinct) > 1:
+        who = "; ".join(f"{r} answered {len(c)} replies" for r, c in by_replier.items())
+        raise ConflictingReplies(f"{selector}: {len(distinct)} different answers, none taken ({who})")
+    contents = next(iter(distinct))
+    errors = [err for ok, err in contents if ok is None]
+    return Answers(
+        tuple(ok for ok, _ in contents if ok is not None),
+        errors[0] if errors else None,
+        tuple(by_replier),
+        timed_out,
+    )

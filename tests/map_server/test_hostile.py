@@ -22,8 +22,9 @@ from map_server.options import ServerOptions
 from map_server.server import MapServer
 from swarm.config import mission_from_dict
 from swarm.protocol import bus
+from swarm.protocol.map_chunks import REGION_KIND, Chunk
 from swarm.protocol.map_client import MapClient, MapQueryError
-from swarm.protocol.wire import DeltaMessage, Region
+from swarm.protocol.wire import DeltaMessage
 from tests.support.hostile_oracle import honest_stream, oracle, strict_json
 from tests.support.malformed_deltas import good, tamper
 from tests.support.map_server_mission import (
@@ -326,6 +327,7 @@ class _Query:
     """What MapServer._on_region reads of a Zenoh query, and what it answered."""
 
     key_expr = "swarm/big/map/region"
+    source_info = None
 
     def __init__(self, parameters: dict) -> None:
         self.parameters, self.replies = parameters, []
@@ -356,7 +358,8 @@ def test_a_region_of_two_million_voxels_holds_the_map_lock_only_to_copy_its_valu
         took = time.perf_counter() - started
     finally:
         server.store.close()
-    assert len(Region.decode(query.replies[0])) == 2_000_000
+    first = Chunk.decode(query.replies[0], REGION_KIND)
+    assert first.chunk == 0 and first.voxels == 2_000_000
     assert sum(lock.holds) < 0.25 * took, (lock.holds, took)
 
 

@@ -14,7 +14,9 @@ import pytest
 import zenoh
 
 from map_server.options import ServerOptions
+from map_server.snapshot_stream import MapStreams, StreamCache, held_snapshot
 from swarm.protocol import bus
+from swarm.protocol.map_chunks import CHUNK_BYTES
 from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
 from tests.support.hostile_oracle import oracle
@@ -89,15 +91,14 @@ def test_a_flood_of_zero_information_deltas_is_neither_logged_nor_sent_on(tmp_pa
     np.testing.assert_array_equal(snap.eta, expected.cmap.eta)
 
 
-class _SlowToEncode:
-    """A snapshot whose encoding takes ``seconds`` (a large map's, on a busy machine)."""
+def _slow_to_answer(answer, seconds: float):
+    """``MapStreams.answer`` taking ``seconds`` more (a large map's chunks on a busy machine)."""
 
-    def __init__(self, snap, seconds: float) -> None:
-        self.snap, self.seconds = snap, seconds
+    def slow(query, start):
+        time.sleep(seconds)
+        answer(query, start)
 
-    def encode(self) -> bytes:
-        time.sleep(self.seconds)
-        return self.snap.encode()
+    return slow
 
 
 @pytest.mark.slow
@@ -118,8 +119,8 @@ def test_a_flood_of_snapshot_queries_gets_busy_replies_and_deltas_go_on(tmp_path
         key = bus.key(mission.mission, "map", "snapshot")
         # the queryables' declarations reach each session a little after start
         wait_until(lambda: list(stranger.get(key, timeout=5.0)) != [], 10, "the stranger sees map/snapshot")
-        real = server.team.snapshot
-        server.team.snapshot = lambda: _SlowToEncode(real(), 0.2)
+        real = server.streams.answer
+        server.streams.answer = _slow_to_answer(real, 0.2)
         pub = publishers(session, mission.mission, ["r1"])["r1"]
         handles = [stranger.get(key, timeout=60.0) for _ in range(burst)]
         for seq in range(1, 6):
@@ -128,7 +129,7 @@ def test_a_flood_of_snapshot_queries_gets_busy_replies_and_deltas_go_on(tmp_path
         during = client.snapshot()  # a team member's client asks again while it is told "busy"
         replies = [r for h in handles for r in h]
         stats = client.stats()
-        server.team.snapshot = real
+        server.streams.answer = real
         snap = client.snapshot()
     errors = [r.err.payload.to_string() for r in replies if r.err is not None]
     assert len(replies) == burst
@@ -442,15 +443,16 @@ def test_the_coordinator_asks_again_for_a_snapshot_while_the_server_is_busy():
 
     m = coordinated_mission()
     full = corridor_map(m)
-    payload = Snapshot(full.grid, full.lam, full.eta).encode()
+    snap = Snapshot(full.grid, full.lam, full.eta)
+    streams = MapStreams(StreamCache(), CHUNK_BYTES)
     asked = []
 
     def busy_twice(query: zenoh.Query) -> None:
         asked.append(1)
         if len(asked) <= 2:
             query.reply_err(f"{query.key_expr}: busy: 8 whole-map queries are being answered".encode())
-        else:
-            query.reply(query.key_expr, payload)
+        else:  # streamed, as the map server answers it (the map fits in one window)
+            streams.answer(query, lambda _q: held_snapshot(snap, 0, 0, CHUNK_BYTES))
 
     endpoint = bus.tcp_endpoint(bus.free_port())
     router = bus.open_session(listen=[endpoint])

@@ -7,10 +7,12 @@ import time
 
 import numpy as np
 
+from map_server.snapshot_stream import MapStreams, StreamCache, held_snapshot
 from swarm.config import mission_from_dict
 from swarm.map.coverage_map import CoverageMap
 from swarm.protocol import bus
 from swarm.protocol.coord_client import assign_key, coordinator_stats
+from swarm.protocol.map_chunks import CHUNK_BYTES
 from swarm.protocol.wire import Pose, Snapshot, Status
 
 MISSION = {
@@ -68,10 +70,11 @@ class MapServerStandIn:
         self.status = {}
         self.name = name
         self._snap = None
-        if snapshot is not None:
-            payload = snapshot.encode()
+        if snapshot is not None:  # streamed in chunks, as the map server answers it
+            streams = MapStreams(StreamCache(), CHUNK_BYTES)
             self._snap = self.session.declare_queryable(
-                bus.key(name, "map", "snapshot"), lambda q: q.reply(q.key_expr, payload)
+                bus.key(name, "map", "snapshot"),
+                lambda q: streams.answer(q, lambda _q: held_snapshot(snapshot, 0, 0, CHUNK_BYTES)),
             )
 
     def publish_status(self, robot: str, target, state: str = "drive") -> None:
