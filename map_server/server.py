@@ -7,11 +7,10 @@ payload (epoch, MAC, next seq, information budget), drops duplicates, appends th
 the write-ahead log and fsyncs (a group commit per batch), applies them to the team map exactly
 once, and republishes each payload unchanged on ``swarm/<mission>/merged``, numbered
 (``swarm.protocol.merged_stream``) and with congestion control DROP: a subscriber that does not
-drain loses samples (and catches up from the snapshot) instead of holding the worker. The acks
-of ``map/acks`` therefore only ever cover durable deltas. Queryables ``map/stats``,
-``map/acks``, ``map/snapshot`` and ``map/region`` read the map under a lock, so they never see
-a half-applied delta. The worker compacts the store when its log grows past the configured
-size, and :meth:`MapServer.stop` drains the queue and compacts once more.
+drain loses samples (and catches up from the snapshot) instead of holding the worker. Acks
+(``map/acks``) only cover durable deltas. ``map/stats``, ``map/acks``, ``map/snapshot`` and
+``map/region`` (streamed: map_server.snapshot_stream) read the map under a lock. The worker
+compacts the store past the configured log size; :meth:`MapServer.stop` once more.
 """
 
 from __future__ import annotations
@@ -378,8 +377,8 @@ class MapServer:
             values = self.team.gather(idx)
         return held_region(region_of(self.team.grid, idx, *values), self.streams.chunk_bytes)
 
-    # -- progress ------------------------------------------------------------------------
     def _log_progress(self, force: bool = False) -> None:
+        """One progress line in the log every ``log_every_s`` when deltas came (always: ``force``)."""
         now = time.monotonic()
         last_t, last_n = self._last_log
         if not force and now - last_t < self.options.log_every_s:
