@@ -34,14 +34,9 @@ def _replier(reply: zenoh.Reply) -> str:
     return str(zid) if zid is not None else "unknown replier"
 
 
-def ask(session: zenoh.Session, selector: str, timeout: float, payload: bytes | None = None) -> Answer | None:
-    """Query ``selector`` and return the agreed answer, or None when nothing replied in time.
-
-    Raises :class:`ConflictingReplies` when the repliers disagree, and ``zenoh.ZError``
-    when the query cannot be sent.
-    """
+def _replies(session: zenoh.Session, selector: str, timeout: float, payload: bytes | None = None):
+    """Each reply to a query of every replier, unmerged: (reply, (ok bytes, None) or (None, error text))."""
     kwargs = {"payload": payload} if payload is not None else {}
-    answers: dict[tuple[bytes | None, str | None], list[str]] = {}
     replies = session.get(
         selector,
         target=zenoh.QueryTarget.ALL,
@@ -51,9 +46,19 @@ def ask(session: zenoh.Session, selector: str, timeout: float, payload: bytes | 
     )
     for reply in replies:
         if reply.ok is not None:
-            content = (reply.ok.payload.to_bytes(), None)
+            yield reply, (reply.ok.payload.to_bytes(), None)
         else:
-            content = (None, reply.err.payload.to_bytes().decode("utf-8", errors="replace"))
+            yield reply, (None, reply.err.payload.to_bytes().decode("utf-8", errors="replace"))
+
+
+def ask(session: zenoh.Session, selector: str, timeout: float, payload: bytes | None = None) -> Answer | None:
+    """Query ``selector`` and return the agreed answer, or None when nothing replied in time.
+
+    Raises :class:`ConflictingReplies` when the repliers disagree, and ``zenoh.ZError``
+    when the query cannot be sent.
+    """
+    answers: dict[tuple[bytes | None, str | None], list[str]] = {}
+    for reply, content in _replies(session, selector, timeout, payload):
         answers.setdefault(content, []).append(_replier(reply))
     if not answers:
         return None
@@ -88,22 +93,10 @@ def ask_all(session: zenoh.Session, selector: str, timeout: float) -> Answers | 
     when several repliers answered differently, and ``zenoh.ZError`` when it cannot be sent."""
     by_replier: dict[str, list[tuple[bytes | None, str | None]]] = {}
     timed_out = False
-    replies = session.get(
-        selector,
-        target=zenoh.QueryTarget.ALL,
-        consolidation=zenoh.ConsolidationMode.NONE,
-        timeout=timeout,
-    )
-    for reply in replies:
-        replier = getattr(reply, "replier_id", None)
-        if reply.ok is not None:
-            content = (reply.ok.payload.to_bytes(), None)
-        else:
-            text = reply.err.payload.to_bytes().decode("utf-8", errors="replace")
-            if replier is None and text == TIMEOUT:
-                timed_out = True
-                continue
-            content = (None, text)
+    for reply, content in _replies(session, selector, timeout):
+        if content == (None, TIMEOUT) and getattr(reply, "replier_id", None) is None:
+            timed_out = True  # Zenoh's own reply: the timeout ended the query
+            continue
         by_replier.setdefault(_replier(reply), []).append(content)
     if not by_replier:
         return None
