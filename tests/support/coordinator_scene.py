@@ -3,6 +3,8 @@ the coord/assign query."""
 
 from __future__ import annotations
 
+import itertools
+import math
 import time
 
 import numpy as np
@@ -13,7 +15,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.protocol import bus
 from swarm.protocol.coord_client import assign_key, coordinator_stats
 from swarm.protocol.map_chunks import CHUNK_BYTES
-from swarm.protocol.wire import Pose, Snapshot, Status
+from swarm.protocol.wire import DeltaMessage, Pose, Snapshot, Status
 
 MISSION = {
     "mission": "coordtest",
@@ -110,3 +112,32 @@ def query(session, name: str, payload: bytes, timeout: float = 5.0, robot: str =
     replies = list(session.get(assign_key(name, robot), payload=payload, timeout=timeout))
     assert len(replies) == 1
     return replies[0]
+
+
+FOOTPRINT = 2.0  # min(2 xi, max range)
+
+
+def known_everywhere(m) -> CoverageMap:
+    """Every voxel known and free: nothing left to explore."""
+    cmap = corridor_map(m, 0.0, 8.0)
+    cmap.lam[:] = cmap.lam.max()
+    cmap.eta[:] = 0.0
+    return cmap
+
+
+def deltas_of(m, cmap: CoverageMap, robot: str, epoch: int, chunks: int) -> list[DeltaMessage]:
+    """``cmap``'s information over the prior as ``chunks`` deltas of ``robot`` (seqs 1 ...)."""
+    prior = CoverageMap(cmap.grid, cmap.sensor)
+    idx = np.flatnonzero(cmap.lam != prior.lam)
+    dlam = cmap.lam[idx].astype(np.float64) - prior.lam[idx]
+    deta = cmap.eta[idx].astype(np.float64) - prior.eta[idx]
+    parts = np.array_split(np.arange(len(idx)), chunks)
+    return [
+        DeltaMessage(robot, epoch, seq, 0.0, cmap.grid, idx[p], dlam[p], deta[p])
+        for seq, p in enumerate(parts, start=1)
+    ]
+
+
+def far_apart(targets: list[tuple[float, ...]], radius: float) -> bool:
+    """Whether every two targets stand at least ``radius`` apart (x-y, m)."""
+    return all(math.dist(a[:2], b[:2]) >= radius for a, b in itertools.combinations(targets, 2))
