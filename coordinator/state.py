@@ -206,11 +206,17 @@ class CoordinatorState:
         passes but for the planner's. Without ``slab`` and ``reach`` (:meth:`_slab`, and
         :meth:`_floor` with its cost map) it takes the replica's lock to bring the caches up to date."""
         if slab is None or reach is None:
-            with self.team.lock:
-                slab = self._slab(self._rig(robot))
-                rig, trav = self._floor(robot, pose)
-            reach = reach or (rig, trav, self._cost_map(trav, pose))
+            slab, fresh = self._cached_reach(robot, pose)
+            reach = reach or fresh
         return self._ranked(pose, self.team.map, self.team.entropy.values, reach, slab)
+
+    def _cached_reach(self, robot: str, pose: Pose):
+        """(slab, (rig, traversability, cost map)) of ``robot`` from the caches, brought up to
+        date under the replica's lock; the cost map is planned outside it."""
+        with self.team.lock:  # the caches read the changed tiles' voxels
+            slab = self._slab(self._rig(robot))
+            rig, trav = self._floor(robot, pose)
+        return slab, (rig, trav, self._cost_map(trav, pose))
 
     def _slab(self, rig) -> SlabCache:
         """The cached slab of the layer holding ``rig``'s camera (call with the replica's lock)."""
@@ -268,10 +274,7 @@ class CoordinatorState:
                 self.counts["released"] += len(released)
             for robot, reason in released:
                 log.info("released the target of %s: %s", robot, reason)
-            with self.team.lock:  # the caches read the changed tiles' voxels
-                slab = self._slab(self._rig(request.robot))
-                rig, trav = self._floor(request.robot, request.pose)
-            reach = (rig, trav, self._cost_map(trav, request.pose))
+            slab, reach = self._cached_reach(request.robot, request.pose)
             found = self.cached_candidates(request.robot, request.pose, reach, slab)
             pool = [c for c in found if not _near(c.xy, recent, RECENT_RADIUS)] or found
             # teammates' ground: one mask for the scores and the wander

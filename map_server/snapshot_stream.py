@@ -27,7 +27,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import zenoh
 
@@ -69,7 +69,6 @@ class HeldStream:
     version: int | None = None
     requester: str | None = None
     last_used: float = 0.0
-    served: int = field(default=0)
 
 
 def new_stream_id() -> str:
@@ -270,4 +269,3 @@ class MapStreams:
             return
         for i in range(ask.cursor, min(held.chunks, ask.cursor + ask.count)):
             query.reply(key, held.encode(i))
-            held.served += 1
