@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from coordinator.target_cache import ChangedTiles
+from coordinator.target_cache import ChangedTiles, dirty_runs
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.navigation import grid_kernels as kernels
@@ -83,10 +83,8 @@ class FloorCache:
             dirty = np.ones(self.changes.tiles, dtype=bool)
         occupied, unknown = self._bands[key]
         tile = self.changes.tile
-        for ti in np.flatnonzero(dirty.any(axis=1)):
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], dirty[ti].astype(np.int8), [0]])))
-            for a, b in zip(edges[::2], edges[1::2], strict=True):
-                self._redo(cmap, key, occupied, unknown, ti * tile, a * tile, b * tile)
+        for ti, a, b in dirty_runs(dirty):
+            self._redo(cmap, key, occupied, unknown, ti * tile, a * tile, b * tile)
         origin = (float(grid.lo[0]), float(grid.lo[1]))
         unknown_now = unknown & ~swept
         free = inflate(occupied, grid.voxel, self.robot_radius) & ~unknown_now

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +64,15 @@ def grow_tiles(tiles: np.ndarray) -> np.ndarray:
     out[:, 1:] |= row[:, :-1]
     out[:, :-1] |= row[:, 1:]
     return out
+
+
+def dirty_runs(tiles: np.ndarray) -> Iterator[tuple[int, int, int]]:
+    """(ti, tj0, tj1) for each run of True tiles [tj0, tj1) in a row ti of ``tiles`` (tx, ty):
+    the blocks of columns a cache redoes in one piece."""
+    for ti in np.flatnonzero(tiles.any(axis=1)):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], tiles[ti].astype(np.int8), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            yield int(ti), int(a), int(b)
 
 
 class ChangedTiles:
@@ -175,13 +185,9 @@ class TargetCache:
             )
             dirty = np.ones(self.changes.tiles, dtype=bool)
         H = entropy.reshape(nx, ny, nz)
-        for ti in np.flatnonzero(dirty.any(axis=1)):
-            row = dirty[ti]
-            # runs of dirty tiles in this row: one block each
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], row.astype(np.int8), [0]])))
-            for a, b in zip(edges[::2], edges[1::2], strict=True):
-                self._redo(cache, cmap, H, ti * self.tile, a * self.tile, b * self.tile)
-                cache.counts["tiles"] += int(b - a)
+        for ti, a, b in dirty_runs(dirty):
+            self._redo(cache, cmap, H, ti * self.tile, a * self.tile, b * self.tile)
+            cache.counts["tiles"] += b - a
         cache.changed |= dirty
         return cache
 
