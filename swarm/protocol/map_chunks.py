@@ -27,7 +27,7 @@ import numpy as np
 from swarm.map.grid import Grid
 from swarm.protocol import codec
 from swarm.protocol.codec import WireError
-from swarm.protocol.map_messages import Region, Snapshot, grid_field, ledger_fields
+from swarm.protocol.map_messages import Region, Snapshot, check_beliefs, grid_field, ledger_fields
 
 #: Voxel data per chunk (bytes) the map server cuts an answer into: well under Zenoh's 1 MiB
 #: of queued batches per link and its received-message bound (64 MiB at least), so a chunk
@@ -137,8 +137,7 @@ class Chunk:
             head.deltas = codec.integer(codec.require(msg, "deltas", kind), "deltas", kind)
             lam = codec.raw(codec.require(msg, "lam", kind), "<f4", n, "lam", kind)
             eta = codec.raw(codec.require(msg, "eta", kind), "<f4", n, "eta", kind)
-            if not np.all(np.isfinite(lam)) or not np.all(np.isfinite(eta)) or np.any(lam <= 0):
-                raise WireError(f"{kind}: lam must be finite and > 0, eta finite")
+            check_beliefs(lam, eta, kind)
             head.arrays = {"lam": lam, "eta": eta}
             if chunk == 0:
                 head.acks, head.above = Snapshot.ledger_of(msg, kind)

@@ -142,6 +142,13 @@ def ledger_fields(acks: dict[str, dict[int, int]], above: dict[str, dict[int, li
 # -- map/snapshot reply -------------------------------------------------------------------
 
 
+def check_beliefs(lam: np.ndarray, eta: np.ndarray, kind: str) -> None:
+    """WireError unless every ``lam`` is finite and > 0 and every ``eta`` finite (a map's
+    beliefs in information form, as a snapshot or its chunks carry them)."""
+    if not np.all(np.isfinite(lam)) or not np.all(np.isfinite(eta)) or np.any(lam <= 0):
+        raise WireError(f"{kind}: lam must be finite and > 0, eta finite")
+
+
 @dataclass
 class Snapshot:
     """The whole team map in information form (prior included) and the deltas it holds.
@@ -179,8 +186,7 @@ class Snapshot:
         grid = grid_field(codec.require(msg, "grid", kind), kind)
         lam = codec.raw(codec.require(msg, "lam", kind), "<f4", grid.size, "lam", kind)
         eta = codec.raw(codec.require(msg, "eta", kind), "<f4", grid.size, "eta", kind)
-        if not np.all(np.isfinite(lam)) or not np.all(np.isfinite(eta)) or np.any(lam <= 0):
-            raise WireError(f"{kind}: lam must be finite and > 0, eta finite")
+        check_beliefs(lam, eta, kind)
         return cls(grid, lam, eta, *cls.ledger_of(msg, kind))
 
     @staticmethod
