@@ -20,6 +20,7 @@ from swarm.config.models import (
     CoordinationConfig,
     ExplorationConfig,
     FloorPlanRef,
+    MapServiceConfig,
     Pose2D,
     RigConfig,
     RobotBodyConfig,
@@ -34,6 +35,7 @@ from swarm.config.models import (
 from swarm.config.ros2 import Ros2Config
 from swarm.formats.errors import user_path
 from swarm.map.sensor_model import SensorModel
+from swarm.map.shard_layout import ShardLayout
 
 
 class Mission(Section):
@@ -51,6 +53,7 @@ class Mission(Section):
     exploration: ExplorationConfig = ExplorationConfig()
     sharing: SharingConfig = SharingConfig()
     coordination: CoordinationConfig = CoordinationConfig()
+    map_service: MapServiceConfig = MapServiceConfig()
     robot: RobotBodyConfig = RobotBodyConfig()
     stop: StopConfig = StopConfig()
     sim: SimConfig = SimConfig()
@@ -166,6 +169,21 @@ class Mission(Section):
             ref = self.floor_plan_ref()
             self._plan = load_floor_plan(ref.path, ref.wall_height)
         return self._plan
+
+    def shard_layout(self) -> ShardLayout:
+        """Which map server shard owns which voxels (``map_service``; swarm.map.shard_layout).
+
+        Raises ConfigError naming the file and ``map_service.shards`` or ``map_service.cuts_x``
+        when the slabs do not fit the workspace's grid.
+        """
+        grid, service = self.workspace.grid(), self.map_service
+        try:
+            if service.cuts_x is not None:
+                return ShardLayout.at(grid, service.cuts_x)
+            return ShardLayout.even(grid, service.shards)
+        except ValueError as exc:
+            field = "cuts_x" if service.cuts_x is not None else "shards"
+            raise ConfigError(f"{self.source or '<mission>'}: map_service.{field}: {exc}") from None
 
     def threshold_bits(self) -> float:
         """H_th: the configured threshold, else 25% of the prior entropy (7 bits per voxel).

@@ -255,6 +255,23 @@ class SharingConfig(Section):
     max_held_bits: FiniteFloat | None = Field(default=2000.0, gt=0)
 
 
+class MapServiceConfig(Section):
+    """The map service: ``shards`` server processes, each owning a slab of the workspace along x
+    (swarm.map.shard_layout; docs/sharding.md). ``cuts_x`` (metres, increasing, ``shards - 1`` of
+    them) places the slabs' boundaries; null: slabs of equal width."""
+
+    shards: int = Field(default=1, ge=1, le=64)
+    cuts_x: list[FiniteFloat] | None = None
+
+    @model_validator(mode="after")
+    def _cuts_match_shards(self) -> MapServiceConfig:
+        if self.cuts_x is not None and len(self.cuts_x) != self.shards - 1:
+            raise ValueError(
+                f"cuts_x gives {len(self.cuts_x)} cut(s); {self.shards} shards need {self.shards - 1}"
+            )
+        return self
+
+
 class CoordinationConfig(Section):
     """The coordinator's Burgard-style assignment (docs/coordinator.md).
 

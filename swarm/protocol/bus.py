@@ -322,3 +322,12 @@ def describe_connection(listen: list[str] | None, connect: list[str] | None, wai
         f"connecting to {where}: waiting up to {wait_s:g} s for a Zenoh router there "
         "(swarm server, or the runner of swarm sim)"
     )
+
+
+def shard_mission(mission: str, shard: int, shards: int) -> str:
+    """The key prefix of map server shard ``shard`` of ``shards``: the mission's own name when
+    the map service is one server, else ``<mission>/shard/<k>`` (docs/sharding.md). Its
+    deltas, merged stream and map queries are under ``swarm/<that>/...``."""
+    if not 0 <= shard < shards:
+        raise ValueError(f"no shard {shard} of {shards}")
+    return mission if shards == 1 else f"{mission}/shard/{shard}"

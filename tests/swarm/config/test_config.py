@@ -324,3 +324,19 @@ def test_mission_from_ros_map_starts_near_the_requested_point():
     first = mission.robots[0].start
     assert np.hypot(first.x - 5.0, first.y - 3.0) < 0.5
     assert mission.workspace.hi[0] == pytest.approx(30.2)
+
+
+def test_map_service_shards_and_cuts_are_checked_against_the_workspace(tmp_path):
+    layout = load_mission(write_mission(tmp_path, base(map_service={"shards": 2}))).shard_layout()
+    assert layout.bounds == (0, 20, 40)
+    cut = load_mission(write_mission(tmp_path, base(map_service={"shards": 2, "cuts_x": [1.0]})))
+    assert cut.shard_layout().bounds == (0, 10, 40)
+    path = write_mission(tmp_path, base(map_service={"shards": 3, "cuts_x": [1.0]}))
+    with pytest.raises(ConfigError, match=r"map_service.*3 shards need 2"):
+        load_mission(path)
+    path = write_mission(tmp_path, base(map_service={"shards": 2, "cuts_x": [7.5]}))
+    with pytest.raises(ConfigError, match=rf"{path}: map_service.cuts_x: .*inside the workspace"):
+        load_mission(path).shard_layout()
+    path = write_mission(tmp_path, base(map_service={"shards": 50}))
+    with pytest.raises(ConfigError, match=rf"{path}: map_service.shards: .*between 1 and the grid's nx=40"):
+        load_mission(path).shard_layout()
