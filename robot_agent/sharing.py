@@ -31,6 +31,9 @@ import numpy as np
 from swarm.map.delta import Delta
 from swarm.map.entropy_table import EntropyTable
 
+#: the outbox's parallel arrays over its pending voxels, sorted by voxel index
+_PENDING_ARRAYS = ("_idx", "_lam", "_eta", "_judged_lam", "_judged_eta", "_changed", "_held_bits")
+
 
 @dataclass
 class OutboxStats:
@@ -60,17 +63,19 @@ class DeltaOutbox:
         self.max_held_bits = float(max_held_bits)
         self.table = table
         self.max_unacked = max_unacked
-        self.pending_lam = np.zeros(size, np.float32)
-        self.pending_eta = np.zeros(size, np.float32)
-        self._touched = np.zeros(size, bool)
-        # What the utility filter last judged not worth sending, per voxel: the map's lam and
-        # eta then, and whether the pending part changed since. A pending voxel whose map
-        # values and pending part are unchanged gets the same verdict again, so it is skipped.
-        self._judged_lam = np.full(size, np.nan, np.float32)
-        self._judged_eta = np.full(size, np.nan, np.float32)
-        self._pending_changed = np.zeros(size, bool)
-        # what each held voxel's pending information is worth (bits), as last judged
-        self._held_bits = np.zeros(size, np.float32)
+        # The pending voxels, as parallel arrays sorted by voxel index (memory and work grow with
+        # what is pending, not with the grid): the information gathered and not sent, what the
+        # utility filter last judged not worth sending (the map's lam and eta then, NaN before
+        # any verdict) and whether the pending part changed since, and what each is worth
+        # (bits) as last judged. A pending voxel whose map values and pending part are unchanged
+        # gets the same verdict again, so it is skipped.
+        self._idx = np.zeros(0, np.int64)
+        self._lam = np.zeros(0, np.float32)
+        self._eta = np.zeros(0, np.float32)
+        self._judged_lam = np.zeros(0, np.float32)
+        self._judged_eta = np.zeros(0, np.float32)
+        self._changed = np.zeros(0, bool)
+        self._held_bits = np.zeros(0, np.float32)
         self.seq = 0
         self.unacked: OrderedDict[int, Delta] = OrderedDict()
         #: the frame thread adds to ``unacked``, the ack thread forgets and copies it
@@ -78,12 +83,42 @@ class DeltaOutbox:
         self.stats = OutboxStats()
 
     def add(self, delta: Delta) -> None:
-        """Accumulate a batch's information as pending."""
+        """Accumulate a batch's information (sorted unique indices) as pending."""
         idx = delta.idx.astype(np.int64)
-        self.pending_lam[idx] += delta.dlam
-        self.pending_eta[idx] += delta.deta
-        self._touched[idx] = True
-        self._pending_changed[idx] = True
+        if len(idx) == 0:
+            return
+        if idx[0] < 0 or idx[-1] >= self.size or np.any(idx[1:] <= idx[:-1]):
+            raise ValueError(f"a delta's indices must be sorted, unique and under {self.size}")
+        pos = np.searchsorted(self._idx, idx)
+        known = pos < len(self._idx)
+        known[known] = self._idx[pos[known]] == idx[known]
+        at = pos[known]
+        self._lam[at] += delta.dlam[known]
+        self._eta[at] += delta.deta[known]
+        self._changed[at] = True
+        new = ~known
+        if new.any():
+            # the grown arrays: the new voxels at their sorted places, the pending ones around them
+            count = int(new.sum())
+            slots = np.zeros(len(self._idx) + count, bool)
+            new_at = pos[new] + np.arange(count)
+            slots[new_at] = True
+            old_at = np.flatnonzero(~slots)  # integer places: cheaper than the mask, 7 times
+            nan = np.full(count, np.nan, np.float32)
+            grown = {
+                "_idx": idx[new],
+                "_lam": delta.dlam[new],
+                "_eta": delta.deta[new],
+                "_judged_lam": nan,
+                "_judged_eta": nan,
+                "_changed": np.ones(count, bool),
+                "_held_bits": np.zeros(count, np.float32),
+            }
+            for name in _PENDING_ARRAYS:
+                before = getattr(self, name)
+                after = np.empty(len(slots), before.dtype)
+                after[new_at], after[old_at] = grown[name], before
+                setattr(self, name, after)
 
     def take(self, lam: np.ndarray, eta: np.ndarray, flush: bool = False) -> tuple[int, Delta] | None:
         """The next delta to send, numbered, or None when nothing is worth sending.
@@ -93,41 +128,34 @@ class DeltaOutbox:
         pending information changes the entropy by ``share_min_bits`` or more, either way (all
         with ``flush``), or when the held voxels are worth more than ``max_held_bits`` together.
         """
-        idx = touched = np.flatnonzero(self._touched)
-        if len(idx) == 0:
+        if len(self._idx) == 0:
             return None
         if not flush and self.share_min_bits > 0:
-            lam_now, eta_now = lam[idx], eta[idx]
+            lam_now, eta_now = lam[self._idx], eta[self._idx]
             # only the voxels whose map or pending part changed since they were last judged
-            stale = (
-                self._pending_changed[idx]
-                | (lam_now != self._judged_lam[idx])
-                | (eta_now != self._judged_eta[idx])
+            stale = np.flatnonzero(
+                self._changed | (lam_now != self._judged_lam) | (eta_now != self._judged_eta)
             )
-            idx, lam_now, eta_now = idx[stale], lam_now[stale], eta_now[stale]
-            dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
+            lam_now, eta_now = lam_now[stale], eta_now[stale]
+            dlam, deta = self._lam[stale], self._eta[stale]
             lam_team = np.maximum(lam_now - dlam, np.float32(1e-12))
             h_team = self.table((eta_now - deta) / lam_team, 1.0 / np.sqrt(lam_team))
             h_now = self.table(eta_now / lam_now, 1.0 / np.sqrt(lam_now))
             gain = np.abs(h_team - h_now).astype(np.float32)
             useful = gain >= self.share_min_bits
-            kept = idx[~useful]
+            kept = stale[~useful]
             self._judged_lam[kept] = lam_now[~useful]
             self._judged_eta[kept] = eta_now[~useful]
-            self._pending_changed[kept] = False
+            self._changed[kept] = False
             self._held_bits[kept] = gain[~useful]
-            self._held_bits[idx[useful]] = 0
-            idx = np.union1d(idx[useful], self._released_held(touched))
-            dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
-            if len(idx) == 0:
+            self._held_bits[stale[useful]] = 0
+            out = np.union1d(stale[useful], self._released_held())
+            if len(out) == 0:
                 return None
         else:
-            dlam, deta = self.pending_lam[idx], self.pending_eta[idx]
-        delta = Delta(idx.astype(np.uint32), dlam.copy(), deta.copy())
-        self.pending_lam[idx] = 0
-        self.pending_eta[idx] = 0
-        self._touched[idx] = False
-        self._held_bits[idx] = 0
+            out = np.arange(len(self._idx))
+        delta = Delta(self._idx[out].astype(np.uint32), self._lam[out].copy(), self._eta[out].copy())
+        self._forget(out)
         self.seq += 1
         with self._unacked_lock:
             self.unacked[self.seq] = delta
@@ -138,18 +166,26 @@ class DeltaOutbox:
         self.stats.voxels_sent += len(delta)
         return self.seq, delta
 
+    def _forget(self, positions: np.ndarray) -> None:
+        """Drop the pending voxels at ``positions`` (of the sorted arrays): they went out."""
+        keep = np.ones(len(self._idx), bool)
+        keep[positions] = False
+        kept = np.flatnonzero(keep)
+        for name in _PENDING_ARRAYS:
+            setattr(self, name, getattr(self, name)[kept])
+
     @property
     def held_bits(self) -> float:
         """What the voxels the filter holds back are worth together (bits), as last judged."""
-        return float(self._held_bits[self._touched].sum(dtype=np.float64))
+        return float(self._held_bits.sum(dtype=np.float64))
 
-    def _released_held(self, touched: np.ndarray) -> np.ndarray:
-        """Held voxels (among ``touched``, the pending ones) to send although each is under
-        ``share_min_bits``: none while what is held is worth at most ``max_held_bits``; else
-        the most valuable, until what stays held is worth at most half of it. Sorted indices."""
+    def _released_held(self) -> np.ndarray:
+        """Held voxels to send although each is under ``share_min_bits``: none while what is
+        held is worth at most ``max_held_bits``; else the most valuable, until what stays held
+        is worth at most half of it. Sorted positions in the pending arrays."""
         if not math.isfinite(self.max_held_bits):
             return np.empty(0, np.int64)
-        held = touched[self._held_bits[touched] > 0]
+        held = np.flatnonzero(self._held_bits > 0)
         bits = self._held_bits[held].astype(np.float64)
         total = bits.sum()
         if total <= self.max_held_bits:
@@ -163,8 +199,7 @@ class DeltaOutbox:
 
     def pending(self) -> Delta:
         """The information gathered and not sent yet (in the agent's map, in no server's)."""
-        idx = np.flatnonzero(self._touched)
-        return Delta(idx.astype(np.uint32), self.pending_lam[idx].copy(), self.pending_eta[idx].copy())
+        return Delta(self._idx.astype(np.uint32), self._lam.copy(), self._eta.copy())
 
     def acknowledge(self, last_contiguous_seq: int) -> None:
         """Forget every delta up to the server's contiguous ack."""

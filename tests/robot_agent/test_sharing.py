@@ -1,5 +1,7 @@
 """The agent's delta outbox: utility filter, numbering, acks, bounded unacked store."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -8,6 +10,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_table import default_table
 from swarm.map.grid import Grid
+from tests.support.dense_outbox import DenseOutbox
 
 GRID = Grid((0, 0, 0), 0.1, (10, 10, 4))
 
@@ -82,6 +85,14 @@ def reference_useful(table, lam, eta, pending_lam, pending_eta, touched, share_m
     return idx[np.abs(h_team - h_now) >= share_min_bits]
 
 
+def dense_pending(outbox: DeltaOutbox) -> tuple[np.ndarray, np.ndarray]:
+    """The outbox's pending information as arrays over the whole grid."""
+    lam, eta = np.zeros(GRID.size, np.float32), np.zeros(GRID.size, np.float32)
+    pending = outbox.pending()
+    lam[pending.idx], eta[pending.idx] = pending.dlam, pending.deta
+    return lam, eta
+
+
 def test_skipping_unchanged_voxels_sends_what_judging_all_of_them_would():
     # own frames add small and large information, teammates' deltas change the map under
     # pending voxels (which can make them worth sending), and some steps change nothing
@@ -103,10 +114,10 @@ def test_skipping_unchanged_voxels_sends_what_judging_all_of_them_would():
             idx = np.unique(rng.integers(0, GRID.size, 60))
             dl = rng.lognormal(1.0, 2.0, len(idx)).astype(np.float32)
             cmap.apply(Delta(idx.astype(np.uint32), dl, (dl * 0.1).astype(np.float32)))  # a teammate's
-        expected = reference_useful(
-            table, cmap.lam, cmap.eta, outbox.pending_lam, outbox.pending_eta, outbox._touched, 0.5
-        )
-        pending = outbox.pending_lam.copy(), outbox.pending_eta.copy()
+        pending = dense_pending(outbox)
+        touched = np.zeros(GRID.size, bool)
+        touched[outbox.pending().idx] = True
+        expected = reference_useful(table, cmap.lam, cmap.eta, *pending, touched, 0.5)
         taken = outbox.take(cmap.lam, cmap.eta)
         got = np.zeros(0, np.int64) if taken is None else taken[1].idx.astype(np.int64)
         assert np.array_equal(got, expected), step
@@ -128,7 +139,7 @@ def test_what_is_held_back_is_bounded_and_the_most_valuable_goes_first():
     idx = np.arange(40)
     d = Delta(idx.astype(np.uint32), np.linspace(1.0, 7.0, 40).astype(np.float32), np.zeros(40, np.float32))
     fused(cmap, outbox, d)
-    lam0 = cmap.lam - outbox.pending_lam
+    lam0 = cmap.lam - dense_pending(outbox)[0]
     worth = table(np.full(40, 0.5), 1 / np.sqrt(lam0[idx])) - table(cmap.mean(idx), cmap.sigma(idx))
     assert worth.max() < 0.5 and worth.sum() > 4.0  # the premise, computed independently
     seq, sent = outbox.take(cmap.lam, cmap.eta)
@@ -169,3 +180,43 @@ def test_information_that_contradicts_the_team_belief_is_shared_too():
     assert change[0] >= 0.5 and abs(change[1]) < 0.5  # the premise, computed independently
     _seq, sent = outbox.take(cmap.lam, cmap.eta)
     assert sent.idx.tolist() == [5]
+
+
+@pytest.mark.parametrize("max_held_bits", [math.inf, 3.0])
+def test_sparse_outbox_sends_what_the_dense_oracle_sends(max_held_bits):
+    """Random own frames, teammates' deltas, takes and flushes: the outbox over its pending
+    voxels gives, take after take, exactly the deltas of the filter over dense arrays."""
+    rng = np.random.default_rng(7)
+    table = default_table()
+    cmap = CoverageMap(GRID)
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=table, max_held_bits=max_held_bits)
+    oracle = DenseOutbox(GRID.size, 0.5, table, max_held_bits)
+    sent = 0
+    for step in range(300):
+        idx = np.unique(rng.integers(0, GRID.size, int(rng.integers(1, 60))))
+        dlam = rng.lognormal(-0.5, 2.0, len(idx)).astype(np.float32)
+        d = Delta(idx.astype(np.uint32), dlam, (dlam * rng.uniform(0, 1, len(idx))).astype(np.float32))
+        cmap.apply(d)
+        if step % 5 != 3:  # else a teammate's
+            outbox.add(d)
+            oracle.add(d)
+        flush = step % 37 == 36
+        got, want = outbox.take(cmap.lam, cmap.eta, flush=flush), oracle.take(cmap.lam, cmap.eta, flush=flush)
+        assert (got is None) == (want is None), step
+        if got is not None:
+            sent += 1
+            np.testing.assert_array_equal(got[1].idx, want.idx)
+            np.testing.assert_array_equal(got[1].dlam, want.dlam)
+            np.testing.assert_array_equal(got[1].deta, want.deta)
+        assert outbox.held_bits == pytest.approx(
+            float(oracle.held_bits[oracle.touched].sum()), rel=1e-6, abs=1e-9
+        )
+    assert sent >= 50
+
+
+def test_a_delta_that_is_not_sorted_or_outside_the_grid_is_refused():
+    outbox = DeltaOutbox(GRID.size, share_min_bits=0.5, table=default_table())
+    for idx in ([3, 2], [4, 4], [GRID.size]):
+        with pytest.raises(ValueError, match="sorted, unique and under 400"):
+            outbox.add(delta(idx, 1.0))
+    assert len(outbox.pending()) == 0
