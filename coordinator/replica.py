@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from coordinator.assignment import ObservedColumns
-from coordinator.target_cache import ChangedTiles
 from swarm.map.delta import Delta
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
+from swarm.navigation.target_cache import ChangedTiles
 from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage, Snapshot
 

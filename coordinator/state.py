@@ -20,9 +20,7 @@ from coordinator.assignment import (
     teammates_share,
 )
 from coordinator.assignment_book import AssignmentBook
-from coordinator.floor_cache import FloorCache, SweptFloor
 from coordinator.replica import CoordinatorReplica
-from coordinator.target_cache import SlabCache, TargetCache
 from swarm.config import Mission
 from swarm.map.coverage_map import CoverageMap
 from swarm.navigation.exploration import (
@@ -33,7 +31,9 @@ from swarm.navigation.exploration import (
     rank_entropy_targets,
     wander_target,
 )
+from swarm.navigation.floor_cache import FloorCache, SweptFloor
 from swarm.navigation.planner import cost_map, nearest_free_cell
+from swarm.navigation.target_cache import SlabCache, TargetCache
 from swarm.navigation.traversability import build_traversability, robot_band_top
 from swarm.protocol.coord_messages import MAX_GOALS, MAX_VIEWS
 from swarm.protocol.message_size import sources_of_deltas
@@ -202,7 +202,7 @@ class CoordinatorState:
 
     def cached_candidates(self, robot: str, pose: Pose, reach=None, slab: SlabCache | None = None):
         """:meth:`candidates_for` on the team map as it is, from the per-tile cache
-        (:class:`coordinator.target_cache.TargetCache`): the same list, without whole-map
+        (:class:`swarm.navigation.target_cache.TargetCache`): the same list, without whole-map
         passes but for the planner's. Without ``slab`` and ``reach`` (:meth:`_slab`, and
         :meth:`_floor` with its cost map) it takes the replica's lock to bring the caches up to date."""
         if slab is None or reach is None:

@@ -37,6 +37,7 @@ from swarm.navigation.exploration import (
     choose_target,
     last_look_target,
 )
+from swarm.navigation.target_cache import SlabCache
 from swarm.navigation.traversability import TraversabilityGrid
 
 FAILED_RADIUS = 1.0  # m: a target standing this near a given-up one is avoided too
@@ -102,11 +103,16 @@ class TargetSearch:
     rng: np.random.Generator
     memory: TargetMemory
     last_look_bits: float  # bits per voxel: a last look's threshold
+    #: read the slab's eq. 32-35 fields from the local map's per-tile cache (False: a pass over
+    #: the whole slab at every decision, the oracle the tests compare the cache with)
+    cached: bool = True
 
     def context(
         self, s: Situation, exclude: Sequence[np.ndarray], keep_away: Sequence[np.ndarray] = ()
     ) -> SearchContext:
-        """The search context of this decision on the robot's map, with these points excluded."""
+        """The search context of this decision on the robot's map, with these points excluded;
+        the slab's beliefs come from the local map's per-tile cache."""
+        slab = self.slab()
         return SearchContext.build(
             self.local.map,
             self.local.entropy.values,
@@ -118,7 +124,18 @@ class TargetSearch:
             exclude_radius=FAILED_RADIUS,
             keep_away=keep_away,
             keep_away_radius=TEAM_SPREAD_RADIUS,
+            slab=None if slab is None else slab.beliefs,
         )
+
+    def slab(self) -> SlabCache | None:
+        """The eq. 32-35 fields of the sensor's layer, redone where the map changed since the
+        last decision (swarm.navigation.target_cache); None when the sensor is outside the map
+        or the search is not ``cached``."""
+        grid = self.local.grid
+        k0 = int(np.floor((self.camera_height - grid.lo[2]) / grid.voxel))
+        if not self.cached or not 0 <= k0 < grid.shape[2]:
+            return None
+        return self.local.targets.slab(self.local.map, self.local.entropy.values, k0)
 
     def own(
         self,
@@ -137,14 +154,23 @@ class TargetSearch:
             if max_looks == self.options.max_looks
             else replace(self.options, max_looks=max_looks)
         )
+        ctx = self.context(s, exclude, keep_away)
+        slab = self.slab()
+        cached = {}
+        if slab is not None and slab.k0 == ctx.k0:
+            cached = {
+                "slab": slab.fields,
+                "stand": self.local.targets.standing(slab, ctx.reach, options.view),
+            }
         return choose_target(
             self.strategy,
-            self.context(s, exclude, keep_away),
+            ctx,
             options,
             self.rng,
             tried=tried,
             stands=memory.view_stands,
             optimistic=optimistic,
+            **cached,
         )
 
 

@@ -42,6 +42,7 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import EntropyTable, default_table
 from swarm.map.grid import Grid
 from swarm.navigation.exploration import ExplorationTarget, SearchOptions
+from swarm.navigation.floor_cache import FloorCache
 from swarm.navigation.path_follower import DriveWatch, FollowerLimits, PathFollower, needs_replan, wrap_angle
 from swarm.navigation.planner import GridPlanner, large_free_areas, nearest_free_cell
 from swarm.navigation.strategies import check_strategy
@@ -84,7 +85,12 @@ class Explorer:
         self.turned = 0.0
         self.last_yaw: float | None = None
         self.target: ExplorationTarget | None = None
-        self.ground = Ground(self.rig.camera_height, body.radius, probes=self.strategy == "entropy")
+        self.ground = Ground(
+            self.rig.camera_height,
+            body.radius,
+            probes=self.strategy == "entropy",
+            floor=FloorCache(self.local.changes, body.radius),
+        )
         self.progress = DriveWatch()
         self.frames = 0
         self.failures_in_a_row = 0

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from swarm.map.coverage_map import CoverageMap
-from swarm.navigation.probing import open_swept, optimistic_traversability
+from swarm.navigation.floor_cache import FloorCache, SweptFloor
+from swarm.navigation.probing import SURE_COVERAGE, open_swept, optimistic_traversability
 from swarm.navigation.targets import ExplorationTarget
 from swarm.navigation.traversability import TraversabilityGrid, build_traversability, robot_band_top
 
@@ -22,11 +23,18 @@ class Ground:
     """The traversability of a robot of ``robot_radius`` (m) with its camera at ``camera_height``
     (m); ``probes``: also keep the optimistic grid (the entropy strategy)."""
 
-    def __init__(self, camera_height: float, robot_radius: float, probes: bool) -> None:
+    def __init__(
+        self, camera_height: float, robot_radius: float, probes: bool, floor: FloorCache | None = None
+    ) -> None:
         self.robot_height = robot_band_top(camera_height)
         self.robot_radius = robot_radius
         self.probes = probes
+        #: the band's column states kept per tile, redone where the map changed (None: a pass
+        #: over the whole map's band at every refresh, the oracle the tests compare it with)
+        self.floor = floor
         self.swept: list[tuple[float, float]] = []  # x-y (m) of the robot's path
+        self._swept_floor: SweptFloor | None = None  # the discs of ``swept``, kept per cell
+        self._kept = 0  # the positions of ``swept`` in ``_swept_floor``
         self.trav: TraversabilityGrid | None = None
         self.optimistic: TraversabilityGrid | None = None  # probes' grid (entropy strategy)
 
@@ -43,14 +51,30 @@ class Ground:
     def refresh(self, cmap: CoverageMap) -> TraversabilityGrid:
         """Build the grids again from ``cmap``; returns the traversability grid."""
         swept = np.asarray(self.swept)
-        trav = build_traversability(
-            cmap, robot_height=self.robot_height, robot_radius=self.robot_radius, swept=swept
-        )
+        surely = None
+        if self.floor is None:
+            trav = build_traversability(
+                cmap, robot_height=self.robot_height, robot_radius=self.robot_radius, swept=swept
+            )
+        else:
+            trav = self.floor.traversability(cmap, self.robot_height, self._swept_mask(cmap))
+            if self.probes:
+                surely = self.floor.band(cmap, self.robot_height, SURE_COVERAGE)[0]
         if self.probes:  # probes, and the way back through their doors
-            self.optimistic = optimistic_traversability(cmap, trav, self.robot_height)
+            self.optimistic = optimistic_traversability(cmap, trav, self.robot_height, surely=surely)
             trav = open_swept(trav, self.optimistic, swept)
         self.trav = trav
         return trav
+
+    def _swept_mask(self, cmap: CoverageMap) -> np.ndarray:
+        """(nx, ny) bool: the cells within the robot's radius of its swept path, kept up to date."""
+        grid = cmap.grid
+        if self._swept_floor is None:
+            self._swept_floor = SweptFloor(grid.shape[:2], grid.lo[:2], grid.voxel, self.robot_radius)
+        for xy in self.swept[self._kept :]:
+            self._swept_floor.add(xy)
+        self._kept = len(self.swept)
+        return self._swept_floor.mask()
 
     def grid_for(self, target: ExplorationTarget, cmap: CoverageMap) -> TraversabilityGrid:
         """The grid a path to ``target`` is planned on (the optimistic one for a probe); built

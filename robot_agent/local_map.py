@@ -15,13 +15,15 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import EntropyTable
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
+from swarm.navigation.target_cache import ChangedTiles, TargetCache
 from swarm.protocol.wire import Frame
 
 
 class LocalMap:
     """A robot's coverage map (``map``) on the mission's ``grid`` and its per-voxel entropy
     (``entropy``, an EntropyCache on ``table``); ``matcher`` turns stereo pairs into depth
-    (None for a range camera)."""
+    (None for a range camera). ``targets`` keeps the slab's eq. 32-35 fields per tile, redone
+    where ``changes`` says the map changed."""
 
     def __init__(
         self, grid: Grid, sensor: SensorModel, table: EntropyTable, matcher: StereoMatcher | None
@@ -31,7 +33,13 @@ class LocalMap:
         self.table = table
         self.matcher = matcher
         self.map = CoverageMap(grid, sensor)
-        self.entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=table)
+        #: the tiles of columns whose voxels changed (own frames, the team's deltas, a snapshot:
+        #: every change goes through the entropy cache), and the eq. 35 fields kept per tile
+        self.changes = ChangedTiles(grid.shape)
+        self.targets = TargetCache(grid, self.changes)
+        self.entropy = EntropyCache.from_information(
+            self.map.lam, self.map.eta, table=table, on_change=self.changes.note
+        )
 
     def points(self, frame: Frame) -> np.ndarray:
         """World points of a frame's valid pixels within max range (stereo is matched first)."""

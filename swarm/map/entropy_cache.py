@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from swarm.map.entropy import moments
@@ -16,12 +18,22 @@ class EntropyCache:
 
     ``update`` recomputes only the given voxels and adjusts the total by (new - old);
     after ``resum_every`` recomputed voxels in all (by default the map size) the total is
-    summed again from scratch, so rounding drift stays bounded.
+    summed again from scratch, so rounding drift stays bounded. ``on_change(idx)`` is told
+    the voxels (flat int64) each update recomputed, and ``None`` when every voxel was
+    (``refill_information``): a cache of what derives from the map (the eq. 35 fields of
+    swarm.navigation.target_cache) learns where to redo its work.
     """
 
-    def __init__(self, values, table: EntropyTable | None = None, resum_every: int | None = None) -> None:
+    def __init__(
+        self,
+        values,
+        table: EntropyTable | None = None,
+        resum_every: int | None = None,
+        on_change: Callable[[np.ndarray | None], None] | None = None,
+    ) -> None:
         self.values = np.array(values, dtype=np.float32).ravel()
         self.table = table
+        self.on_change = on_change
         self.resum_every = int(resum_every) if resum_every else max(self.values.size, 1)
         self._since = 0
         self.total = self.resum()
@@ -66,6 +78,8 @@ class EntropyCache:
         old = self.values[idx]
         self.total += float(np.sum(new, dtype=np.float64) - np.sum(old, dtype=np.float64))
         self.values[idx] = new
+        if self.on_change is not None:
+            self.on_change(idx)
         self._since += idx.size
         if self._since >= self.resum_every:
             self.resum()
@@ -81,6 +95,8 @@ class EntropyCache:
         cache's size) and return the total: holders of this cache keep seeing it."""
         mu, sigma = moments(lam, eta)
         self.values[:] = (self.table or default_table())(mu, sigma).ravel()
+        if self.on_change is not None:
+            self.on_change(None)
         return self.resum()
 
     def __len__(self) -> int:

@@ -150,6 +150,8 @@ def choose_target(
     tried: Sequence[np.ndarray] = (),
     stands: Sequence[np.ndarray] | None = None,
     optimistic: TraversabilityGrid | None = None,
+    slab: SlabFields | None = None,
+    stand: StandingFn = standing_cell,
 ) -> ExplorationTarget | None:
     """The next target of ``strategy`` (one of STRATEGIES) in ``ctx``, or None when done.
 
@@ -164,11 +166,13 @@ def choose_target(
     When given, the entropy strategy with no eq. 35 target first probes the largest unknown
     floor region it opens (kind ``"probe"``, :func:`swarm.navigation.probing.probe_target`:
     a room behind a door whose floor is unknown), before the 3-D views; plan to a probe on
-    ``optimistic``. ValueError for an unknown strategy.
+    ``optimistic``. ``slab``/``stand``: the context's :func:`slab_fields` and a memo of
+    ``standing_cell`` when kept already (swarm.navigation.target_cache; the entropy strategy
+    reads them). ValueError for an unknown strategy.
     """
     check_strategy(strategy)
     if strategy == "entropy":
-        return _entropy_target(ctx, options, rng, tried, optimistic)
+        return _entropy_target(ctx, options, rng, tried, optimistic, slab, stand)
     if strategy == "frontier":
         found = frontier_target(ctx, options.view.far)
         if found is None and options.camera is not None:
@@ -256,11 +260,13 @@ def _entropy_target(
     rng: np.random.Generator,
     tried: Sequence[np.ndarray] = (),
     optimistic: TraversabilityGrid | None = None,
+    slab: SlabFields | None = None,
+    stand: StandingFn = standing_cell,
 ) -> ExplorationTarget | None:
     """Eq. 35 target among viewable slab voxels within xi, widening xi, 2 xi, ...; else a probe
     into unknown floor (with ``optimistic``); else a 3-D frontier view (with a camera); else
     wander/None."""
-    best = next(_entropy_candidates(ctx, options), None)
+    best = next(_entropy_candidates(ctx, options, slab=slab, stand=stand), None)
     if best is not None:
         return best.as_target()
     if optimistic is not None:

@@ -62,6 +62,7 @@ def optimistic_traversability(
     robot_height: float,
     floor_clearance: float = 0.1,
     sure: float = SURE_COVERAGE,
+    surely: np.ndarray | None = None,
 ) -> TraversabilityGrid:
     """Where a robot may go when only surely occupied columns block it.
 
@@ -70,13 +71,16 @@ def optimistic_traversability(
     ``trav.robot_radius`` as in ``build_traversability``. Every cell free in ``trav`` stays
     free. ``occupied`` is the surely occupied mask, ``unknown`` that of ``trav`` outside it.
     Shapes (nx, ny) as ``trav``; raises ValueError when ``trav`` is not the map's x-y grid.
+    ``surely``: the surely occupied columns when kept already (``FloorCache.band`` at ``sure``;
+    None: a pass over the map's band).
     """
     grid = cmap.grid
     nx, ny, _nz = grid.shape
     if trav.shape != (nx, ny):
         raise ValueError(f"traversability grid has shape {trav.shape}, the map's columns {(nx, ny)}")
     # the traversability grid's band test, at the "surely occupied" level
-    surely, _unknown = band_columns(cmap, floor_clearance, robot_height, sure)
+    if surely is None:
+        surely, _unknown = band_columns(cmap, floor_clearance, robot_height, sure)
     free = inflate(surely, grid.voxel, trav.robot_radius) | trav.free
     return TraversabilityGrid(
         free, surely, trav.unknown & ~surely, trav.origin, trav.resolution, trav.robot_radius

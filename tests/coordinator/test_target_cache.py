@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from coordinator.state import CoordinatorState
-from coordinator.target_cache import TILE, ChangedTiles, tiles_any
 from swarm.bench.coordinator import CAMERA_HEIGHT, floor_plan, frame_points
 from swarm.config import mission_from_dict
 from swarm.map.fusion import batch_information
+from swarm.navigation.target_cache import TILE, ChangedTiles, tiles_any
 from swarm.protocol.wire import AssignRequest, DeltaMessage, Pose, Snapshot
 
 MISSION = {

@@ -1,10 +1,11 @@
-"""The coordinator's traversability of the team map, kept per tile and redone where it changed.
+"""Traversability kept per tile and redone where the map changed: the coordinator's of the team
+map, and each agent's of its own map (with the band's surely occupied columns of its probes).
 
 :func:`swarm.navigation.traversability.build_traversability` reads the robot's height band of
 every column of the map and lays a disc of the robot's radius around every position a robot
 has stood on (swept floor), for each request. Here the band's column states (occupied,
 unknown: ``grid_kernels.band_occupancy`` on a block of columns, the same per-column test)
-are kept and redone for the tiles :class:`coordinator.target_cache.ChangedTiles` reports,
+are kept and redone for the tiles :class:`swarm.navigation.target_cache.ChangedTiles` reports,
 and the swept floor is a count of discs per cell, raised and lowered as positions are kept
 and dropped (``grid_kernels.disc_count``: the cells of ``disc_cells``). Only the inflation
 by the robot's radius is a pass over the whole grid (compiled). The grid equals
@@ -15,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from coordinator.target_cache import ChangedTiles, dirty_runs
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.entropy import SIGMA_MAX, SIGMA_MIN, expected_coverage
 from swarm.navigation import grid_kernels as kernels
+from swarm.navigation.target_cache import ChangedTiles, dirty_runs
 from swarm.navigation.traversability import (
     FLOOR_CLEARANCE,
     FREE_THRESHOLD,
@@ -58,7 +59,7 @@ class SweptFloor:
 
 
 class FloorCache:
-    """The band's column states of the team map per robot band, brought up to date per tile.
+    """The band's column states of a map per robot band and threshold, brought up to date per tile.
 
     Call :meth:`traversability` with the replica's lock held (it reads the changed tiles'
     voxels of ``cmap``) and from one thread at a time.
@@ -73,10 +74,19 @@ class FloorCache:
         """``build_traversability(cmap, robot_height=robot_height, robot_radius=..., swept=...)``
         for the swept cells ``swept`` ((nx, ny) bool, :meth:`SweptFloor.mask`)."""
         grid = cmap.grid
+        occupied, unknown = self.band(cmap, robot_height, FREE_THRESHOLD)
+        origin = (float(grid.lo[0]), float(grid.lo[1]))
+        unknown_now = unknown & ~swept
+        free = inflate(occupied, grid.voxel, self.robot_radius) & ~unknown_now
+        return TraversabilityGrid(free, occupied.copy(), unknown_now, origin, grid.voxel, self.robot_radius)
+
+    def band(self, cmap: CoverageMap, robot_height: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+        """``band_columns(cmap, FLOOR_CLEARANCE, robot_height, threshold)``: (occupied, unknown)
+        (nx, ny) bool, the cache's own arrays (read them, do not write them)."""
+        grid = cmap.grid
         layers = band_layers(cmap, FLOOR_CLEARANCE, robot_height)
-        key = (int(layers[0]), int(layers[-1]) + 1)
-        reader = f"band{key[0]}-{key[1]}"
-        dirty = self.changes.take(reader)
+        key = (int(layers[0]), int(layers[-1]) + 1, float(threshold))
+        dirty = self.changes.take(f"band{key[0]}-{key[1]}@{key[2]!r}")
         if key not in self._bands:
             shape = grid.shape[:2]
             self._bands[key] = (np.zeros(shape, dtype=bool), np.zeros(shape, dtype=bool))
@@ -85,22 +95,19 @@ class FloorCache:
         tile = self.changes.tile
         for ti, a, b in dirty_runs(dirty):
             self._redo(cmap, key, occupied, unknown, ti * tile, a * tile, b * tile)
-        origin = (float(grid.lo[0]), float(grid.lo[1]))
-        unknown_now = unknown & ~swept
-        free = inflate(occupied, grid.voxel, self.robot_radius) & ~unknown_now
-        return TraversabilityGrid(free, occupied.copy(), unknown_now, origin, grid.voxel, self.robot_radius)
+        return occupied, unknown
 
     def _redo(self, cmap, key, occupied, unknown, i0: int, j0: int, j1: int) -> None:
         """``band_columns`` of the columns [i0, i0 + tile) x [j0, j1)."""
         nx, ny, nz = cmap.grid.shape
         i1, j1 = min(i0 + self.changes.tile, nx), min(j1, ny)
-        k0, k1 = key
+        k0, k1, threshold = key
         lam = np.ascontiguousarray(cmap.lam.reshape(nx, ny, nz)[i0:i1, j0:j1, k0:k1]).ravel()
         eta = np.ascontiguousarray(cmap.eta.reshape(nx, ny, nz)[i0:i1, j0:j1, k0:k1]).ravel()
         shape = (int(i1 - i0), int(j1 - j0), int(k1 - k0))
         unk, occ, mu, sigma, column = kernels.band_occupancy(
-            lam, eta, shape, 0, shape[2], cmap.known_threshold(), float(FREE_THRESHOLD), SIGMA_MIN, SIGMA_MAX
+            lam, eta, shape, 0, shape[2], cmap.known_threshold(), threshold, SIGMA_MIN, SIGMA_MAX
         )
-        occ[column[expected_coverage(mu, sigma) >= FREE_THRESHOLD]] = True
+        occ[column[expected_coverage(mu, sigma) >= threshold]] = True
         occupied[i0:i1, j0:j1] = occ.reshape(shape[:2])
         unknown[i0:i1, j0:j1] = unk.reshape(shape[:2])

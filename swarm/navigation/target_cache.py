@@ -1,8 +1,9 @@
-"""The coordinator's eq. 35 bookkeeping, kept per tile of the map's columns and redone only
-where the team map changed.
+"""Eq. 35 bookkeeping kept per tile of the map's columns and redone only where the map changed:
+the coordinator's (team map) and each agent's (its own map).
 
-Every answer ranks the eq. 35 targets of the whole team map (``CoordinatorState.answer``).
-Done from scratch that is several passes over the map for each request: the slab's
+Every coordinator answer ranks the eq. 35 targets of the whole team map
+(``CoordinatorState.answer``), and every target an agent chooses alone reads the fields of the
+whole slab. Done from scratch that is several passes over the map each time: the slab's
 beliefs (known, E[C]), the entropy gradient (eq. 32) projected on the motion plane (eq. 33),
 the eq. 35 score, then a standing point (``standing_cell``) for each of up to a few hundred
 candidates. None of these depends on which robot asks: the slab fields depend on the map
@@ -109,6 +110,13 @@ class ChangedTiles:
         with self._lock:
             for seen in self._readers.values():
                 seen.ravel()[flat] = True
+
+    def note(self, idx: np.ndarray | None) -> None:
+        """``EntropyCache.on_change``: voxels ``idx`` changed, or every voxel (None)."""
+        if idx is None:
+            self.mark_all()
+        else:
+            self.mark(idx)
 
     def mark_all(self) -> None:
         """Everything changed (a snapshot was loaded)."""
