@@ -145,9 +145,9 @@ def test_after_a_catch_up_the_agent_holds_the_snapshot_plus_its_own_unacked_info
             # the teammates' deltas, of which the agent misses every other merged sample
             real_receive, got = agent.team.receive, [0]
 
-            def lossy(payload: bytes, attachment: bytes | None = None) -> bool:
+            def lossy(payload: bytes, attachment: bytes | None = None, shard: int = 0) -> bool:
                 got[0] += 1
-                return real_receive(payload, attachment) if got[0] % 2 else False
+                return real_receive(payload, attachment, shard) if got[0] % 2 else False
 
             agent.team.receive = lossy
             pub = {rid: delta_publisher(session, mission.mission, rid) for rid in ("r2", "r3")}
@@ -303,9 +303,9 @@ def test_the_coordinator_catches_up_after_missed_samples_and_keeps_attributing(t
             team.resync_interval_s = 0.0
             real_receive, got = team.receive, [0]
 
-            def lossy(payload: bytes, attachment: bytes | None = None) -> bool:
+            def lossy(payload: bytes, attachment: bytes | None = None, shard: int = 0) -> bool:
                 got[0] += 1
-                return real_receive(payload, attachment) if got[0] % 4 else False
+                return real_receive(payload, attachment, shard) if got[0] % 4 else False
 
             team.receive = lossy
             coordinator.start()

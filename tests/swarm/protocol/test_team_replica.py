@@ -106,8 +106,8 @@ def test_a_failed_catch_up_keeps_the_map_and_waits_longer_each_time(world):
     assert replica.counts["resync_failed"] == 1 and replica.resync_due
     assert replica.counts["applied"] == 2  # the queued deltas are applied all the same
     interval = replica.resync_interval_s
-    replica._last_resync -= interval  # as if the interval had passed
+    replica.feeds[0].last_resync -= interval  # as if the interval had passed
     assert not replica.resync() and replica.counts["resync_failed"] == 1  # the wait doubled: not tried
-    replica._last_resync -= interval
+    replica.feeds[0].last_resync -= interval
     assert not replica.resync() and replica.counts["resync_failed"] == 2  # tried, failed again
-    assert replica._resync_wait == min(4 * interval, MAX_RESYNC_INTERVAL_S)
+    assert replica.feeds[0].resync_wait == min(4 * interval, MAX_RESYNC_INTERVAL_S)
