@@ -20,6 +20,7 @@ latest of each robot in turn: a :class:`swarm.protocol.mailbox.Mailbox` of reque
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import queue
@@ -95,7 +96,8 @@ class Coordinator:
         #: put on merged faster than the worker applies) and catches up when it misses one
         team = self.state.team
         team.budget = ByteBudget(max_queued_merged_bytes)
-        team.fetch = self._fetch_snapshot
+        for feed in team.feeds:  # one per map server shard (docs/sharding.md)
+            feed.fetch = functools.partial(self._fetch_snapshot, feed.shard)
         team.peer_log = self._peer_log
         #: waiting coord/assign queries and their requests, the latest of each robot
         self._requests: Mailbox[str, tuple[zenoh.Query, AssignRequest]] = Mailbox(MAX_WAITING_ROBOTS)
@@ -118,7 +120,9 @@ class Coordinator:
         """Subscribe, load a snapshot if a map server answers, and start answering."""
         name, s = self.name, self.session
         # subscribe before the snapshot so no merged delta falls between the two
-        self._declared.append(s.declare_subscriber(bus.key(name, "merged"), self._on_merged))
+        for k in range(self._shards):
+            merged = bus.key(bus.shard_mission(name, k, self._shards), "merged")
+            self._declared.append(s.declare_subscriber(merged, functools.partial(self._on_merged, shard=k)))
         self._declared.append(
             bus.subscribe(s, bus.key_pattern(name, "robot", "*", "status"), self._on_status)
         )
@@ -147,30 +151,38 @@ class Coordinator:
             "from a snapshot" if self.started_from_snapshot else "from the prior",
         )
 
-    def _fetch_snapshot(self) -> Snapshot:
-        """The map server's snapshot, streamed in chunks through ``MapClient`` (which asks again
-        while the server answers "busy" and each window within ``snapshot_timeout``). Raises
-        ConnectionError when none answers, ValueError for an error reply or a bad snapshot."""
-        client = MapClient(self.session, self.name, timeout=self.snapshot_timeout)
+    @property
+    def _shards(self) -> int:
+        return len(self.state.team.feeds)
+
+    def _fetch_snapshot(self, shard: int = 0) -> Snapshot:
+        """The map server's (shard ``shard``'s) snapshot, streamed in chunks through ``MapClient``
+        (which asks again while the server answers "busy" and each window within
+        ``snapshot_timeout``). Raises ConnectionError when none answers, ValueError for an error
+        reply or a bad snapshot."""
+        server = bus.shard_mission(self.name, shard, self._shards)
+        client = MapClient(self.session, server, timeout=self.snapshot_timeout)
         try:
             return client.snapshot()
         except MapQueryError as exc:
             raise ValueError(str(exc)) from exc
 
     def _load_snapshot(self) -> None:
-        """Start the replica from the map server's snapshot when one answers (else the prior)."""
-        try:
-            self.state.team.load_snapshot(self._fetch_snapshot())
-            self.started_from_snapshot = True
-        except ConnectionError:
-            pass
-        except (zenoh.ZError, ValueError, replies.ConflictingReplies) as exc:  # WireError is a ValueError
-            log.warning("no usable map snapshot (%s); starting from the prior", exc)
+        """Start the replica from the map server's snapshot when one answers (else the prior);
+        sharded, each shard's slab from that shard's snapshot."""
+        for k in range(self._shards):
+            try:
+                self.state.team.load_snapshot(self._fetch_snapshot(k), shard=k)
+                self.started_from_snapshot = True
+            except ConnectionError:
+                pass
+            except (zenoh.ZError, ValueError, replies.ConflictingReplies) as exc:  # WireError: a ValueError
+                log.warning("no usable map snapshot (%s); starting from the prior", exc)
 
-    def _on_merged(self, sample: zenoh.Sample) -> None:
+    def _on_merged(self, sample: zenoh.Sample, shard: int = 0) -> None:
         """Zenoh's callback: the replica queues the payload (or drops it, counted
         ``merged_dropped``, and catches up later); the worker is woken to apply it."""
-        self.state.team.on_sample(sample)
+        self.state.team.on_sample(sample, shard)
         self._inbox.put(("merged", None))
 
     def _on_status(self, key: str, payload: bytes) -> None:

@@ -89,7 +89,9 @@ class CoordinatorState:
         sensor = replace(mission.sensor.model(), hit_range=mission.sensor_reach())
         # the ground of every source a map server may take deltas from is tracked, no more
         robots = sources_of_deltas(len(mission.robot_ids))
-        self.team = CoordinatorReplica(mission.workspace.grid(), sensor, max_robots=robots)
+        self.team = CoordinatorReplica(
+            mission.workspace.grid(), sensor, max_robots=robots, layout=mission.shard_layout()
+        )
         self.targets = TargetCache(self.team.grid, self.team.changes)
         grid = self.team.grid
         self.floor = FloorCache(self.team.changes, mission.robot.radius)

@@ -18,11 +18,11 @@ import time
 from pathlib import Path
 
 from swarm.child_command import sigint_blocked, started_by_runner_environment, swarm_argv
-from swarm.formats.map_file import MapFileError, load_map
 from swarm.map.coverage_map import CoverageMap
 from swarm.mission.role_failure import RoleError
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
+from swarm.protocol.sharded_client import ShardedMapClient, team_snapshot
 
 #: Every role process this process started, so that a second Ctrl-C can kill what is left.
 _STARTED: list[subprocess.Popen] = []
@@ -145,7 +145,9 @@ def wait_for_server(client: MapClient, server: subprocess.Popen, timeout: float 
     raise RoleError(f"the map server did not answer within {timeout:g} s (see server.log)")
 
 
-def final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 20.0) -> CoverageMap | None:
+def final_server_map(
+    client: MapClient | ShardedMapClient, monitor: TeamMonitor, timeout: float = 20.0
+) -> CoverageMap | None:
     """The server's map once it has applied every delta the monitor saw, asking again until
     ``timeout`` s have passed; None then, and one line on stderr says why."""
     deadline = time.monotonic() + timeout
@@ -155,7 +157,7 @@ def final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 2
         try:
             stats = client.stats()
             if int(stats.get("deltas_applied", 0)) >= expected:
-                snap = client.snapshot()
+                snap = team_snapshot(client)
                 return CoverageMap(snap.grid, monitor.cmap.sensor, snap.lam, snap.eta)
             applied = int(stats.get("deltas_applied", 0))
             why = f"it applied {applied:,} of the {expected:,} deltas the monitor saw"
@@ -164,19 +166,3 @@ def final_server_map(client: MapClient, monitor: TeamMonitor, timeout: float = 2
         time.sleep(0.3)
     print(f"runner: no final map from the map server within {timeout:g} s: {why}", file=sys.stderr)
     return None
-
-
-def store_map(store: Path, monitor: TeamMonitor) -> CoverageMap | None:
-    """The map a stopped map server left in its store (``snapshot.npz``, written at its stop),
-    or None when there is none that reads."""
-    path = store / "snapshot.npz"
-    if not path.is_file():
-        return None
-    try:
-        cmap = load_map(path)
-    except MapFileError as exc:
-        print(f"runner: {exc}", file=sys.stderr)
-        return None
-    if not cmap.grid.matches(monitor.cmap.grid):
-        return None
-    return CoverageMap(cmap.grid, monitor.cmap.sensor, cmap.lam, cmap.eta)

@@ -35,14 +35,12 @@ import numpy as np
 from robot_agent.kernels import load_kernels
 from swarm.config import Mission
 from swarm.mission.interrupts import Interrupts
-from swarm.mission.prior_map import PRIOR_SOURCE, chunks, load_previous_map, prior_delta
-from swarm.mission.role_failure import RoleError
+from swarm.mission.map_service import MapService
 from swarm.mission.role_processes import (
     final_server_map,
     started_count,
     started_since,
     stop_roles,
-    store_map,
     terminate_roles,
     wait_for_flush,
     wait_for_roles,
@@ -52,10 +50,7 @@ from swarm.mission.role_processes import (
 from swarm.mission.role_processes import start_role as start_role_process
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
-from swarm.protocol.epochs import EpochRefused, put_delta, wait_for_epoch
-from swarm.protocol.map_client import MapClient
 from swarm.protocol.mission_listener import MissionDoneListener
-from swarm.protocol.wire import DeltaMessage
 from swarm.security.access_rules import OPERATOR, TOOL, agent_name
 
 #: After an interrupt: seconds to wait for the agents' flush (their exit), then for the map
@@ -151,12 +146,13 @@ def run_mission(
             return start_role_process(args, log_path)
 
     plan = plan_bus(mission, out, options.secure)
-    store = out / "server-store"
-    if store.exists():
-        shutil.rmtree(store)  # a run folder is rewritten: the server must not recover an old map
-    server_cmd = ["server", "--config", str(config_path), "--store", str(store), *plan.server_args]
+    # one server, or one per shard of a sharded map service (swarm.mission.map_service)
+    service = MapService(mission, out, config_path, plan.server_args, plan.runner_listen)
+    store = service.store
+    service.clear_stores()  # a run folder is rewritten: the server must not recover an old map
+    server_cmds = service.commands()
     # open loopback: the runner is the mission's router; secure: the server is, so it starts first
-    server = None if plan.runner_listen else start_role(server_cmd, out / "server.log")
+    server = None if plan.runner_listen else start_role(server_cmds[0], service.log_of(0))
     try:
         session = bus.open_session(plan.runner_listen, plan.runner_connect, config_file=plan.runner_config)
     except BaseException:
@@ -164,7 +160,7 @@ def run_mission(
         raise
     ending = MissionDoneListener(session, name, lambda _done: None)  # the map server's end, if it says
     subs = [
-        bus.subscribe(session, bus.key_pattern(name, "delta", "*"), monitor.on_delta),
+        *service.watch_deltas(session, monitor),
         bus.subscribe(session, bus.key_pattern(name, "sim", "truth"), monitor.on_truth),
         bus.subscribe(session, bus.key_pattern(name, "robot", "*", "status"), monitor.on_status),
     ]
@@ -174,19 +170,22 @@ def run_mission(
     server_map = None
     coordinator_stats = None
     at_stop = (monitor.team_entropy, 0)
-    client = MapClient(session, name, timeout=2.0)
+    client = service.client(session, timeout=2.0)
     started = time.monotonic()
     reason = "starting"
     try:
         if server is None:
-            server = start_role(server_cmd, out / "server.log")
+            server = start_role(server_cmds[0], service.log_of(0))
         services.append(server)
+        services += [start_role(cmd, service.log_of(k)) for k, cmd in enumerate(server_cmds[1:], 1)]
+        shards = list(services)
         coordinator = None
         if options.coordination != "none":
             coordinator_args = ["coordinator", "--config", str(config_path), *plan.child_args("coordinator")]
             coordinator = start_role(coordinator_args, out / "coordinator.log")
             services.append(coordinator)
-        wait_for_server(client, server)
+        for k, process in enumerate(shards):
+            wait_for_server(service.shard_client(session, k), process)
         if not options.quiet:  # docs/interop.md: the map tools work on a running mission too
             query = ["swarm map stats", *plan.child_args(TOOL), "--mission", name]
             print(
@@ -194,7 +193,9 @@ def run_mission(
                 flush=True,
             )
         if mission.prior_map is not None:
-            _publish_prior(session, mission, client, monitor)
+            voxels = service.publish_prior(session, monitor)
+            path = mission.prior_map_path()
+            print(f"runner: started from the previous map {path}: {voxels:,} voxels known", flush=True)
         view = _start_view(options.view, plan, name, out, start_role)
         if view is not None:
             services.append(view)
@@ -301,7 +302,7 @@ def run_mission(
                 and reason == "interrupted"
                 and wait_for_roles(services, INTERRUPTED_STOP_S)
             ):
-                server_map = store_map(store, monitor)
+                server_map = service.store_map(monitor)
                 map_source = None if server_map is None else f"the map server's store {store}/"
             if not interrupted:  # whatever an error cut off before the run kept it
                 stop_roles([p for p in started_since(mark) if p.poll() is None])
@@ -368,29 +369,3 @@ def _start_view(
         )
         return None
     return start_role(args, out / "view.log")
-
-
-def _publish_prior(session, mission: Mission, client: MapClient, monitor: TeamMonitor) -> None:
-    """Send the previous map as ``delta/prior`` and wait until the server and the monitor hold it."""
-    path = mission.prior_map_path()
-    grid, sensor = mission.workspace.grid(), mission.sensor.model()
-    delta = prior_delta(grid, sensor, load_previous_map(path, sensor))
-    pieces = chunks(delta)
-    publisher = bus.reliable_publisher(session, bus.key(mission.mission, "delta", PRIOR_SOURCE))
-    try:
-        grant = wait_for_epoch(session, mission.mission, PRIOR_SOURCE, timeout=60.0)
-    except (TimeoutError, EpochRefused) as exc:
-        raise RoleError(f"the map server issued no epoch for the previous map: {exc}") from exc
-    for seq, piece in enumerate(pieces, start=1):
-        msg = DeltaMessage(PRIOR_SOURCE, grant.epoch, seq, 0.0, grid, piece.idx, piece.dlam, piece.deta)
-        put_delta(publisher, grant, msg.encode())
-    deadline = time.monotonic() + 60.0
-    while time.monotonic() < deadline:
-        applied = int(client.stats().get("deltas_applied", 0))
-        if applied >= len(pieces) and monitor.applied >= len(pieces):
-            break
-        time.sleep(0.1)
-    else:
-        raise RoleError("the map server did not take the previous map within 60 s (see server.log)")
-    publisher.undeclare()
-    print(f"runner: started from the previous map {path}: {len(delta):,} voxels known", flush=True)

@@ -1,8 +1,9 @@
 """What an observer of a mission's bus knows: the team map, trajectories, states and traffic.
 
-:class:`TeamMonitor` subscribes like any client (``delta/*``, ``sim/truth``,
-``robot/*/status``) and keeps a replica of the team map from the deltas it sees (a
-:class:`swarm.protocol.team_replica.TeamReplica` fed the robots' own deltas, each once): the entropy
+:class:`TeamMonitor` subscribes like any client (``delta/*``, of every map server shard when
+the map service is sharded; ``sim/truth``, ``robot/*/status``) and keeps a replica of the team
+map from the deltas it sees (a :class:`swarm.protocol.team_replica.TeamReplica` fed the robots'
+own deltas, each once): the entropy
 curve (one sample per delta), the bytes each robot shared, and per robot which of its deltas
 first carried each voxel (for the overlap over time). ``swarm sim`` and ``swarm replay run``
 (:mod:`swarm.mission.runner`, :mod:`swarm.mission.replay_run`) watch their missions with it.
@@ -54,8 +55,10 @@ class TeamMonitor:
     unattributed: int = 0
 
     def __post_init__(self) -> None:
-        grid = self.mission.workspace.grid()
-        self.team = TeamReplica(grid, self.mission.sensor.model(), on_applied=self._applied, name="monitor")
+        grid, layout = self.mission.workspace.grid(), self.mission.shard_layout()
+        self.team = TeamReplica(
+            grid, self.mission.sensor.model(), on_applied=self._applied, name="monitor", layout=layout
+        )
         self.curve.append((0.0, self.team.entropy_bits))
         self._lock = threading.Lock()
         self.max_robots = self.max_robots or sources_of_deltas(len(self.mission.robot_ids))
@@ -70,12 +73,12 @@ class TeamMonitor:
     def entropy(self) -> EntropyCache:
         return self.team.entropy
 
-    def on_delta(self, _key: str, payload: bytes) -> None:
-        """A ``delta/<rid>`` payload: applied once (a resend changes nothing), else refused,
-        counted and logged."""
+    def on_delta(self, _key: str, payload: bytes, shard: int = 0) -> None:
+        """A ``delta/<rid>`` payload (of map server shard ``shard``: its slab's grid): applied
+        once (a resend changes nothing), else refused, counted and logged."""
         try:
             with self._lock:
-                self.team.apply_payload(payload)
+                self.team.apply_payload(payload, shard)
         except (WireError, ValueError) as exc:
             self.rejected += 1
             self._peer_log.warning("rejected", "monitor: rejected delta: %s", exc)

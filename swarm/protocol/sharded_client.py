@@ -163,6 +163,12 @@ def _joined(layout: ShardLayout, parts: list[tuple[np.ndarray, Region]]) -> Regi
     return Region(layout.grid, idx[order].astype(np.uint32), **values)
 
 
+def team_snapshot(client: MapClient | ShardedMapClient, progress: Progress | None = None) -> Snapshot:
+    """The team map's snapshot from either client (a sharded one's slabs side by side, no acks)."""
+    snap = client.snapshot(progress)
+    return snap.team if isinstance(snap, ShardedSnapshot) else snap
+
+
 def map_client_for(
     session: zenoh.Session,
     mission: str,
