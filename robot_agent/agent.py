@@ -201,8 +201,10 @@ class Agent:
 
     @property
     def epoch(self) -> int | None:
-        """The epoch the map server issued (map/epoch/<rid>); None until it has (unsharded only)."""
-        return self._link0().epoch
+        """The epoch the map server issued (map/epoch/<rid>); None until it has. A sharded
+        service issues one per shard (``sharing.links[k].epoch``): None here, so that the team
+        replica's ``own()`` on the mission's own keys never takes a stray delta for this run's."""
+        return self.sharing.links[0].epoch if self.sharing.count == 1 else None
 
     @property
     def acked(self) -> int:

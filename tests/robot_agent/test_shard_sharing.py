@@ -9,6 +9,7 @@ import math
 from contextlib import ExitStack, contextmanager
 
 import numpy as np
+import pytest
 import yaml
 
 from map_server.server import MapServer
@@ -138,3 +139,32 @@ def test_each_shard_gets_its_part_of_what_an_unsharded_outbox_sends_and_acks_dra
             start, stop = layout.span(k)
             np.testing.assert_allclose(snap.lam, cmap.lam[start:stop], rtol=2e-6, atol=0)
             np.testing.assert_allclose(snap.eta, cmap.eta[start:stop], rtol=2e-6, atol=1e-6)
+
+
+def test_an_unsharded_agent_keeps_one_link_under_the_missions_keys_and_a_sharded_one_names_its_links():
+    one = mission_from_dict(yaml.safe_load(MISSION_YAML))
+    session = bus.open_session(listen=[bus.tcp_endpoint(bus.free_port())])
+    try:
+        agent = Agent(one, "r1", session, coordination=False)
+        (link,) = agent.sharing.links
+        assert link.prefix == "srvtest" and link.grid == one.workspace.grid()
+        assert agent.outbox is link.outbox and agent.sender is link.sender and agent.acks is link.acks
+        assert agent.sharing.stats is link.outbox.stats
+        delta = robot_batches(link.grid, one.sensor.model(), robots=1, per_robot=1)["r1"][0]
+        agent.sharing.add(delta)
+        assert np.array_equal(agent.outbox.pending().idx, delta.idx)
+        agent.shutdown(ack_wait_s=0.0)
+
+        sharded = Agent(two_shard_mission(), "r1", session, coordination=False)
+        assert sharded.epoch is None and sharded.acked == 0
+        with pytest.raises(ValueError, match="2 shards"):
+            sharded.outbox  # noqa: B018 (the property is what is tested)
+        sharded.sharing.add(delta)
+        parts = sharded.sharing.layout.split(delta)
+        assert set(parts) == {0, 1}
+        for k, part in parts.items():
+            assert np.array_equal(sharded.sharing.links[k].outbox.pending().idx, part.idx)
+        assert sum(len(p) for p in parts.values()) == len(delta)
+        sharded.shutdown(ack_wait_s=0.0)
+    finally:
+        session.close()
