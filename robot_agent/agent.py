@@ -22,26 +22,21 @@ time, and the agent asks again a little later.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import Counter
 
 import zenoh
 
-from robot_agent.ack_poller import AckPoller
 from robot_agent.assignment_requests import AssignmentRequests
-from robot_agent.delta_sender import DeltaSender
 from robot_agent.explorer import Explorer
 from robot_agent.frame_inbox import FrameInbox
 from robot_agent.frame_link import FrameLink, PendingFrame, WireLink
-from robot_agent.sharing import DeltaOutbox
+from robot_agent.shard_sharing import ShardedSharing
 from robot_agent.teammate_statuses import TeammateStatuses
 from swarm.config import Mission
 from swarm.log_limit import LogLimiter
-from swarm.map.delta import Delta
 from swarm.protocol import bus
-from swarm.protocol.applied_deltas import AppliedDeltas
 from swarm.protocol.codec import short
 from swarm.protocol.map_client import (
     MapClient,
@@ -51,7 +46,7 @@ from swarm.protocol.map_client import (
     missions_answering,
 )
 from swarm.protocol.team_replica import TeamReplica
-from swarm.protocol.wire import Cmd, Frame, Pose, Snapshot, Status, WireError
+from swarm.protocol.wire import Cmd, Frame, Pose, Status, WireError
 
 log = logging.getLogger("swarm.agent")
 
@@ -79,25 +74,14 @@ class Agent:
         self.robot_id = robot_id
         self.session = session
         self.explorer = Explorer(mission, robot_id, strategy, seed)
-        #: the epoch the map server issued (map/epoch/<rid>); None until it has
-        self.epoch: int | None = None
-        sharing = mission.sharing
-        self.outbox = DeltaOutbox(
-            self.explorer.grid.size,
-            sharing.share_min_bits,
-            self.explorer.table,
-            max_held_bits=math.inf if sharing.max_held_bits is None else sharing.max_held_bits,
-        )
         name = mission.mission
+        #: per map server shard: outbox, sender, ack poller, epoch (one link when unsharded)
+        self.sharing = ShardedSharing(
+            session, mission, robot_id, mission.shard_layout(), self.explorer.table, lambda: self.last_t
+        )
         #: where frames come from and commands go: robot/<rid>/frame and cmd, or a robot's ROS 2 topics
         self.link = link or WireLink(session, name, robot_id)
-        self.sender = DeltaSender(session, name, robot_id, self.explorer.grid, self._sent, self._granted)
         self._status_pub = session.declare_publisher(bus.key(name, "robot", robot_id, "status"))
-        #: map/acks: what the server holds durably is forgotten, what it lacks is sent again
-        acks_key = bus.key(name, "map", "acks")
-        self.acks = AckPoller(
-            session, acks_key, robot_id, self.outbox, self.sender, lambda: self.epoch, self._publish
-        )
         self._frames = FrameInbox()  # the newest frame: older waiting ones are dropped, counted
         self.link.frames.start(self._frames)
         #: what a remote peer makes the agent log: one line per reason per 10 s, with counts
@@ -135,8 +119,7 @@ class Agent:
     def run(self, max_frames: int | None = None, idle_timeout: float | None = None) -> None:
         """Handle frames until stopped (or ``max_frames``, or ``idle_timeout`` s without a frame)."""
         self.catch_up()
-        self.sender.start()
-        self.acks.start()
+        self.sharing.start()
         handled = 0
         last_frame = time.monotonic()
         log.info("%s: waiting for frames on %s", self.robot_id, self._frame_key)
@@ -169,7 +152,7 @@ class Agent:
                 self._frame_key,
             )
             return
-        stats = self.outbox.stats
+        stats = self.sharing.stats
         log.info(
             "%s: %d frames fused (%.1f/s)%s, %d deltas sent, %d acked by the map server, %d resent, "
             "%s bits held back; map entropy %s bits; merged from the team %d; coordinator %s",
@@ -178,9 +161,9 @@ class Agent:
             frames / max(seconds, 1e-9),
             self._dropped_frames_note(),
             stats.deltas_sent,
-            self.acked,
+            self._acked_note(),
             stats.resent,
-            f"{self.outbox.held_bits:,.0f}",
+            f"{self.sharing.held_bits:,.0f}",
             f"{self.explorer.map_entropy:,.0f}",
             self.merged_counts["applied"],
             dict(self.coordinator_counts) or "not asked yet",
@@ -191,10 +174,43 @@ class Agent:
         """The coordinator's answers: ``silent``, ``nothing_left``, ``assigned``, ``flushed``."""
         return self.assignments.counts
 
+    def _acked_note(self) -> str:
+        """The acked seqs: one number unsharded, one per shard (``0/3/2``) when sharded."""
+        return "/".join(str(a) for a in self.sharing.acked)
+
+    # -- the unsharded agent's sharing parts (link 0); ValueError when the service is sharded --
+    def _link0(self):
+        if self.sharing.count != 1:
+            raise ValueError(f"the map service has {self.sharing.count} shards: use agent.sharing.links")
+        return self.sharing.links[0]
+
+    @property
+    def outbox(self):
+        """The delta outbox (unsharded map service only)."""
+        return self._link0().outbox
+
+    @property
+    def sender(self):
+        """The delta sender (unsharded map service only)."""
+        return self._link0().sender
+
+    @property
+    def acks(self):
+        """The map/acks poller (unsharded map service only)."""
+        return self._link0().acks
+
+    @property
+    def epoch(self) -> int | None:
+        """The epoch the map server issued (map/epoch/<rid>); None until it has. A sharded
+        service issues one per shard (``sharing.links[k].epoch``): None here, so that the team
+        replica's ``own()`` on the mission's own keys never takes a stray delta for this run's."""
+        return self.sharing.links[0].epoch if self.sharing.count == 1 else None
+
     @property
     def acked(self) -> int:
-        """The map server's last contiguous acked seq of this run's deltas (0 before any)."""
-        return self.acks.acked
+        """The map server's last contiguous acked seq of this run's deltas (0 before any);
+        summed over the shards when the service is sharded."""
+        return sum(self.sharing.acked)
 
     @property
     def superseded_frames(self) -> int:
@@ -231,7 +247,7 @@ class Agent:
         self.statuses.apply(self.explorer.teammates, frame.t)
         delta = self.explorer.fuse(frame)
         self.frames_fused += 1
-        self.outbox.add(delta)
+        self.sharing.add(delta)
         x, y = frame.pose.xyz[0], frame.pose.xyz[1]
         advice = (
             self.assignments.advice(self._pose) if self.coordination and self.explorer.wants_target else None
@@ -252,7 +268,7 @@ class Agent:
                 frame.pose,
                 target,
                 decision.state,
-                self.outbox.stats.bytes_sent,
+                self.sharing.stats.bytes_sent,
                 self.explorer.view_point(),
             )
             self._status_pub.put(status.encode())
@@ -275,18 +291,8 @@ class Agent:
         return frame
 
     def _share(self, flush: bool = False) -> None:
-        taken = self.outbox.take(self.explorer.map.lam, self.explorer.map.eta, flush=flush)
-        if taken is not None:
-            self._publish(*taken)
-
-    def _publish(self, seq: int, delta) -> None:
-        self.sender.send(seq, self.last_t, delta)  # never blocks: the sender thread puts it
-
-    def _sent(self, _seq: int, size: int) -> None:
-        self.outbox.stats.bytes_sent += size
-
-    def _granted(self, grant) -> None:
-        self.epoch = grant.epoch
+        """Each shard's link sends what is worth it (never blocks: sender threads put them)."""
+        self.sharing.share(self.explorer.map.lam, self.explorer.map.eta, flush=flush)
 
     # -- the team map --------------------------------------------------------------------
     def catch_up(self, timeout: float = 2.0) -> bool:
@@ -324,20 +330,10 @@ class Agent:
         return self.team.drain()
 
     def unshared(self):
-        """What this agent's map holds that the server's may not: called before a snapshot is
-        asked for, it notes the deltas sent and not acked then (the snapshot holds every one
-        acked before it was asked for); the function it returns gives, for the snapshot, the
-        noted deltas the snapshot does not hold, oldest first, then the information not sent yet."""
-        held = self.outbox.to_resend()
-        robot, epoch = self.robot_id, self.epoch
-
-        def finish(snap: Snapshot) -> list[Delta]:
-            covered = AppliedDeltas()
-            covered.cover(snap.acks, snap.above)
-            parts = [d for seq, d in held if (robot, epoch, seq) not in covered]
-            return [*parts, self.outbox.pending()]
-
-        return finish
+        """What this agent's map holds that the (unsharded) server's may not: see
+        :meth:`ShardedSharing.unshared`; the team replica's resync calls it."""
+        self._link0()
+        return self.sharing.unshared(0)
 
     # -- shutdown ------------------------------------------------------------------------
     def stop(self) -> None:
@@ -350,20 +346,18 @@ class Agent:
         The wait makes "the agent has exited" mean "its deltas are in the team map" whenever a map
         server is there: a runner that then reads the server's map gets all of them.
         """
-        before = (self.outbox.stats.deltas_sent, self.outbox.stats.voxels_sent)
+        stats = self.sharing.stats
+        before = (stats.deltas_sent, stats.voxels_sent)
         self._share(flush=True)
-        sent = self.outbox.stats.deltas_sent - before[0]
-        voxels = self.outbox.stats.voxels_sent - before[1]
+        stats = self.sharing.stats
+        sent, voxels = stats.deltas_sent - before[0], stats.voxels_sent - before[1]
         self._stop.set()
-        self.acks.stop()
-        self.sender.drain(ack_wait_s)
-        self.acks.await_all(ack_wait_s)
-        self.sender.stop()
+        self.sharing.shutdown(ack_wait_s)
         log.info(
             "%s: shutdown flush: %s; %d deltas not yet acked by the map server%s",
             self.robot_id,
             f"sent {sent} last delta(s), {voxels} voxels" if sent else "nothing pending",
-            len(self.outbox.unacked),
+            self.sharing.unacked,
             self._dropped_frames_note(),
         )
         self.link.close()

@@ -115,7 +115,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     finally:
         ending.close()
         if mismatch is None:  # after the shutdown flush: the final figures
-            stats = agent.outbox.stats
+            stats = agent.sharing.stats
             print(
                 f"{args.robot_id}: final, after the shutdown flush: {agent.frames_fused:,} frames fused, "
                 f"{stats.deltas_sent:,} deltas ({stats.voxels_sent:,} voxels, {stats.bytes_sent:,} bytes) "
