@@ -91,16 +91,15 @@ class Agent:
         self.team = TeamReplica(
             self.explorer.grid,
             self.explorer.sensor,
-            own=lambda: (self.robot_id, self.epoch),
-            fetch=lambda: MapClient(self.session, name, 2.0).snapshot(),
-            unshared=self.unshared,
+            **self._replica_feeds(),
+            layout=self.sharing.layout,
             table=self.explorer.table,
             cmap=self.explorer.map,
             entropy=self.explorer.entropy,
             peer_log=self._peer_log,
             name=robot_id,
         )
-        self._merged_sub = self.team.subscribe(session, bus.key(name, "merged"))
+        self._merged_subs = self.team.follow(session, name)  # every shard's merged
         #: the teammates' statuses: where they are, for keeping out of their way
         self.statuses = TeammateStatuses(session, name, robot_id, self._peer_log)
         self.coordination = coordination and strategy == "entropy"
@@ -295,8 +294,35 @@ class Agent:
         self.sharing.share(self.explorer.map.lam, self.explorer.map.eta, flush=flush)
 
     # -- the team map --------------------------------------------------------------------
+    def _server(self, shard: int) -> str:
+        """Map server shard ``shard``'s key prefix (the mission's name when unsharded)."""
+        return bus.shard_mission(self.mission.mission, shard, self.sharing.count)
+
+    def _replica_feeds(self) -> dict:
+        """The team replica's ``own``, ``fetch`` and ``unshared``: about the one server, or
+        one each per shard of a sharded map service (docs/sharding.md)."""
+        if self.sharing.count == 1:
+            return {
+                "own": lambda: (self.robot_id, self.epoch),
+                "fetch": lambda: MapClient(self.session, self.mission.mission, 2.0).snapshot(),
+                "unshared": self.unshared,
+            }
+        return self.sharing.replica_feeds(lambda k: MapClient(self.session, self._server(k), 2.0).snapshot())
+
     def catch_up(self, timeout: float = 2.0) -> bool:
-        """Start from the map server's snapshot, if one answers within ``timeout`` seconds."""
+        """Start from the map server's snapshot, if one answers within ``timeout`` seconds;
+        sharded, each shard's slab from that shard's snapshot (True when any was loaded)."""
+        if self.sharing.count > 1:
+            loaded = [self._catch_up_shard(k, timeout) for k in range(self.sharing.count)]
+            entropy = self.explorer.map_entropy
+            log.info(
+                "%s: started from %d of %d map server shards' snapshots (entropy %.0f bits)",
+                self.robot_id,
+                sum(loaded),
+                len(loaded),
+                entropy,
+            )
+            return any(loaded)
         name = self.mission.mission
         try:
             snap = MapClient(self.session, name, timeout).snapshot()
@@ -316,6 +342,15 @@ class Agent:
             return False
         entropy = self.explorer.map_entropy
         log.info("%s: started from the team map (entropy %.0f bits)", self.robot_id, entropy)
+        return True
+
+    def _catch_up_shard(self, shard: int, timeout: float) -> bool:
+        try:
+            snap = MapClient(self.session, self._server(shard), timeout).snapshot()
+            self.team.load_snapshot(snap, shard=shard)
+        except (MapServerUnavailable, MapQueryError, zenoh.ZError, ValueError) as exc:
+            log.info("%s: no snapshot of map server shard %d to start from (%s)", self.robot_id, shard, exc)
+            return False
         return True
 
     @property
@@ -361,5 +396,6 @@ class Agent:
             self._dropped_frames_note(),
         )
         self.link.close()
-        self._merged_sub.undeclare()
+        for sub in self._merged_subs:
+            sub.undeclare()
         self.statuses.undeclare()

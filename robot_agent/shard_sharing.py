@@ -14,6 +14,7 @@ there is one link over the whole grid under the mission's own keys: today's agen
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -172,6 +173,16 @@ class ShardedSharing:
     def own_epoch(self, shard: int) -> tuple[str, int | None]:
         """``(robot id, epoch)`` of this run on shard ``shard`` (epoch None until issued)."""
         return self.robot_id, self.links[shard].epoch
+
+    def replica_feeds(self, snapshot_of: Callable[[int], Snapshot]) -> dict:
+        """The team replica's per-shard ``own``, ``fetch`` (``snapshot_of(k)``: shard k's
+        snapshot) and ``unshared`` (swarm.protocol.team_replica.TeamReplica, ``layout``)."""
+        shards = range(self.count)
+        return {
+            "own": [functools.partial(self.own_epoch, k) for k in shards],
+            "fetch": [functools.partial(snapshot_of, k) for k in shards],
+            "unshared": [functools.partial(self.unshared, k) for k in shards],
+        }
 
     def unshared(self, shard: int) -> Callable[[Snapshot], list[Delta]]:
         """What this agent holds that shard ``shard``'s server may not, in its local indices.
