@@ -8,6 +8,11 @@ robots than the mission lists ends too: ``nothing left``). :class:`MissionEnd` f
 statuses, is asked by the server's loop (:meth:`MissionEnd.check`), puts
 :class:`~swarm.protocol.mission_messages.MissionDone` on ``mission/done`` when it is first
 done and every :data:`REPEAT_S` s after, and logs one summary line.
+
+A sharded map service (docs/sharding.md) has one decider, shard 0, on the mission's own prefix
+(``mission/done``, ``robot/<rid>/status``); the stats it is given are the team's
+(map_server.shard_peers: the entropy summed over the shards), and while a shard is unknown
+(``shards_unknown``) the threshold does not end the mission.
 """
 
 from __future__ import annotations
@@ -68,12 +73,14 @@ class MissionEnd:
         return done, sorted(set(live) - set(done))
 
     def check(self, stats: dict) -> MissionDone | None:
-        """Called with the server's ``map/stats`` every half second or so: decide, and put
-        ``mission/done`` when done (again every REPEAT_S s). Returns the end once it came."""
+        """Called with the server's ``map/stats`` (sharded: the team's, with ``shards_unknown``)
+        every half second or so: decide, and put ``mission/done`` when done (again every
+        REPEAT_S s). Returns the end once it came."""
         if self.done is None:
             done, busy = self.robots_done()
             entropy = float(stats.get("entropy_bits", float("inf")))
-            if self.threshold_bits is not None and entropy <= self.threshold_bits:
+            complete = not stats.get("shards_unknown")  # every shard's entropy is in the sum
+            if self.threshold_bits is not None and complete and entropy <= self.threshold_bits:
                 reason = "threshold"
             elif done and not busy:
                 reason = "nothing left"

@@ -1,5 +1,5 @@
-"""The map server role over Zenoh (``swarm server``; docs/protocol.md).
-
+"""The map server role over Zenoh (``swarm server``; docs/protocol.md), of the whole map or of one
+shard's slab (``<mission>`` is then ``<mission>/shard/<k>``: docs/sharding.md, map_server.shard_role).
 Subscribes ``swarm/<mission>/delta/*`` and answers ``map/epoch/<rid>`` with the epochs it
 issues (map_server.admission, map_server.epochs). Zenoh callbacks only enqueue
 (map_server.intake refuses what it can before reading it); one worker thread admits each
@@ -32,6 +32,7 @@ from map_server.options import ServerOptions, max_payload_for
 from map_server.query_gate import QueryGate
 from map_server.recovery import recover
 from map_server.replies import guarded, reply_json
+from map_server.shard_role import ShardRole
 from map_server.snapshot_stream import HeldStream, MapStreams, StreamCache, held_region, held_snapshot
 from map_server.store import Store, StoreError, StoreIdentity
 from map_server.store_files import OS_FILES, StoreFiles
@@ -57,13 +58,16 @@ class MapServer:
         mission_name: str | None = None,
         options: ServerOptions | None = None,
         files: StoreFiles = OS_FILES,
+        shard: int = 0,
     ) -> None:
         """Open the store and recover the map from it (snapshot, then the log); no Zenoh yet.
-        ``files``: the store's file layer (map_server.store_files; a recording one in tests)."""
-        self.name = mission_name or mission.mission
+        ``files``: the store's file layer (map_server.store_files; a recording one in tests).
+        ``shard``: the slab served, its grid and default prefix (map_server.shard_role; ConfigError)."""
+        self.role = ShardRole.of(mission, shard)  # which shard of the map service (1: the whole map)
+        self.name = mission_name or self.role.prefix
         self.options = options or ServerOptions()
         self.session: zenoh.Session | None = None
-        grid, sensor = mission.workspace.grid(), mission.sensor.model()
+        grid, sensor = self.role.grid, mission.sensor.model()
         self.store, recovered = Store.open(
             store_dir, StoreIdentity(self.name, grid, sensor), self.options.fsync, files
         )
@@ -128,14 +132,12 @@ class MapServer:
         self._stopping = threading.Event()
         self._worker = threading.Thread(target=self._work, name="map-server-worker", daemon=True)
         self._declared: list = []
-        self._delta_sub = None
-        self._merged_pub = None
+        self._delta_sub = self._merged_pub = None
         #: the run id and sample numbers of merged (the attachment of every sample)
         self.merged_numbers = MergedNumbering()
         self.merged_put_max_s = 0.0  # the longest a put on merged took (DROP: never a subscriber's wait)
-        self.wal_errors = 0
-        self._started = time.monotonic()
-        self._last_log = (time.monotonic(), len(self.team.ledger))
+        self.wal_errors, self._started = 0, time.monotonic()
+        self._last_log = (self._started, len(self.team.ledger))
         #: map/stats' H_th and end of the mission, as map_server.mission_end decides them
         self.threshold_bits: float | None = None
         self.mission_done: dict | None = None
@@ -156,8 +158,7 @@ class MapServer:
             "snapshot": self._queries.wrap("snapshot", self._on_snapshot),
             "region": self._queries.wrap("region", self._on_region),
         }
-        for part, handler in handlers.items():
-            self._declared.append(self.session.declare_queryable(key("map", part), handler))
+        self._declared += [self.session.declare_queryable(key("map", p), h) for p, h in handlers.items()]
         epochs = bus.key_pattern(self.name, "map", "epoch", "*")
         self._declared.append(self.session.declare_queryable(epochs, guarded(self.admission.on_epoch_query)))
         self._worker.start()
@@ -168,11 +169,7 @@ class MapServer:
         log.info(
             "map server for mission %r: grid %s, store %s: %d deltas from the snapshot, %d replayed "
             "from the log%s; H = %s bits",
-            self.name,
-            describe_grid(self.team.grid),
-            self.store.path,
-            applied,
-            replayed,
+            *(self.name, describe_grid(self.team.grid), self.store.path, applied, replayed),
             f", {torn} torn bytes cut" if torn else "",
             f"{self.team.entropy.total:,.0f}",
         )

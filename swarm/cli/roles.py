@@ -181,6 +181,13 @@ def register_server(sub: argparse._SubParsersAction) -> None:
     bus.add_zenoh_config_argument(p)
     p.add_argument("--mission", help="mission name, the key prefix (default: the config's mission)")
     p.add_argument(
+        "--shard",
+        type=int,
+        metavar="K",
+        help="which slab of the mission's map_service layout this process serves (0..shards-1; keys "
+        "under <mission>/shard/K; docs/sharding.md); needed when map_service.shards > 1",
+    )
+    p.add_argument(
         "--compact-mb",
         type=float,
         default=256,
@@ -274,7 +281,16 @@ def _run_server(args: argparse.Namespace) -> int:
         mission = load_mission(args.config)
         listen = args.listen or ([] if bus.config_path(args.zenoh_config) else [bus.DEFAULT_ENDPOINT])
         config = args.zenoh_config
-        serve(mission, listen, args.store, args.mission, options, args.connect, zenoh_config=config)
+        serve(
+            mission,
+            listen,
+            args.store,
+            args.mission,
+            options,
+            args.connect,
+            zenoh_config=config,
+            shard=args.shard,
+        )
     except (ConfigError, StoreError, ValueError, OSError) as exc:  # ConnectionError is an OSError
         return fail(str(exc))
     return 0
