@@ -331,6 +331,7 @@ class MapServer:
             "breaches": dict(self.admission.breaches),
             "threshold_bits": self.threshold_bits,
             "mission_done": self.mission_done,
+            **self.role.stats_fields(),
             "merged": {
                 "run": f"{self.merged_numbers.run:016x}",
                 "published": self.merged_numbers.number,

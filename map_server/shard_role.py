@@ -73,6 +73,24 @@ class ShardRole:
         """Whether this server decides and announces the end of the mission (shard 0 only)."""
         return self.shard == 0
 
+    def stats_fields(self) -> dict:
+        """``map/stats``' ``shard`` object of a sharded service (none when unsharded): this
+        shard's index, the shard count, the x-index cuts ``bounds`` (N+1 ints) and the
+        mission-level prefix, from which a client rebuilds the layout (docs/sharding.md)."""
+        if not self.sharded:
+            return {}
+        g = self.layout.grid
+        whole = {"shape": list(g.shape), "origin": list(g.origin), "voxel_size": g.voxel}
+        return {
+            "shard": {
+                "index": self.shard,
+                "count": self.count,
+                "bounds": list(self.layout.bounds),
+                "mission": self.mission,
+                "mission_grid": whole,
+            }
+        }
+
     def describe(self) -> str:
         """``shard 1 of 2: x from 1.5 to 3 m, key prefix swarm/m/shard/1``."""
         grid = self.grid

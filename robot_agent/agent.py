@@ -153,7 +153,7 @@ class Agent:
             return
         stats = self.sharing.stats
         log.info(
-            "%s: %d frames fused (%.1f/s)%s, %d deltas sent, %d acked by the map server, %d resent, "
+            "%s: %d frames fused (%.1f/s)%s, %d deltas sent, %s acked by the map server, %d resent, "
             "%s bits held back; map entropy %s bits; merged from the team %d; coordinator %s",
             self.robot_id,
             self.frames_fused,

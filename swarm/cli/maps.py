@@ -143,6 +143,7 @@ def _open_client(args: argparse.Namespace):
     """A MapClient on the mission to query (see ``resolve_mission`` for the rule)."""
     from swarm.config import load_mission
     from swarm.protocol.map_client import MapClient, resolve_mission
+    from swarm.protocol.sharded_client import ShardedMapClient, discover_layout
 
     wanted, origin = args.mission, "--mission"
     if wanted is None and args.config is not None:
@@ -150,10 +151,16 @@ def _open_client(args: argparse.Namespace):
     client = MapClient.connect(args.connect, wanted or "default", args.timeout, args.zenoh_config)
     try:
         client.mission = resolve_mission(client.session, wanted, args.timeout, client.endpoint, origin)
+        # a sharded map service: one client per shard, answers fanned in (docs/sharding.md)
+        layout = discover_layout(client.session, client.mission, args.timeout, once=True)
     except BaseException:
         client.close()
         raise
-    return client
+    if layout is None:
+        return client
+    return ShardedMapClient(
+        client.session, client.mission, layout, args.timeout, client.endpoint, owns_session=True
+    )
 
 
 def _run_map_info(args: argparse.Namespace) -> int:

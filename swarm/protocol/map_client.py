@@ -189,22 +189,31 @@ def missions_answering(session: zenoh.Session, timeout: float = DEFAULT_TIMEOUT_
     Asks again until one answers or the time is up (a session just opened may not know the
     servers' queryables yet); returns the sorted names, empty when none answers.
     """
-    pattern = f"{bus.ROOT}/*/map/stats"
+    # an unsharded mission's server, and the shards of sharded ones (docs/sharding.md)
+    patterns = (f"{bus.ROOT}/*/map/stats", f"{bus.ROOT}/*/shard/*/map/stats")
     deadline = time.monotonic() + timeout
     while True:
         names = set()
-        for reply in session.get(pattern, timeout=max(deadline - time.monotonic(), 0.05)):
-            if reply.ok is None:
-                continue
-            try:  # the reply's key is the query's pattern: the name is in the stats
-                name = json.loads(reply.ok.payload.to_bytes()).get("mission")
-            except (ValueError, AttributeError):
-                continue
-            if isinstance(name, str) and name:
-                names.add(name)
+        for pattern in patterns:
+            for reply in session.get(pattern, timeout=max(deadline - time.monotonic(), 0.05)):
+                if (name := _mission_named(reply)) is not None:
+                    names.add(name)
         if names or time.monotonic() >= deadline:
             return sorted(names)
         time.sleep(0.05)
+
+
+def _mission_named(reply) -> str | None:
+    """The mission a ``map/stats`` reply is about: a shard's says so in ``shard.mission``."""
+    if reply.ok is None:
+        return None
+    try:  # the reply's key is the query's pattern: the name is in the stats
+        stats = json.loads(reply.ok.payload.to_bytes())
+        shard = stats.get("shard")
+        name = shard.get("mission") if isinstance(shard, dict) else stats.get("mission")
+    except (ValueError, AttributeError):
+        return None
+    return name if isinstance(name, str) and name else None
 
 
 def resolve_mission(
@@ -297,6 +306,8 @@ def export_map(client: MapClient, out: str | Path, threshold: float = 0.5, **opt
         raise ValueError(
             f"{out}: the output must end in .npz (map file), .ply (occupied voxels) or .bt (OctoMap)"
         )
-    snap = client.snapshot()
+    from swarm.protocol.sharded_client import team_snapshot
+
+    snap = team_snapshot(client)  # a sharded service's slabs side by side
     cmap = CoverageMap(snap.grid, sensor_from_stats(client.stats()), snap.lam, snap.eta)
     return export_coverage_map(out, cmap, threshold, **options)

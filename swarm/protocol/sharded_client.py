@@ -58,8 +58,11 @@ class ShardedMapClient:
         layout: ShardLayout,
         timeout: float = DEFAULT_TIMEOUT_S,
         endpoint: str = "the Zenoh network",
+        owns_session: bool = False,
     ) -> None:
         self.session = session
+        self.endpoint = endpoint
+        self._owns = owns_session
         self.mission = mission
         self.layout = layout
         self.timeout = float(timeout)
@@ -70,7 +73,9 @@ class ShardedMapClient:
         ]
 
     def close(self) -> None:
-        """Nothing to close: the session is borrowed."""
+        """Close the session when this client opened it (else it is borrowed: left open)."""
+        if self._owns:
+            self.session.close()
 
     def __enter__(self) -> ShardedMapClient:
         return self
@@ -161,6 +166,37 @@ def _joined(layout: ShardLayout, parts: list[tuple[np.ndarray, Region]]) -> Regi
     order = np.argsort(idx, kind="stable")
     values = {name: np.concatenate([getattr(r, name) for _, r in parts])[order] for name in Region._VALUES}
     return Region(layout.grid, idx[order].astype(np.uint32), **values)
+
+
+def discover_layout(
+    session: zenoh.Session, mission: str, timeout: float = DEFAULT_TIMEOUT_S, once: bool = False
+) -> ShardLayout | None:
+    """The ``ShardLayout`` of ``mission``'s sharded map service, as its shards describe it in
+    ``map/stats`` (``shard``: count, x cuts and the mission grid), or None when no shard of it
+    answers within ``timeout`` s (an unsharded mission, or none running). ``once``: ask one
+    time only (a session that has seen the servers answer already knows their queryables)."""
+    import json
+    import time
+
+    from swarm.map.grid import Grid
+
+    pattern = bus.key_pattern(mission, "shard", "*", "map", "stats")
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for reply in session.get(pattern, timeout=max(deadline - time.monotonic(), 0.05)):
+            if reply.ok is None:
+                continue
+            try:
+                shard = json.loads(reply.ok.payload.to_bytes())["shard"]
+                whole = shard["mission_grid"]
+                grid = Grid(tuple(whole["origin"]), float(whole["voxel_size"]), tuple(whole["shape"]))
+                return ShardLayout(grid, tuple(int(b) for b in shard["bounds"]))
+            except (ValueError, KeyError, TypeError):
+                continue  # not a shard's stats: another may answer
+        if once:
+            break
+        time.sleep(0.05)
+    return None
 
 
 def team_snapshot(client: MapClient | ShardedMapClient, progress: Progress | None = None) -> Snapshot:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from contextlib import ExitStack
 
 import numpy as np
 import pytest
@@ -25,31 +24,14 @@ from swarm.protocol.map_client import MapClient
 from swarm.protocol.wire import DeltaMessage
 from tests.support.map_server_mission import MISSION_YAML, robot_batches, wait_until
 from tests.support.paths import ROOT
-
-
-def sharded_mission(shards: int = 2):
-    data = yaml.safe_load(MISSION_YAML)
-    data["map_service"] = {"shards": shards}
-    return mission_from_dict(data)
+from tests.support.shard_servers import shard_servers, sharded_mission
 
 
 @pytest.fixture
 def two_shards(tmp_path):
     """Two map servers of one two-shard mission on one loopback router, and a client session."""
-    mission = sharded_mission(2)
-    endpoint = bus.tcp_endpoint(bus.free_port())
-    with ExitStack() as stack:
-        router = bus.open_session(listen=[endpoint])
-        stack.callback(router.close)
-        servers = []
-        for k in range(2):
-            server = MapServer(mission, tmp_path / f"shard-{k}", shard=k)
-            server.start(router)
-            stack.callback(server.stop)
-            servers.append(server)
-        client = bus.open_session(connect=[endpoint])
-        stack.callback(client.close)
-        yield mission, servers, client
+    with shard_servers(tmp_path, 2) as world:
+        yield world
 
 
 def test_two_shards_serve_the_two_slabs_under_their_prefixes(two_shards) -> None:
