@@ -113,6 +113,10 @@ class MapClient:
         (``swarm.protocol.map_stream``); ``progress(received, chunks)`` after each chunk."""
         return self._stream("snapshot", SNAPSHOT_KIND, "", progress).snapshot()
 
+    def team_snapshot(self, progress: Progress | None = None) -> Snapshot:
+        """The team map's snapshot: :meth:`snapshot` (as ``ShardedMapClient.team_snapshot``)."""
+        return self.snapshot(progress)
+
     def region(self, lo, hi, progress: Progress | None = None) -> Region:
         """Beliefs of the voxels the box [lo, hi] (world metres) touches, streamed in chunks."""
         params = f"lo={_vec(lo)};hi={_vec(hi)}"
@@ -306,8 +310,6 @@ def export_map(client: MapClient, out: str | Path, threshold: float = 0.5, **opt
         raise ValueError(
             f"{out}: the output must end in .npz (map file), .ply (occupied voxels) or .bt (OctoMap)"
         )
-    from swarm.protocol.sharded_client import team_snapshot
-
-    snap = team_snapshot(client)  # a sharded service's slabs side by side
+    snap = client.team_snapshot()  # a sharded client's: the slabs side by side
     cmap = CoverageMap(snap.grid, sensor_from_stats(client.stats()), snap.lam, snap.eta)
     return export_coverage_map(out, cmap, threshold, **options)

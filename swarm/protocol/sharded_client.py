@@ -107,6 +107,10 @@ class ShardedMapClient:
         eta = np.concatenate([np.asarray(s.eta, np.float32).reshape(-1) for s in shards])
         return ShardedSnapshot(shards, Snapshot(self.layout.grid, lam, eta))
 
+    def team_snapshot(self, progress: Progress | None = None) -> Snapshot:
+        """The team map they make (mission grid, slabs side by side, no acks)."""
+        return self.snapshot(progress).team
+
     def region(self, lo, hi, progress: Progress | None = None) -> Region:
         """The beliefs of the voxels the box [lo, hi] (world metres) touches, from the shards
         whose slabs it crosses, in the team grid's indices (ascending)."""
@@ -201,8 +205,7 @@ def discover_layout(
 
 def team_snapshot(client: MapClient | ShardedMapClient, progress: Progress | None = None) -> Snapshot:
     """The team map's snapshot from either client (a sharded one's slabs side by side, no acks)."""
-    snap = client.snapshot(progress)
-    return snap.team if isinstance(snap, ShardedSnapshot) else snap
+    return client.team_snapshot(progress)
 
 
 def map_client_for(
