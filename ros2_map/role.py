@@ -41,6 +41,7 @@ from swarm.protocol.byte_budget import MAX_QUEUED_MERGED_BYTES, ByteBudget
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable, sensor_from_stats
 from swarm.protocol.merged_stream import StreamPosition
 from swarm.protocol.message_size import delta_bytes
+from swarm.protocol.sharded_client import unsharded_only
 from swarm.protocol.wire import WireError
 from swarm.ros2.graph import LATCHED_QOS, Qos
 from swarm.ros2.map_messages import OCCUPANCY_GRID, OCCUPANCY_GRID_UPDATE, POINT_CLOUD2, register_map_msgs
@@ -181,9 +182,7 @@ class TeamMapTopics:
                 break
             except (MapServerUnavailable, MapQueryError) as exc:
                 if time.monotonic() >= deadline:
-                    raise ConnectionError(
-                        f"no map server of mission {self.mission!r} answered: {exc}"
-                    ) from exc
+                    raise ConnectionError(unsharded_only(self.session, self.mission, exc)) from exc
                 time.sleep(0.5)
         fmap = FollowedMap(snapshot, sensor)
         outputs = MapOutputs(fmap, self.options, self.context.types)

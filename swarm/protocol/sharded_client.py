@@ -203,6 +203,19 @@ def discover_layout(
     return None
 
 
+def unsharded_only(session: zenoh.Session, mission: str, exc: Exception) -> str:
+    """Why a role that follows one map server found none for ``mission``: the error ``exc``,
+    or that the mission's map service is sharded, which the role does not follow yet."""
+    layout = discover_layout(session, mission, 1.0, once=True)
+    if layout is None:
+        return f"no map server of mission {mission!r} answered: {exc}"
+    return (
+        f"mission {mission!r} has a sharded map service ({layout.count} shards); this role follows "
+        "an unsharded one only for now (docs/sharding.md, 'Limits'); swarm map stats/get/export "
+        "work on a sharded one"
+    )
+
+
 def team_snapshot(client: MapClient | ShardedMapClient, progress: Progress | None = None) -> Snapshot:
     """The team map's snapshot from either client (a sharded one's slabs side by side, no acks)."""
     return client.team_snapshot(progress)

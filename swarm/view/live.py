@@ -27,6 +27,7 @@ from swarm.log_limit import LogLimiter
 from swarm.map.coverage_map import CoverageMap
 from swarm.protocol import bus
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable, sensor_from_stats
+from swarm.protocol.sharded_client import unsharded_only
 from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage, WireError, status_on_key
 from swarm.view.scene import RobotTrack, log_map, log_robot, require_rerun
@@ -109,9 +110,7 @@ class TeamView:
                 break
             except (MapServerUnavailable, MapQueryError) as exc:
                 if time.monotonic() >= deadline:
-                    raise ConnectionError(
-                        f"no map server of mission {self.mission!r} answered: {exc}"
-                    ) from exc
+                    raise ConnectionError(unsharded_only(self.session, self.mission, exc)) from exc
                 time.sleep(0.5)
         team = TeamReplica(
             snap.grid,
