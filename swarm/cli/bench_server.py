@@ -41,6 +41,20 @@ def register(bsub: argparse._SubParsersAction) -> None:
         "was applied exactly once (deltas of --min-voxels to --max-voxels; try 200 and 2000)",
     )
     server.set_defaults(run=_run_bench_server)
+    shards = bsub.add_parser(
+        "shards",
+        help="one map server beside two shards: throughput and publish-to-acked latency",
+        description="The same deltas, split by owner, to one swarm server and then to a map service of "
+        "two shards (docs/sharding.md) on loopback: voxel updates merged per second with --agents "
+        "publishers, and the time from a paced publish until every shard's map/acks covers it (p50, "
+        "p99). On one host the shards share its cores.",
+    )
+    shards.add_argument("--agents", type=int, default=16, help="publisher sessions (default 16)")
+    shards.add_argument("--deltas", type=int, default=20, help="deltas per publisher (default 20)")
+    shards.add_argument(
+        "--period", type=float, default=0.5, help="seconds between a publisher's paced deltas (default 0.5)"
+    )
+    shards.set_defaults(run=_run_bench_shards)
     soak = bsub.add_parser(
         "soak",
         help="map server over mutual TLS and access control under a steady team load for minutes",
@@ -127,6 +141,16 @@ def _run_bench_server(args: argparse.Namespace) -> int:
         return 0
     figures = server.run(args.agents, args.deltas, args.min_voxels, args.max_voxels, args.period)
     print(server.format_table(figures))
+    return 0
+
+
+def _run_bench_shards(args: argparse.Namespace) -> int:
+    from swarm.bench import shards
+
+    if args.agents < 1 or args.deltas < 1 or args.period <= 0:
+        return fail("--agents, --deltas and --period must be positive")
+    figures = shards.run(args.agents, args.deltas, period_s=args.period)
+    print(shards.format_table(figures))
     return 0
 
 

@@ -145,9 +145,10 @@ def team_stats(layout: ShardLayout, shards: list[dict]) -> dict:
     robots: dict[str, dict] = {}
     for s in shards:
         for robot, entry in s.get("robots", {}).items():
-            mine = robots.setdefault(robot, {"deltas": 0, "voxel_updates": 0})
-            mine["deltas"] += int(entry.get("deltas", 0))
-            mine["voxel_updates"] += int(entry.get("voxel_updates", 0))
+            mine = robots.setdefault(robot, {"deltas": 0, "voxel_updates": 0, "acked_seq": 0, "last_seq": 0})
+            # seqs are per shard: the latest run's acked and applied seqs add up to its deltas
+            for name in ("deltas", "voxel_updates", "acked_seq", "last_seq"):
+                mine[name] += int(entry.get(name, 0))
     team["robots"] = robots
     team["quarantined"] = sorted({r for s in shards for r in s.get("quarantined", [])})
     team["mission"] = _mission_of(str(first.get("mission", "")))
