@@ -1,6 +1,7 @@
 """A whole single-robot mission through `swarm sim`: world and agent as processes over Zenoh."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -62,3 +63,31 @@ def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
     assert 0 < metrics["halfway_time_s"] <= metrics["mission_time_s"]
     assert metrics["overlap_halfway"] == 0.0 == metrics["overlap_fraction"]  # one robot
     assert metrics["overlap_before_threshold"] == 0.0
+
+
+def test_a_mission_on_a_two_shard_map_service_ends_with_the_monitors_map(tmp_path: Path):
+    """``map_service: {shards: 2}``: swarm sim starts a server per shard, the robot shares with
+    both, and the team map read from the two shards is the map the monitor fused (docs/sharding.md)."""
+    (tmp_path / "plan.yaml").write_text(PLAN)
+    (tmp_path / "tiny.yaml").write_text(MISSION + "map_service: {shards: 2}\n")
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "tiny.yaml"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    logs = "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(out.glob("*.log")))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["reached_threshold"] is True, proc.stdout + logs
+    for k in (0, 1):
+        assert (out / "server-store" / f"shard-{k}" / "store.json").is_file()
+        assert "deltas applied" in (out / f"server-shard-{k}.log").read_text()
+    (final,) = [
+        line for line in proc.stdout.splitlines() if line.startswith("final, after the shutdown flush")
+    ]
+    monitor_h = re.search(r"^final, after the shutdown flush: H=([\d,]+) bits", final).group(1)
+    served_h = re.search(r"the map server's map: H=([\d,]+) bits", final).group(1)
+    assert served_h == monitor_h, final
+    assert "started from 2 of 2 map server shards' snapshots" in (out / "agent-r1.log").read_text()
