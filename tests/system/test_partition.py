@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -23,42 +22,37 @@ from pathlib import Path
 import pytest
 
 from tests.support.missions import MISSION, PLAN
+from tests.support.net_namespaces import NO_SHM, ip, require_namespaces, wait_for
 
 pytestmark = pytest.mark.slow  # whole missions: every role a process
 
 SERVER_IP, ROBOT_IP = "192.0.2.1", "192.0.2.2"
 OUTAGE_S = 30.0
 SETTLE_S = 3.0
-NO_SHM = "{transport: {shared_memory: {enabled: false}}, scouting: {multicast: {enabled: false}}}\n"
-
-
-def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, timeout=10)
 
 
 @pytest.fixture
 def two_hosts():
     """Namespaces ``srv`` and ``rob`` joined by a veth pair; removed afterwards whatever happens."""
-    if shutil.which("ip") is None or os.geteuid() != 0:
-        pytest.skip("network namespaces need root and iproute2's ip")
+    require_namespaces()
     tag = uuid.uuid4().hex[:6]
     srv, rob, va, vb = f"sw{tag}s", f"sw{tag}r", f"sw{tag}a", f"sw{tag}b"
     try:
-        _ip("netns", "add", srv)
-        _ip("netns", "add", rob)
+        ip("netns", "add", srv)
+        ip("netns", "add", rob)
     except (subprocess.CalledProcessError, OSError) as exc:
         for ns in (srv, rob):
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         pytest.skip(f"cannot create network namespaces here: {exc}")
     try:
-        _ip("link", "add", va, "type", "veth", "peer", "name", vb)
-        _ip("link", "set", va, "netns", srv)
-        _ip("link", "set", vb, "netns", rob)
-        _ip("-n", srv, "addr", "add", f"{SERVER_IP}/24", "dev", va)
-        _ip("-n", rob, "addr", "add", f"{ROBOT_IP}/24", "dev", vb)
+        ip("link", "add", va, "type", "veth", "peer", "name", vb)
+        ip("link", "set", va, "netns", srv)
+        ip("link", "set", vb, "netns", rob)
+        ip("-n", srv, "addr", "add", f"{SERVER_IP}/24", "dev", va)
+        ip("-n", rob, "addr", "add", f"{ROBOT_IP}/24", "dev", vb)
         for ns, dev in ((srv, va), (rob, vb)):
-            _ip("-n", ns, "link", "set", "lo", "up")
-            _ip("-n", ns, "link", "set", dev, "up")
+            ip("-n", ns, "link", "set", "lo", "up")
+            ip("-n", ns, "link", "set", dev, "up")
         yield {"srv": srv, "rob": rob, "srv_dev": va}
     finally:
         for ns in (srv, rob):
@@ -89,16 +83,6 @@ def _server_stats(ns: str, endpoint: str, mission: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _wait(condition, timeout: float, what: str, logs: list[Path]) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(
-                f"timed out waiting for {what}\n" + "\n".join(p.read_text()[-2000:] for p in logs)
-            )
-        time.sleep(0.2)
-
-
 def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts, tmp_path, monkeypatch):
     (tmp_path / "plan.yaml").write_text(PLAN)
     (tmp_path / "tiny.yaml").write_text(
@@ -122,7 +106,7 @@ def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts,
             logs["server"],
         )  # fmt: skip
         procs.append(server)
-        _wait(lambda: "listening on" in logs["server"].read_text(), 60, "the server", list(logs.values()))
+        wait_for(lambda: "listening on" in logs["server"].read_text(), 60, "the server", list(logs.values()))
         # the robot: its agent is its own router (the world meets it on loopback) and reaches the
         # server over the veth link
         agent = _start(
@@ -134,13 +118,13 @@ def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts,
         procs.append(agent)
         world = _start(two_hosts["rob"], ["sim", "world", config, "--connect", local_ep, *zc], logs["world"])
         procs.append(world)
-        _wait(lambda: _applied(logs["server"]) > 0, 120, "the first applied delta", list(logs.values()))
-        _ip("-n", two_hosts["srv"], "link", "set", two_hosts["srv_dev"], "down")
+        wait_for(lambda: _applied(logs["server"]) > 0, 120, "the first applied delta", list(logs.values()))
+        ip("-n", two_hosts["srv"], "link", "set", two_hosts["srv_dev"], "down")
         time.sleep(SETTLE_S)  # what was already in the server's queue when the link went is applied
         applied_at_cut = _applied(logs["server"])
         time.sleep(OUTAGE_S - SETTLE_S)
         assert _applied(logs["server"]) == applied_at_cut  # the link really was down
-        _ip("-n", two_hosts["srv"], "link", "set", two_hosts["srv_dev"], "up")
+        ip("-n", two_hosts["srv"], "link", "set", two_hosts["srv_dev"], "up")
         world.wait(timeout=180)  # the robot finished mapping (it did not wait for the link)
         stable = {"n": -1, "since": time.monotonic()}
 
@@ -150,7 +134,7 @@ def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts,
                 stable.update(n=n, since=time.monotonic())
             return time.monotonic() - stable["since"] > 8.0
 
-        _wait(settled, 120, "the resends", list(logs.values()))
+        wait_for(settled, 120, "the resends", list(logs.values()))
         agent.send_signal(signal.SIGTERM)
         agent.wait(timeout=60)
         sent = int(
@@ -163,7 +147,7 @@ def test_a_partitioned_robot_keeps_mapping_and_every_delta_lands_once(two_hosts,
         def all_applied() -> bool:
             return _server_stats(two_hosts["srv"], server_ep, "tiny")["stats"]["deltas_applied"] >= sent
 
-        _wait(all_applied, 60, f"{sent} deltas applied", list(logs.values()))
+        wait_for(all_applied, 60, f"{sent} deltas applied", list(logs.values()))
         final = _server_stats(two_hosts["srv"], server_ep, "tiny")
         assert final["stats"]["deltas_applied"] == sent  # each exactly once: no delta lost or doubled
         (epoch_acks,) = final["acks"]["r1"].values()

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -31,6 +30,7 @@ import numpy as np
 import pytest
 
 from tests.support.missions import MISSION, PLAN
+from tests.support.net_namespaces import NO_SHM, ip, require_namespaces, wait_for
 from tests.support.paths import ROOT
 
 pytestmark = pytest.mark.slow  # whole roles as processes on three hosts
@@ -38,23 +38,17 @@ pytestmark = pytest.mark.slow  # whole roles as processes on three hosts
 A_B, B_A = "198.51.100.1", "198.51.100.2"  # the a-b link
 A_C, C_A = "203.0.113.1", "203.0.113.2"  # the a-c link
 OUTAGE_S = 20.0
-NO_SHM = "{transport: {shared_memory: {enabled: false}}, scouting: {multicast: {enabled: false}}}\n"
-
-
-def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, timeout=10)
 
 
 @pytest.fixture
 def three_hosts():
     """Namespaces a, b, c; veth pairs a-b and a-c; removed afterwards whatever happens."""
-    if shutil.which("ip") is None or os.geteuid() != 0:
-        pytest.skip("network namespaces need root and iproute2's ip")
+    require_namespaces()
     tag = uuid.uuid4().hex[:5]
     ns = {h: f"sh{tag}{h}" for h in "abc"}
     try:
         for name in ns.values():
-            _ip("netns", "add", name)
+            ip("netns", "add", name)
     except (subprocess.CalledProcessError, OSError) as exc:
         for name in ns.values():
             subprocess.run(["ip", "netns", "del", name], capture_output=True)
@@ -62,15 +56,15 @@ def three_hosts():
     try:
         for far, (near_ip, far_ip) in (("b", (A_B, B_A)), ("c", (A_C, C_A))):
             near_dev, far_dev = f"sh{tag}a{far}", f"sh{tag}{far}a"
-            _ip("link", "add", near_dev, "type", "veth", "peer", "name", far_dev)
-            _ip("link", "set", near_dev, "netns", ns["a"])
-            _ip("link", "set", far_dev, "netns", ns[far])
-            _ip("-n", ns["a"], "addr", "add", f"{near_ip}/24", "dev", near_dev)
-            _ip("-n", ns[far], "addr", "add", f"{far_ip}/24", "dev", far_dev)
-            _ip("-n", ns["a"], "link", "set", near_dev, "up")
-            _ip("-n", ns[far], "link", "set", far_dev, "up")
+            ip("link", "add", near_dev, "type", "veth", "peer", "name", far_dev)
+            ip("link", "set", near_dev, "netns", ns["a"])
+            ip("link", "set", far_dev, "netns", ns[far])
+            ip("-n", ns["a"], "addr", "add", f"{near_ip}/24", "dev", near_dev)
+            ip("-n", ns[far], "addr", "add", f"{far_ip}/24", "dev", far_dev)
+            ip("-n", ns["a"], "link", "set", near_dev, "up")
+            ip("-n", ns[far], "link", "set", far_dev, "up")
         for name in ns.values():
-            _ip("-n", name, "link", "set", "lo", "up")
+            ip("-n", name, "link", "set", "lo", "up")
         yield {**ns, "b_dev": f"sh{tag}ba"}
     finally:
         for name in ns.values():
@@ -112,15 +106,6 @@ def _team(ns: str, endpoint: str, zenoh_config: Path, out: Path | None = None) -
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def _wait(condition, timeout: float, what: str, logs) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            tails = "\n".join(f"--- {p.name}\n{p.read_text()[-1500:]}" for p in logs)
-            raise AssertionError(f"timed out waiting for {what}\n{tails}")
-        time.sleep(0.2)
-
-
 def test_two_shards_on_two_hosts_take_every_delta_once_through_a_cut_and_a_kill(three_hosts, tmp_path):
     (tmp_path / "plan.yaml").write_text(PLAN)
     mission = MISSION.replace("agent_timeout_s: 30", "agent_timeout_s: 120").replace(
@@ -144,13 +129,13 @@ def test_two_shards_on_two_hosts_take_every_delta_once_through_a_cut_and_a_kill(
              "--listen", hub, "--log-every", "0.2", *zc],
             logs["shard0"],
         )  # fmt: skip
-        _wait(lambda: "listening on" in logs["shard0"].read_text(), 60, "shard 0", logs.values())
+        wait_for(lambda: "listening on" in logs["shard0"].read_text(), 60, "shard 0", logs.values())
         procs["shard1"] = _start(three_hosts["b"], shard1_args, logs["shard1"])
         procs["coordinator"] = _start(
             three_hosts["a"], ["coordinator", "--config", config, "--connect", "tcp/127.0.0.1:7447", *zc],
             logs["coordinator"],
         )  # fmt: skip
-        _wait(lambda: "listening on" in logs["shard1"].read_text(), 60, "shard 1", logs.values())
+        wait_for(lambda: "listening on" in logs["shard1"].read_text(), 60, "shard 1", logs.values())
         procs["agent"] = _start(
             three_hosts["c"],
             ["agent", "--id", "r1", "--config", config, "--listen", robot_local,
@@ -162,12 +147,14 @@ def test_two_shards_on_two_hosts_take_every_delta_once_through_a_cut_and_a_kill(
             three_hosts["c"], [config, robot_local, str(no_shm), str(recorded)], logs["recorder"],
             module="tests.support.delta_recorder",
         )  # fmt: skip
-        _wait(lambda: "recording deltas" in logs["recorder"].read_text(), 60, "the recorder", logs.values())
+        wait_for(
+            lambda: "recording deltas" in logs["recorder"].read_text(), 60, "the recorder", logs.values()
+        )
         issued = lambda: logs["agent"].read_text().count("epoch 1 issued") == 2  # noqa: E731
-        _wait(issued, 60, "the robot's epoch on each shard", logs.values())
+        wait_for(issued, 60, "the robot's epoch on each shard", logs.values())
 
         # the a-b link goes down: the robot maps all its mission while shard 1 hears nothing
-        _ip("-n", three_hosts["b"], "link", "set", three_hosts["b_dev"], "down")
+        ip("-n", three_hosts["b"], "link", "set", three_hosts["b_dev"], "down")
         cut = time.monotonic()
         procs["world"] = _start(three_hosts["c"], ["sim", "world", config, "--connect", robot_local, *zc],
                                 logs["world"])  # fmt: skip
@@ -175,8 +162,8 @@ def test_two_shards_on_two_hosts_take_every_delta_once_through_a_cut_and_a_kill(
         time.sleep(max(OUTAGE_S - (time.monotonic() - cut), 0.0))
         assert _applied(logs["shard0"]) > 0, "shard 0 took its part during the cut"
         assert _applied(logs["shard1"]) == 0, "the a-b link really was down"
-        _ip("-n", three_hosts["b"], "link", "set", three_hosts["b_dev"], "up")
-        _wait(lambda: _applied(logs["shard1"]) > 0, 60, "shard 1 after the cut", logs.values())
+        ip("-n", three_hosts["b"], "link", "set", three_hosts["b_dev"], "up")
+        wait_for(lambda: _applied(logs["shard1"]) > 0, 60, "shard 1 after the cut", logs.values())
 
         # shard 1 dies without a word while the resends come in, and comes back on its store
         procs["shard1"].send_signal(signal.SIGKILL)
@@ -184,7 +171,7 @@ def test_two_shards_on_two_hosts_take_every_delta_once_through_a_cut_and_a_kill(
         procs["shard1"] = _start(three_hosts["b"], shard1_args, logs["shard1"])
         hub_client = "tcp/127.0.0.1:7447"
         produced = int(re.findall(r"recorded (\d+) deltas", logs["recorder"].read_text())[-1])
-        _wait(
+        wait_for(
             lambda: sum(_team(three_hosts["a"], hub_client, no_shm)["applied"]) >= produced,
             120, f"the {produced} deltas recorded, applied over both shards", logs.values(),
         )  # fmt: skip
@@ -192,7 +179,7 @@ def test_two_shards_on_two_hosts_take_every_delta_once_through_a_cut_and_a_kill(
         procs["agent"].wait(timeout=60)
         text = logs["agent"].read_text()
         sent = int(re.search(r"(\d[\d,]*) deltas \([\d,]+ voxels", text).group(1).replace(",", ""))
-        _wait(
+        wait_for(
             lambda: sum(_team(three_hosts["a"], hub_client, no_shm)["applied"]) >= sent,
             90, f"{sent} deltas applied over both shards", logs.values(),
         )  # fmt: skip

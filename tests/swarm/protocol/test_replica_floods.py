@@ -233,9 +233,9 @@ def test_a_flood_on_merged_faster_than_the_coordinator_applies_is_bounded():
     coordinator = Coordinator(m, coord_session, snapshot_timeout=5.0, max_queued_merged_bytes=1 << 20)
     real = coordinator.state.team.apply_payload
 
-    def slow_apply(payload: bytes) -> str:
+    def slow_apply(payload: bytes, shard: int = 0) -> str:
         time.sleep(0.02)  # a large map on a loaded machine
-        return real(payload)
+        return real(payload, shard)
 
     coordinator.state.team.apply_payload = slow_apply
     idx = np.arange(min(grid.size, 8000), dtype=np.uint32)
