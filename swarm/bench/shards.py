@@ -68,10 +68,9 @@ class _Service:
             cmd = swarm_argv("server", "--listen", listen, "--config", str(config))
             cmd += ["--store", str(workdir / f"store-{shards}-{k}")]
             cmd += ["--shard", str(k)] + ([] if k == 0 else ["--connect", self.endpoint])
-            log = open(workdir / f"server-{shards}-{k}.log", "w")  # noqa: SIM115 (the process keeps it)
-            self.servers.append(
-                subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=child_environment())
-            )
+            with open(workdir / f"server-{shards}-{k}.log", "w") as log:  # the child keeps its copy
+                env = child_environment()
+                self.servers.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env))
             if k == 0:
                 time.sleep(0.5)
 
@@ -133,12 +132,12 @@ def _figures(workdir: Path, deltas: list, agents: int, per_agent: int, shards: i
         resent, last = 0, time.perf_counter()
         while True:
             acks = [_acks(probe, prefix) for prefix in service.prefixes]
-            lagging = [
-                (a, k, int(acks[k].get(f"a{a + 1}", {}).get(str(made[a][1][k]), 0)))
+            acked = {
+                (a, k): int(acks[k].get(f"a{a + 1}", {}).get(str(made[a][1][k]), 0))
                 for a in range(agents)
                 for k in range(shards)
-                if int(acks[k].get(f"a{a + 1}", {}).get(str(made[a][1][k]), 0)) < made[a][2][k]
-            ]
+            }
+            lagging = [(a, k, n) for (a, k), n in acked.items() if n < made[a][2][k]]
             if not lagging:
                 break
             if time.perf_counter() - last > 0.5:

@@ -168,7 +168,3 @@ class MapService:
             eta.append(cmap.eta)
         grid = self.layout.grid
         return CoverageMap(grid, monitor.cmap.sensor, np.concatenate(lam), np.concatenate(eta))
-
-
-def _arrays(delta) -> tuple:
-    return delta.idx, delta.dlam, delta.deta

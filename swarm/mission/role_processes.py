@@ -22,7 +22,7 @@ from swarm.map.coverage_map import CoverageMap
 from swarm.mission.role_failure import RoleError
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol.map_client import MapClient, MapQueryError, MapServerUnavailable
-from swarm.protocol.sharded_client import ShardedMapClient, team_snapshot
+from swarm.protocol.sharded_client import ShardedMapClient
 
 #: Every role process this process started, so that a second Ctrl-C can kill what is left.
 _STARTED: list[subprocess.Popen] = []
@@ -157,7 +157,7 @@ def final_server_map(
         try:
             stats = client.stats()
             if int(stats.get("deltas_applied", 0)) >= expected:
-                snap = team_snapshot(client)
+                snap = client.team_snapshot()  # a sharded client's: the slabs side by side
                 return CoverageMap(snap.grid, monitor.cmap.sensor, snap.lam, snap.eta)
             applied = int(stats.get("deltas_applied", 0))
             why = f"it applied {applied:,} of the {expected:,} deltas the monitor saw"

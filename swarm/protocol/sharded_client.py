@@ -12,11 +12,14 @@ needs, a plain :class:`MapClient` when it has one server.
 
 from __future__ import annotations
 
+import json
+import time
 from dataclasses import dataclass
 
 import numpy as np
 import zenoh
 
+from swarm.map.grid import Grid
 from swarm.map.shard_layout import ShardLayout
 from swarm.protocol import bus
 from swarm.protocol.map_client import DEFAULT_TIMEOUT_S, MapClient
@@ -95,10 +98,6 @@ class ShardedMapClient:
         """Each shard's ``map/acks`` (a robot's epochs and seqs are per shard), in shard order."""
         return [client.acks() for client in self.clients]
 
-    def shard_snapshot(self, shard: int, progress: Progress | None = None) -> Snapshot:
-        """Shard ``shard``'s snapshot (its slab's grid, local indices, its acks)."""
-        return self.clients[shard].snapshot(progress)
-
     def snapshot(self, progress: Progress | None = None) -> ShardedSnapshot:
         """Every shard's snapshot, one after the other, and the team map they make. Each is
         one consistent state of its shard; together they are not one instant of the team."""
@@ -151,15 +150,9 @@ def team_stats(layout: ShardLayout, shards: list[dict]) -> dict:
                 mine[name] += int(entry.get(name, 0))
     team["robots"] = robots
     team["quarantined"] = sorted({r for s in shards for r in s.get("quarantined", [])})
-    team["mission"] = _mission_of(str(first.get("mission", "")))
+    team["mission"] = first.get("shard", {}).get("mission", first.get("mission"))
     team["shards"] = shards
     return team
-
-
-def _mission_of(shard_name: str) -> str:
-    """The mission name of a shard's key prefix (``<mission>/shard/<k>``)."""
-    head, sep, _k = shard_name.rpartition("/shard/")
-    return head if sep else shard_name
 
 
 def _joined(layout: ShardLayout, parts: list[tuple[np.ndarray, Region]]) -> Region:
@@ -180,11 +173,6 @@ def discover_layout(
     ``map/stats`` (``shard``: count, x cuts and the mission grid), or None when no shard of it
     answers within ``timeout`` s (an unsharded mission, or none running). ``once``: ask one
     time only (a session that has seen the servers answer already knows their queryables)."""
-    import json
-    import time
-
-    from swarm.map.grid import Grid
-
     pattern = bus.key_pattern(mission, "shard", "*", "map", "stats")
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -215,11 +203,6 @@ def unsharded_only(session: zenoh.Session, mission: str, exc: Exception) -> str:
         "an unsharded one only for now (docs/sharding.md, 'Limits'); swarm map stats/get/export "
         "work on a sharded one"
     )
-
-
-def team_snapshot(client: MapClient | ShardedMapClient, progress: Progress | None = None) -> Snapshot:
-    """The team map's snapshot from either client (a sharded one's slabs side by side, no acks)."""
-    return client.team_snapshot(progress)
 
 
 def map_client_for(

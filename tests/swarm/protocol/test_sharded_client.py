@@ -14,7 +14,7 @@ from swarm.map.entropy_cache import EntropyCache
 from swarm.protocol import bus
 from swarm.protocol.epochs import put_delta, wait_for_epoch
 from swarm.protocol.map_client import MapClient, missions_answering
-from swarm.protocol.sharded_client import ShardedMapClient, discover_layout, team_snapshot
+from swarm.protocol.sharded_client import ShardedMapClient, discover_layout
 from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage
 from tests.support.map_server_mission import robot_batches, wait_until
@@ -60,7 +60,7 @@ def test_sharded_clients_see_the_central_map(tmp_path) -> None:
         central_bits = float(EntropyCache.from_information(central.lam, central.eta).total)
         assert stats["entropy_bits"] == pytest.approx(central_bits, rel=1e-6)
         assert stats["robots"]["r1"]["deltas"] == sum(len(layout.split(d)) for d in batches["r1"])
-        snap = team_snapshot(client)
+        snap = client.team_snapshot()
         np.testing.assert_array_equal(snap.lam, central.lam)
         np.testing.assert_array_equal(snap.eta, central.eta)
         # a box across the cut: both shards' voxels, in the team grid's indices
