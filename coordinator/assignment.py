@@ -326,8 +326,10 @@ class ObservedColumns:
                 return False
             total = self._by_robot[robot] = np.zeros(self.shape[0] * self.shape[1])
             self._index[robot] = len(self._index)
-        total += np.bincount(cells, weights=info, minlength=total.size)
-        self._raise(self._index[robot], np.unique(cells), total)
+        # per touched cell only (a whole-floor bincount per delta costs more than the delta)
+        touched, where = np.unique(cells, return_inverse=True)
+        total[touched] += np.bincount(where, weights=info, minlength=touched.size)
+        self._raise(self._index[robot], touched, total)
         return True
 
     def _raise(self, k: int, cells: np.ndarray, total: np.ndarray) -> None:

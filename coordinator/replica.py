@@ -29,7 +29,7 @@ class CoordinatorReplica(TeamReplica):
     def __init__(self, grid: Grid, sensor: SensorModel, max_robots: int | None = None, **replica) -> None:
         """``max_robots``: how many robots' ground is tracked (ObservedColumns), None: all;
         ``replica``: the keyword arguments of ``TeamReplica`` (``fetch``, ``peer_log``, ...)."""
-        super().__init__(grid, sensor, name="coordinator", **replica)
+        super().__init__(grid, sensor, name="coordinator", entropy_per_delta=False, **replica)
         self.columns = ObservedColumns(grid.shape, max_robots)
         #: the tiles of columns whose voxels changed, for the coordinator's caches
         self.changes = ChangedTiles(grid.shape)

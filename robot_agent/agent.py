@@ -98,6 +98,7 @@ class Agent:
             entropy=self.explorer.entropy,
             peer_log=self._peer_log,
             name=robot_id,
+            entropy_per_delta=False,  # one entropy pass per frame over the teammates' deltas
         )
         self._merged_subs = self.team.follow(session, name)  # every shard's merged
         #: the teammates' statuses: where they are, for keeping out of their way

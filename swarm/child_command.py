@@ -46,9 +46,19 @@ def child_environment(**extra: str) -> dict[str, str]:
 STOPPED_BY_RUNNER = "SWARM_STOPPED_BY_RUNNER"
 
 
+#: OpenCV's thread count in the roles a runner starts, unless the user's environment sets one:
+#: every role is a process of its own on the runner's machine, and OpenCV's pool workers spin
+#: (``sched_yield``) after each parallel call: about 2,000 yields a second per agent on the
+#: 16-robot campus floor, each a context switch among twenty busy processes on two cores.
+OPENCV_THREADS = "OPENCV_FOR_THREADS_NUM"
+
+
 def started_by_runner_environment(**extra: str) -> dict[str, str]:
-    """:func:`child_environment` for a role process that its runner stops (SIGTERM, in order)."""
-    return child_environment(**{STOPPED_BY_RUNNER: "1", **extra})
+    """:func:`child_environment` for a role process that its runner stops (SIGTERM, in order),
+    with OpenCV on one thread (:data:`OPENCV_THREADS`) unless the environment sets it."""
+    return child_environment(
+        **{STOPPED_BY_RUNNER: "1", OPENCV_THREADS: os.environ.get(OPENCV_THREADS, "1"), **extra}
+    )
 
 
 def leave_interrupts_to_the_runner() -> None:

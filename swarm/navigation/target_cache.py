@@ -29,6 +29,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.grid import Grid
@@ -76,6 +77,25 @@ def dirty_runs(tiles: np.ndarray) -> Iterator[tuple[int, int, int]]:
             yield int(ti), int(a), int(b)
 
 
+@njit(cache=True, nogil=True)
+def mark_columns(tiles, idx, nx, ny, nz, tile):  # pragma: no cover - compiled
+    """tiles[ti, tj] = True for the tile of each voxel ``idx`` (flat, C order, of a grid
+    (nx, ny, nz)) and the tiles of the columns (i + 1, j) and (i, j + 1) beside it; returns
+    how many indices were outside the grid (those mark nothing)."""
+    outside = 0
+    for n in range(idx.shape[0]):
+        if idx[n] < 0 or idx[n] >= nx * ny * nz:
+            outside += 1
+            continue
+        col = idx[n] // nz
+        i, j = col // ny, col % ny
+        ti, tj = i // tile, j // tile
+        tiles[ti, tj] = True
+        tiles[min(i + 1, nx - 1) // tile, tj] = True
+        tiles[ti, min(j + 1, ny - 1) // tile] = True
+    return outside
+
+
 class ChangedTiles:
     """Which tiles of the map's columns changed since each reader last took them.
 
@@ -101,15 +121,15 @@ class ChangedTiles:
         return np.ones(self.tiles, dtype=bool) if seen is None else seen
 
     def mark(self, idx: np.ndarray) -> None:
-        """Voxels ``idx`` (flat, int64) changed."""
-        cols = np.asarray(idx, dtype=np.int64) // self.nz
-        i, j = cols // self.ny, cols % self.ny
-        ti = np.concatenate([i, np.minimum(i + 1, self.nx - 1), i]) // self.tile
-        tj = np.concatenate([j, j, np.minimum(j + 1, self.ny - 1)]) // self.tile
-        flat = np.unique(ti * self.tiles[1] + tj)
+        """Voxels ``idx`` (flat, int64) changed. Raises IndexError for a voxel outside the grid
+        (nothing marked)."""
+        changed = np.zeros(self.tiles, dtype=bool)
+        idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+        if mark_columns(changed, idx, self.nx, self.ny, self.nz, self.tile):
+            raise IndexError(f"voxel index outside a grid of {(self.nx, self.ny, self.nz)}")
         with self._lock:
             for seen in self._readers.values():
-                seen.ravel()[flat] = True
+                seen |= changed
 
     def note(self, idx: np.ndarray | None) -> None:
         """``EntropyCache.on_change``: voxels ``idx`` changed, or every voxel (None)."""

@@ -27,6 +27,7 @@ catches up a shard that missed a sample from that shard's snapshot alone (docs/s
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -75,6 +76,11 @@ class TeamReplica:
     service's ``ShardLayout`` (None or one shard: unsharded); with several shards ``own``,
     ``fetch`` and ``unshared`` are sequences, one callable (or None) per shard, each about that
     shard's server (its epochs, its snapshot on its slab, local indices).
+    ``entropy_per_delta``: True (default), the entropy is brought up to date after each applied
+    delta, so an ``on_applied`` hook reads the entropy with that delta in (the mission monitor's
+    curve); False, :meth:`drain` brings it up to date once, for everything it applied, under
+    one hold of the lock (one table pass instead of one per delta: the agents and the
+    coordinator, which apply a delta of every teammate each frame).
     """
 
     def __init__(
@@ -93,6 +99,7 @@ class TeamReplica:
         peer_log=None,
         name: str = "replica",
         layout=None,
+        entropy_per_delta: bool = True,
     ) -> None:
         self.grid = grid
         #: one per map server followed (one unsharded): stream, queue, ledger, catch-up timing
@@ -109,6 +116,9 @@ class TeamReplica:
         self.budget = ByteBudget(max_queued_bytes)
         self.resync_interval_s = RESYNC_INTERVAL_S
         self.peer_log = peer_log
+        self.entropy_per_delta = entropy_per_delta
+        #: inside a batched drain: the voxels applied whose entropy is not brought up to date yet
+        self._stale: list[np.ndarray] | None = None
 
     # -- the unsharded replica's one feed, by its old names -------------------------------------
     @property
@@ -196,16 +206,34 @@ class TeamReplica:
                 self.resync(shard=feed.shard)
         deadline = None if max_s is None else time.monotonic() + max_s
         applied = 0
-        for feed in self.feeds:
-            while feed.queue and (deadline is None or time.monotonic() < deadline):
-                payload = feed.queue.popleft()
-                self.budget.give(len(payload))
-                try:
-                    applied += self.apply_payload(payload, feed.shard) == "applied"
-                except WireError as exc:
-                    name = feed.label(self.name)
-                    self._warn(f"rejected:{exc.kind}", "%s: rejected merged delta: %s", name, exc)
+        with self.lock if not self.entropy_per_delta else contextlib.nullcontext():
+            if not self.entropy_per_delta:
+                self._stale = []
+            try:
+                for feed in self.feeds:
+                    while feed.queue and (deadline is None or time.monotonic() < deadline):
+                        applied += self._apply_queued(feed)
+            finally:
+                self._settle_entropy()
         return applied
+
+    def _apply_queued(self, feed: ShardFeed) -> bool:
+        """Apply the next payload of ``feed``'s queue; whether it was applied."""
+        payload = feed.queue.popleft()
+        self.budget.give(len(payload))
+        try:
+            return self.apply_payload(payload, feed.shard) == "applied"
+        except WireError as exc:
+            name = feed.label(self.name)
+            self._warn(f"rejected:{exc.kind}", "%s: rejected merged delta: %s", name, exc)
+            return False
+
+    def _settle_entropy(self) -> None:
+        """Bring the entropy of the voxels a batched drain applied up to date (under the lock)."""
+        stale, self._stale = self._stale, None
+        if stale:
+            idx = np.concatenate(stale)
+            self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
 
     def apply_payload(self, payload: bytes, shard: int = 0) -> str:
         """Check and apply one ``merged`` payload: "applied", "duplicate" or "own". Raises
@@ -249,7 +277,10 @@ class TeamReplica:
                 raise WireError(f"delta of {short(msg.robot, 40)}: {exc}", "out_of_range") from exc
             feed.applied.add(msg.robot, msg.epoch, msg.seq)
             idx = delta.idx.astype(np.int64)
-            self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
+            if self._stale is not None:
+                self._stale.append(idx)
+            else:
+                self.entropy.update_information(idx, self.map.lam[idx], self.map.eta[idx])
             self.counts["applied"] += 1
             self.applied_hook(msg, idx, size)
         return "applied"

@@ -120,6 +120,39 @@ def test_changed_tiles_mark_the_tiles_whose_differences_read_a_voxel():
     assert tiles_any(mask).tolist() == [[False, False], [False, True]]
 
 
+def marked_by_numpy(shape, idx, tile=TILE) -> np.ndarray:
+    """The oracle of ChangedTiles.mark: each voxel's tile and those of columns (i+1, j), (i, j+1)."""
+    nx, ny, nz = shape
+    cols = idx // nz
+    i, j = cols // ny, cols % ny
+    out = np.zeros((math.ceil(nx / tile), math.ceil(ny / tile)), dtype=bool)
+    for ii, jj in ((i, j), (np.minimum(i + 1, nx - 1), j), (i, np.minimum(j + 1, ny - 1))):
+        out[ii // tile, jj // tile] = True
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_marks_equal_the_numpy_formula(seed):
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(n) for n in rng.integers([TILE, TILE, 1], [5 * TILE, 5 * TILE, 30]))
+    size = math.prod(shape)
+    idx = np.concatenate([rng.integers(0, size, int(rng.integers(1, 3000))), [0, size - 1]])
+    changes = ChangedTiles(shape)
+    changes.take("a"), changes.take("b")
+    changes.mark(idx)
+    expected = marked_by_numpy(shape, idx)
+    assert np.array_equal(changes.take("a"), expected) and np.array_equal(changes.take("b"), expected)
+
+
+def test_a_voxel_outside_the_grid_marks_nothing_and_raises():
+    changes = ChangedTiles((TILE, TILE, 2))
+    changes.take("a")
+    for bad in (-1, TILE * TILE * 2):
+        with pytest.raises(IndexError, match="outside a grid"):
+            changes.mark(np.array([3, bad]))
+        assert not changes.take("a").any()
+
+
 def test_the_swept_floor_follows_the_positions_kept_and_dropped(monkeypatch):
     monkeypatch.setattr("coordinator.state.MAX_SWEPT", 7)
     rng = np.random.default_rng(3)

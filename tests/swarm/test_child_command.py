@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 from pathlib import Path
 
-from swarm.child_command import child_environment, swarm_argv
+from swarm.child_command import OPENCV_THREADS, child_environment, started_by_runner_environment, swarm_argv
 from tests.support.paths import ROOT
 
 
@@ -34,3 +35,18 @@ def test_a_checkout_puts_its_own_folder_first_on_the_childs_path() -> None:
     env = child_environment(PYTHONUNBUFFERED="1")
     assert env["PYTHONPATH"].split(os.pathsep)[0] == str(ROOT)
     assert env["PYTHONUNBUFFERED"] == "1"
+
+
+def test_roles_a_runner_starts_get_one_opencv_thread_unless_the_user_set_it(monkeypatch):
+    monkeypatch.delenv(OPENCV_THREADS, raising=False)
+    assert started_by_runner_environment()[OPENCV_THREADS] == "1"
+    monkeypatch.setenv(OPENCV_THREADS, "4")
+    assert started_by_runner_environment()[OPENCV_THREADS] == "4"
+    out = subprocess.run(
+        [sys.executable, "-c", "import cv2; print(cv2.getNumThreads())"],
+        env={**started_by_runner_environment(), OPENCV_THREADS: "1"},
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert out.stdout.strip() == "1"  # OpenCV reads the variable: one thread, no pool workers

@@ -65,6 +65,33 @@ def test_counts_own_duplicates_and_refusals(world):
     np.testing.assert_array_equal(replica.map.eta, expected.eta)
 
 
+def test_a_batched_drain_ends_with_the_entropy_of_one_update_per_delta(world):
+    grid, sensor, batches, payloads = world
+    bad = DeltaMessage(
+        "r1",
+        EPOCH,
+        99,
+        0.0,
+        grid,
+        np.array([0], np.uint32),
+        np.array([1e31], np.float32),
+        np.zeros(1, np.float32),
+    ).encode()
+    queued = payloads[:3] + [bad] + payloads[3:] + payloads[:1]  # a refusal and a duplicate inside
+    per_delta, batched = TeamReplica(grid, sensor), TeamReplica(grid, sensor, entropy_per_delta=False)
+    for replica in (per_delta, batched):
+        for payload in queued:
+            replica.receive(payload)
+        assert replica.drain() == len(payloads)
+    np.testing.assert_array_equal(batched.map.lam, per_delta.map.lam)
+    np.testing.assert_array_equal(batched.entropy.values, per_delta.entropy.values)
+    assert batched.counts == per_delta.counts
+    exact = float(np.sum(batched.entropy.values, dtype=np.float64))
+    assert batched.entropy.total == pytest.approx(exact, rel=1e-12)
+    assert per_delta.entropy.total == pytest.approx(exact, rel=1e-12)
+    assert batched._stale is None  # a later apply outside a drain updates the entropy at once
+
+
 def test_a_gap_or_a_drop_makes_one_catch_up_then_queued_deltas_apply_once(world):
     grid, sensor, batches, payloads = world
     server = CoverageMap(grid, sensor)
