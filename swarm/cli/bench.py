@@ -1,6 +1,6 @@
 """``swarm bench``: the benchmarks (fusion, OctoMap files, entropy, agent frame, sparse map, ROS 2
 map); the map server's are swarm.cli.bench_server's, the ROS 2 path's swarm.cli.bench_ros2's,
-the coordinator's swarm.cli.bench_coordinator's."""
+the coordinator's swarm.cli.bench_coordinator's, whole missions' swarm.cli.bench_team's."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from swarm.cli import bench_coordinator, bench_ros2, bench_server
+from swarm.cli import bench_coordinator, bench_ros2, bench_server, bench_team
 from swarm.cli.common import at_least, bundled, fail
 
 DEFAULT_SCAN = bundled(Path("data") / "octomap" / "scan.dat.bz2")
@@ -137,6 +137,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sparse.set_defaults(run=_run_bench_sparse)
     bench_server.register(bsub)
     bench_coordinator.register(bsub)
+    bench_team.register(bsub)
     ros2 = bsub.add_parser(
         "ros2-map",
         help="cost and bytes of the team map's ROS 2 topics (swarm map ros2), office and large map",

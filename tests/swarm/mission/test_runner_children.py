@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import pytest
 
 from swarm.cli import main
 from swarm.mission.role_processes import start_role, why_it_exited
+from swarm.mission.runner import AGENT_NICENESS
 from tests.support.paths import CONFIGS
 
 
@@ -135,3 +138,19 @@ def test_a_mission_that_runs_out_of_time_says_so(tmp_path: Path) -> None:
     assert metrics["reached_threshold"] is False
     assert metrics["stop_reason"] == "max time (2 s simulated)"
     assert "stopped: max time (2 s simulated);" in proc.stdout
+
+
+def test_a_role_started_nicer_runs_at_that_priority(tmp_path, monkeypatch) -> None:
+    # the runner starts its agents AGENT_NICENESS nicer than the services (a real child process)
+    monkeypatch.setattr(
+        "swarm.mission.role_processes.swarm_argv",
+        lambda *a: [sys.executable, "-c", "import time; time.sleep(5)"],
+    )
+    child = start_role(["agent"], tmp_path / "agent.log", niceness=AGENT_NICENESS)
+    try:
+        assert (
+            os.getpriority(os.PRIO_PROCESS, child.pid) == os.getpriority(os.PRIO_PROCESS, 0) + AGENT_NICENESS
+        )
+    finally:
+        child.kill()
+        child.wait(timeout=10)
