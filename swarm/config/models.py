@@ -33,6 +33,8 @@ DEFAULT_THRESHOLD_FRACTION = 0.25
 OBSERVABLE_FRACTION = 0.16
 
 NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
+#: The most servers a map service may have (``map_service.shards``)
+MAX_SHARDS = 64
 
 
 class ConfigError(InputError):
@@ -260,7 +262,7 @@ class MapServiceConfig(Section):
     (swarm.map.shard_layout; docs/sharding.md). ``cuts_x`` (metres, increasing, ``shards - 1`` of
     them) places the slabs' boundaries; null: slabs of equal width."""
 
-    shards: int = Field(default=1, ge=1, le=64)
+    shards: int = Field(default=1, ge=1, le=MAX_SHARDS)
     cuts_x: list[FiniteFloat] | None = None
 
     @model_validator(mode="after")
