@@ -22,6 +22,13 @@ to find the mission whose server answers). Robot rid's agent alone may query
 ``coord/assign/<rid>`` (the key tells the coordinator who asks) and ``map/epoch/<rid>`` (the
 epoch and MAC key of its deltas); the operator alone ``map/epoch/prior``.
 Every identity receives what it subscribed to (egress is open within the mission's keys).
+
+A sharded map service (``shards`` N > 1, docs/sharding.md) has a server per shard: shard 0 is
+``server`` (the router, and alone puts ``mission/done``), shard k > 0 ``server-shard-<k>``. Each
+may answer only ``shard/<k>/map/**`` and put only ``shard/<k>/merged``; the map keys above
+(``delta/<rid>``, ``map/...``, ``delta/prior``) are then those of every shard
+(``shard/<k>/delta/<rid>`` for every k, and so on), and every identity may also ask
+``shard/*/map/stats`` (and ``swarm/*/shard/*/map/stats``), where clients find the shards.
 """
 
 from __future__ import annotations
