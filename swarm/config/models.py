@@ -22,6 +22,7 @@ from swarm.config.rig_defaults import DEFAULT_MIN_DEPTH
 from swarm.formats.errors import InputError
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
+from swarm.protocol.bus import MAX_SHARDS
 from swarm.protocol.wire import Camera
 
 #: Entropy of one voxel under the near-uniform prior (128 bins), in bits.
@@ -33,8 +34,6 @@ DEFAULT_THRESHOLD_FRACTION = 0.25
 OBSERVABLE_FRACTION = 0.16
 
 NAME_PATTERN = r"^[A-Za-z0-9_-]+$"
-#: The most servers a map service may have (``map_service.shards``)
-MAX_SHARDS = 64
 
 
 class ConfigError(InputError):

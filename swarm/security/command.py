@@ -7,7 +7,7 @@ import re
 import sys
 from pathlib import Path
 
-from swarm.config.models import MAX_SHARDS
+from swarm.protocol import bus
 from swarm.security.access_rules import team_identities
 from swarm.security.certificates import DEFAULT_DAYS
 from swarm.security.team_setup import DEFAULT_HOSTS, DEFAULT_PORT, init_team
@@ -56,8 +56,9 @@ def run_init(args: argparse.Namespace) -> int:
     try:
         if args.days < 1:
             raise ValueError(f"--days {args.days}: must be at least 1")
-        if not 1 <= args.shards <= MAX_SHARDS:
-            raise ValueError(f"--shards {args.shards}: must be in 1..{MAX_SHARDS} (as map_service.shards)")
+        if not 1 <= args.shards <= bus.MAX_SHARDS:
+            most = bus.MAX_SHARDS
+            raise ValueError(f"--shards {args.shards}: must be in 1..{most} (as map_service.shards)")
         _check_names(args)
         team = init_team(
             args.mission,

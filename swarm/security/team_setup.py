@@ -18,7 +18,6 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from swarm.config.models import MAX_SHARDS
 from swarm.protocol import bus
 from swarm.protocol.transport_limits import max_sessions_for, team_limits, with_handshake_timeout
 from swarm.security.access_rules import Identity, access_control, team_identities
@@ -101,8 +100,8 @@ def init_team(
             raise ValueError(f"robot id {rid!r}: must not contain '/'")
     if len(set(robots)) != len(robots):
         raise ValueError(f"robot ids must be distinct: {robots}")
-    if not 1 <= shards <= MAX_SHARDS:
-        raise ValueError(f"shards {shards}: must be in 1..{MAX_SHARDS} (as map_service.shards)")
+    if not 1 <= shards <= bus.MAX_SHARDS:
+        raise ValueError(f"shards {shards}: must be in 1..{bus.MAX_SHARDS} (as map_service.shards)")
     if not 0 < port < 65536:
         raise ValueError(f"port {port}: must be in 1..65535")
     out = Path(out)
