@@ -69,14 +69,17 @@ def test_secure_mission_on_a_two_shard_map_service(tmp_path: Path):
         assert (out / "security" / identity / "zenoh.json5").is_file()
 
 
-def test_secure_mission_loads_a_previous_map_as_the_operator(tmp_path: Path):
-    """The runner's `operator` certificate may put delta/prior; the server takes the previous map."""
+@pytest.mark.parametrize("service", ["", "map_service: {shards: 2}\n"], ids=["one-server", "two-shards"])
+def test_secure_mission_loads_a_previous_map_as_the_operator(tmp_path: Path, service: str):
+    """The runner's `operator` certificate may put delta/prior (with two shards, each shard's
+    `shard/K/delta/prior`, its slab's part); the server takes the previous map. The known part
+    (x >= 1.4 m) lies in shard 1's slab of the two."""
     grid = Grid((0.0, 0.0, 0.0), 0.1, (24, 24, 8))
     states = np.zeros(grid.shape, np.uint8)
     states[14:, :, :] = 1
     leaves = coverage_to_leaves(states_to_prior(grid, states, known_sigma=0.1))
     write_bt(tmp_path / "previous.bt", leaves.resolution, leaves.key, leaves.occupied)
-    (tmp_path / "m.yaml").write_text(PRIOR_MISSION)
+    (tmp_path / "m.yaml").write_text(PRIOR_MISSION + service)
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "m.yaml"), "--out", str(out)]
     proc = subprocess.run([*cmd, "--secure", "--quiet"], capture_output=True, text=True, timeout=180)
