@@ -139,9 +139,12 @@ def serve(
         end = peers = None
         try:
             server.start(session)
-            _conf, endpoints, _ = bus.session_config(listen, connect or [], config_file=zenoh_config)
-            source = "" if listen else f" (from {bus.config_path(zenoh_config)})"
-            log.info("listening on %s%s", ", ".join(e.split("#", 1)[0] for e in endpoints), source)
+            _conf, endpoints, connects = bus.session_config(listen, connect or [], config_file=zenoh_config)
+            source = "" if listen or connect else f" (from {bus.config_path(zenoh_config)})"
+            if endpoints:
+                log.info("listening on %s%s", ", ".join(e.split("#", 1)[0] for e in endpoints), source)
+            else:  # a client of the mission's router (a secure shard k > 0: docs/sharding.md)
+                log.info("connected to %s%s (listening on none)", ", ".join(connects), source)
             end, peers = mission_end(session, server, mission, role)
             if peers is not None:
                 peers.start()

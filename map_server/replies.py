@@ -31,7 +31,8 @@ def guarded(handler):
     return callback
 
 
-def reply_json(query: zenoh.Query, obj: dict) -> None:
-    """Reply strict JSON: a NaN or inf raises (and the query gets an error reply), never ``NaN``."""
+def reply_json(query: zenoh.Query, obj: dict, key: str | None = None) -> None:
+    """Reply strict JSON: a NaN or inf raises (and the query gets an error reply), never ``NaN``.
+    ``key``: the reply's key (default the query's own key expression)."""
     text = json.dumps(obj, allow_nan=False)
-    query.reply(query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)
+    query.reply(key or query.key_expr, text.encode(), encoding=zenoh.Encoding.APPLICATION_JSON)

@@ -341,7 +341,9 @@ class MapServer:
         return stats
 
     def _on_stats(self, query: zenoh.Query) -> None:
-        reply_json(query, self.stats())
+        # on the server's own key, also to a wildcard query (swarm/*/map/stats, .../shard/*/...):
+        # the access rules let a shard reply only under its own prefix (docs/security.md)
+        reply_json(query, self.stats(), self.key("map", "stats"))
 
     def _on_acks(self, query: zenoh.Query) -> None:
         with self._lock:

@@ -22,6 +22,7 @@ from swarm.config.rig_defaults import DEFAULT_MIN_DEPTH
 from swarm.formats.errors import InputError
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
+from swarm.protocol.bus import MAX_SHARDS
 from swarm.protocol.wire import Camera
 
 #: Entropy of one voxel under the near-uniform prior (128 bins), in bits.
@@ -260,7 +261,7 @@ class MapServiceConfig(Section):
     (swarm.map.shard_layout; docs/sharding.md). ``cuts_x`` (metres, increasing, ``shards - 1`` of
     them) places the slabs' boundaries; null: slabs of equal width."""
 
-    shards: int = Field(default=1, ge=1, le=64)
+    shards: int = Field(default=1, ge=1, le=MAX_SHARDS)
     cuts_x: list[FiniteFloat] | None = None
 
     @model_validator(mode="after")

@@ -3,8 +3,10 @@
 Unsharded (``map_service.shards`` 1, the default), one server with its store in
 ``<run>/server-store`` and its log in ``server.log``, as always. Sharded, shard ``k`` is a
 ``swarm server --shard k`` process with its own store ``<run>/server-store/shard-<k>``, its own
-log ``server-shard-<k>.log`` and its own listening port, connected to the runner's router; it
-owns a slab of the grid (``swarm.map.shard_layout``). :class:`MapService` builds the commands,
+log ``server-shard-<k>.log``; on the open loopback bus it has its own listening port and connects to
+the runner's router; with ``--secure`` shard 0 is the mission's TLS router (as an unsharded server
+is) and shard k > 0 connects to it with its own certificate (``server-shard-<k>``). Each owns a
+slab of the grid (``swarm.map.shard_layout``). :class:`MapService` builds the commands,
 subscribes the monitor to every shard's deltas, sends a previous map split over the shards,
 and reads the team map from the stores once the servers have stopped.
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,23 +40,17 @@ from swarm.protocol.wire import DeltaMessage
 class MapService:
     """The servers of ``mission``'s map service in run folder ``out`` (see the module doc).
 
-    ``server_args``: the bus arguments of an unsharded server (``--listen``, ``--connect``,
-    ``--zenoh-config``); ``connect``: the runner's endpoints a shard connects to (sharded only).
+    ``bus_args(k)``: the bus arguments (``--listen``, ``--connect``, ``--zenoh-config``) of
+    shard ``k``'s server (``k`` 0 only when unsharded); called once per shard.
     """
 
     mission: Mission
     out: Path
     config_path: Path
-    server_args: list[str]
-    connect: list[str]
+    bus_args: Callable[[int], list[str]]
 
     def __post_init__(self) -> None:
         self.layout: ShardLayout = self.mission.shard_layout()
-        if self.sharded and not self.connect:
-            raise RoleError(
-                f"{self.config_path}: map_service.shards {self.count} with --secure: a sharded map "
-                "service runs on the open loopback bus only for now (docs/sharding.md)"
-            )
 
     @property
     def count(self) -> int:
@@ -87,11 +84,9 @@ class MapService:
         """The ``swarm`` arguments of each server process, in shard order."""
         base = ["server", "--config", str(self.config_path)]
         if not self.sharded:
-            return [[*base, "--store", str(self.store), *self.server_args]]
-        connect = [a for e in self.connect for a in ("--connect", e)]
+            return [[*base, "--store", str(self.store), *self.bus_args(0)]]
         return [
-            [*base, "--store", str(self.store_of(k)), "--shard", str(k)]
-            + ["--listen", bus.tcp_endpoint(bus.free_port()), *connect]
+            [*base, "--store", str(self.store_of(k)), "--shard", str(k), *self.bus_args(k)]
             for k in range(self.count)
         ]
 

@@ -14,9 +14,10 @@ metrics.json, map.npz, server_map.npz, plots, the config used and every process'
 its window, no rerun) is one warning line and the mission goes on without it.
 
 With ``secure`` (``swarm sim --secure``) the run folder gets a fresh team of certificates
-(``security/``, as ``swarm security init`` writes it); the map server is then the mission's
-router on a loopback TLS endpoint with the access-control rules, every role connects to it
-with its own certificate; the runner watches (and loads a previous map) as ``operator``.
+(``security/``, as ``swarm security init`` writes it); the map server (shard 0 of a sharded
+map service) is then the mission's router on a loopback TLS endpoint with the access-control
+rules, every role (the other shards too) connects to it with its own certificate; the runner
+watches (and loads a previous map) as ``operator``.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ from swarm.mission.role_processes import start_role as start_role_process
 from swarm.mission.team_monitor import TeamMonitor
 from swarm.protocol import bus, coord_client
 from swarm.protocol.mission_listener import MissionDoneListener
-from swarm.security.access_rules import OPERATOR, TOOL, agent_name
+from swarm.security.access_rules import OPERATOR, TOOL, agent_name, shard_server_name
 
 #: After an interrupt: seconds to wait for the agents' flush (their exit), then for the map
 #: server's map; the roles still stopping get INTERRUPTED_STOP_S more (then SIGKILL) once the
@@ -97,6 +98,18 @@ class BusPlan:
         config = self.configs.get(identity)
         return ["--connect", endpoint, *(["--zenoh-config", str(config)] if config else [])]
 
+    def server_bus_args(self, shard: int) -> list[str]:
+        """The bus arguments of map server shard ``shard`` (0: the only one when unsharded).
+        Open loopback: each server listens on a port of its own and connects to the runner.
+        Secure: shard 0 is the TLS router (``server_args``); shard k > 0 connects to it with its
+        own certificate ``server-shard-<k>``, whose rules allow it only its own shard's keys."""
+        if shard == 0:
+            return list(self.server_args)
+        if self.configs:
+            return self.child_args(shard_server_name(shard))
+        connect = [a for e in self.runner_listen for a in ("--connect", e)]
+        return ["--listen", bus.tcp_endpoint(bus.free_port()), *connect]
+
 
 def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     """Open loopback: the runner is the router. Secure: the server is, over TLS with the rules."""
@@ -109,7 +122,8 @@ def plan_bus(mission: Mission, out: Path, secure: bool) -> BusPlan:
     folder = out / "security"
     if folder.exists():
         shutil.rmtree(folder)  # a run folder is rewritten: a fresh CA per run
-    team = init_team(mission.mission, list(mission.robot_ids), folder)
+    shards = mission.shard_layout().count  # a sharded service: one identity per shard server
+    team = init_team(mission.mission, list(mission.robot_ids), folder, shards=shards)
     endpoint = f"tls/127.0.0.1:{bus.free_port()}"
     server_args = ["--listen", endpoint, "--zenoh-config", str(team.configs["server"])]
     return BusPlan([], [endpoint], team.configs[OPERATOR], server_args, team.configs)
@@ -152,7 +166,7 @@ def run_mission(
 
     plan = plan_bus(mission, out, options.secure)
     # one server, or one per shard of a sharded map service (swarm.mission.map_service)
-    service = MapService(mission, out, config_path, plan.server_args, plan.runner_listen)
+    service = MapService(mission, out, config_path, plan.server_bus_args)
     store = service.store
     service.clear_stores()  # a run folder is rewritten: the server must not recover an old map
     server_cmds = service.commands()

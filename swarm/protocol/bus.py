@@ -324,6 +324,10 @@ def describe_connection(listen: list[str] | None, connect: list[str] | None, wai
     )
 
 
+#: The most servers a map service may have (``map_service.shards``, docs/sharding.md)
+MAX_SHARDS = 64
+
+
 def shard_mission(mission: str, shard: int, shards: int) -> str:
     """The key prefix of map server shard ``shard`` of ``shards``: the mission's own name when
     the map service is one server, else ``<mission>/shard/<k>`` (docs/sharding.md). Its

@@ -211,7 +211,7 @@ def _mission_named(reply) -> str | None:
     """The mission a ``map/stats`` reply is about: a shard's says so in ``shard.mission``."""
     if reply.ok is None:
         return None
-    try:  # the reply's key is the query's pattern: the name is in the stats
+    try:  # the name is in the stats (older servers replied on the query's pattern, not their key)
         stats = json.loads(reply.ok.payload.to_bytes())
         shard = stats.get("shard")
         name = shard.get("mission") if isinstance(shard, dict) else stats.get("mission")

@@ -7,6 +7,7 @@ import re
 import sys
 from pathlib import Path
 
+from swarm.protocol import bus
 from swarm.security.access_rules import team_identities
 from swarm.security.certificates import DEFAULT_DAYS
 from swarm.security.team_setup import DEFAULT_HOSTS, DEFAULT_PORT, init_team
@@ -38,6 +39,15 @@ def add_init_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--days", type=int, default=DEFAULT_DAYS, help=f"certificate lifetime (default {DEFAULT_DAYS})"
     )
+    parser.add_argument(
+        "--shards",
+        type=int,
+        default=1,
+        metavar="N",
+        help="servers of the map service (the mission's map_service.shards; default 1): shard 0 is "
+        "'server', the mission's router; shard K > 0 gets 'server-shard-K', allowed only its own "
+        "swarm/<mission>/shard/K/ keys (docs/sharding.md)",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite a team already in --out")
 
 
@@ -46,9 +56,19 @@ def run_init(args: argparse.Namespace) -> int:
     try:
         if args.days < 1:
             raise ValueError(f"--days {args.days}: must be at least 1")
+        if not 1 <= args.shards <= bus.MAX_SHARDS:
+            most = bus.MAX_SHARDS
+            raise ValueError(f"--shards {args.shards}: must be in 1..{most} (as map_service.shards)")
         _check_names(args)
         team = init_team(
-            args.mission, args.robots, args.out, args.server_host, args.port, args.days, args.force
+            args.mission,
+            args.robots,
+            args.out,
+            args.server_host,
+            args.port,
+            args.days,
+            args.force,
+            shards=args.shards,
         )
     except (ValueError, OSError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
@@ -56,9 +76,16 @@ def run_init(args: argparse.Namespace) -> int:
     print(f"wrote the team of mission {args.mission!r} to {team.out}:")
     print(f"  {'ca.pem':<24} the mission's certificate authority (every machine)")
     print(f"  {'ca-key.pem':<24} its private key: keep it offline")
-    for identity in team_identities(args.robots):
+    for identity in team_identities(args.robots, args.shards):
         print(f"  {identity.name + '/':<24} {identity.role}")
-    print(f"start the map server with --zenoh-config {team.configs['server']}, every other role with its own")
+    if args.shards > 1:
+        print(
+            f"start shard 0 (swarm server --shard 0) with --zenoh-config {team.configs['server']}, "
+            "shard K with server-shard-K/zenoh.json5, every other role with its own"
+        )
+    else:
+        server = team.configs["server"]
+        print(f"start the map server with --zenoh-config {server}, every other role with its own")
     return 0
 
 

@@ -36,9 +36,12 @@ class TeamFiles:
     configs: dict[str, Path]
 
 
-def zenoh_config(identity: Identity, mission: str, robots: list[str], hosts: list[str], port: int) -> dict:
+def zenoh_config(
+    identity: Identity, mission: str, robots: list[str], hosts: list[str], port: int, shards: int = 1
+) -> dict:
     """The Zenoh config of ``identity``: mTLS with the mission's CA, the team's transport limits
-    (``swarm.protocol.transport_limits``); the router gets the rules."""
+    (``swarm.protocol.transport_limits``); the router gets the rules (for a map service of
+    ``shards`` servers: shard 0 is the router, the other shards connect to it as clients)."""
     tls = {
         "root_ca_certificate": "../ca.pem",
         "enable_mtls": True,
@@ -51,11 +54,12 @@ def zenoh_config(identity: Identity, mission: str, robots: list[str], hosts: lis
         tls.update(listen_certificate="cert.pem", listen_private_key="key.pem")
         conf["mode"] = "router"
         conf["listen"] = {"endpoints": [with_handshake_timeout(f"tls/0.0.0.0:{port}")]}
-        conf["access_control"] = access_control(mission, robots)
+        conf["access_control"] = access_control(mission, robots, shards)
     else:
         conf["mode"] = "client"
         conf["connect"] = {"endpoints": [f"tls/{_host_part(hosts[0])}:{port}"]}
-    limits = team_limits(max_sessions_for(len(robots)))
+    # the router also keeps a session per further shard
+    limits = team_limits(max_sessions_for(len(robots)) + shards - 1)
     conf["transport"] = {
         "unicast": {
             key.rsplit("/", 1)[1]: v for key, v in limits.items() if key.startswith("transport/unicast/")
@@ -77,12 +81,16 @@ def init_team(
     port: int = DEFAULT_PORT,
     days: int = DEFAULT_DAYS,
     overwrite: bool = False,
+    shards: int = 1,
 ) -> TeamFiles:
     """Write the CA, every identity's certificate and Zenoh config under ``out``.
 
     ``hosts``: the map server's addresses or DNS names, as the others will connect to it
-    (the first is the one written in their configs). Raises ``ValueError`` for a bad mission
-    or robot name, duplicate robots, or an ``out`` that already holds a CA (unless ``overwrite``).
+    (the first is the one written in their configs). ``shards``: the map service's servers
+    (``map_service.shards``); with more than one, shard 0 is ``server`` (the router, with the
+    rules) and shard k > 0 gets ``server-shard-<k>`` (a client of the router, allowed only its own
+    shard's keys). Raises ``ValueError`` for a bad mission or robot name, duplicate robots, a
+    shard count outside 1..64, or an ``out`` that already holds a CA (unless ``overwrite``).
     """
     hosts = list(hosts or DEFAULT_HOSTS)
     bus.key(mission)  # the mission and robot ids are key parts: no wildcards, no empty names
@@ -92,6 +100,8 @@ def init_team(
             raise ValueError(f"robot id {rid!r}: must not contain '/'")
     if len(set(robots)) != len(robots):
         raise ValueError(f"robot ids must be distinct: {robots}")
+    if not 1 <= shards <= bus.MAX_SHARDS:
+        raise ValueError(f"shards {shards}: must be in 1..{bus.MAX_SHARDS} (as map_service.shards)")
     if not 0 < port < 65536:
         raise ValueError(f"port {port}: must be in 1..65535")
     out = Path(out)
@@ -101,12 +111,12 @@ def init_team(
     ca = make_ca(mission, days)
     ca.write(out / "ca.pem", out / "ca-key.pem")
     configs: dict[str, Path] = {}
-    for identity in team_identities(robots):
+    for identity in team_identities(robots, shards):
         folder = out / identity.name
         folder.mkdir(exist_ok=True)
         names = hosts if identity.listens else []
         issue(ca, identity.name, names, mission, days).write(folder / "cert.pem", folder / "key.pem")
-        conf = zenoh_config(identity, mission, robots, hosts, port)
+        conf = zenoh_config(identity, mission, robots, hosts, port, shards)
         header = f"// Zenoh config of {identity.name!r}: {identity.role}; mission {mission!r}\n"
         (folder / "zenoh.json5").write_text(header + json.dumps(conf, indent=2) + "\n")
         configs[identity.name] = folder / "zenoh.json5"
