@@ -28,9 +28,8 @@ from swarm.protocol.sharded_client import ShardedMapClient
 _STARTED: list[subprocess.Popen] = []
 
 
-def start_role(args: list[str], log_path: Path, niceness: int = 0) -> subprocess.Popen:
-    """Start ``swarm ARGS...`` as a child process, its output (stdout and stderr) in ``log_path``,
-    ``niceness`` above this process's (``os.setpriority``; 0: the same).
+def start_role(args: list[str], log_path: Path) -> subprocess.Popen:
+    """Start ``swarm ARGS...`` as a child process, its output (stdout and stderr) in ``log_path``.
 
     The child ignores the terminal's SIGINT (it is started with SIGINT blocked until it
     ignores it): the runner stops it with SIGTERM (:func:`stop_roles`)."""
@@ -42,11 +41,6 @@ def start_role(args: list[str], log_path: Path, niceness: int = 0) -> subprocess
             stderr=subprocess.STDOUT,
             env=started_by_runner_environment(PYTHONUNBUFFERED="1"),
         )
-    if niceness:
-        try:
-            os.setpriority(os.PRIO_PROCESS, child.pid, os.getpriority(os.PRIO_PROCESS, 0) + niceness)
-        except OSError:  # it has exited already: why_it_exited tells
-            pass
     child.log_path = log_path  # for why_it_exited
     _STARTED.append(child)
     return child

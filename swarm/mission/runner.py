@@ -60,11 +60,6 @@ from swarm.security.access_rules import OPERATOR, TOOL, agent_name, shard_server
 INTERRUPTED_FLUSH_S = 1.5
 INTERRUPTED_MAP_S = 2.0
 INTERRUPTED_STOP_S = 3.0
-#: The agents run this much nicer than the map server, the coordinator and the world: on one
-#: machine every robot's agent shares the cores with the team's services, where a real team's
-#: agents run on their robots' own computers; the lockstep world waits for every agent, and an
-#: agent waiting for the coordinator's answer holds the whole team's next frame.
-AGENT_NICENESS = 5
 
 
 @dataclass
@@ -159,10 +154,10 @@ def run_mission(
     name = mission.mission
     mark = started_count()  # this run's role processes are those started from here on
 
-    def start_role(args: list[str], log_path: Path, niceness: int = 0) -> subprocess.Popen:
+    def start_role(args: list[str], log_path: Path) -> subprocess.Popen:
         """A role process, started and kept in one piece (an interrupt waits for its end)."""
         with interrupts.deferred() if interrupts is not None else nullcontext():
-            return start_role_process(args, log_path, niceness)
+            return start_role_process(args, log_path)
 
     plan = plan_bus(mission, out, options.secure)
     # one server, or one per shard of a sharded map service (swarm.mission.map_service)
@@ -229,7 +224,6 @@ def run_mission(
                  "--strategy", options.strategy, "--seed", str(options.seed), "--coordination", coordination,
              *ros2],
                 out / f"agent-{rid}.log",
-                AGENT_NICENESS,
             )
             for rid in mission.robot_ids
         ]  # fmt: skip

@@ -10,7 +10,6 @@ import pytest
 
 from swarm.cli import main
 from swarm.mission.role_processes import start_role, why_it_exited
-from swarm.mission.runner import AGENT_NICENESS
 from tests.support.paths import CONFIGS
 
 
@@ -38,7 +37,6 @@ def test_a_terminated_mission_stops_every_role_and_says_where_its_run_folder_is(
     folder is written from the map server's map with ``interrupted: true`` (a resumed study
     runs it again), the command says where and exits 130."""
     import json
-    import os
     import signal
     import subprocess
     import sys
@@ -124,7 +122,6 @@ walls:
 def test_a_mission_that_runs_out_of_time_says_so(tmp_path: Path) -> None:
     import json
     import subprocess
-    import sys
 
     (tmp_path / "plan.yaml").write_text(BOX)
     (tmp_path / "m.yaml").write_text(TINY)
@@ -138,19 +135,3 @@ def test_a_mission_that_runs_out_of_time_says_so(tmp_path: Path) -> None:
     assert metrics["reached_threshold"] is False
     assert metrics["stop_reason"] == "max time (2 s simulated)"
     assert "stopped: max time (2 s simulated);" in proc.stdout
-
-
-def test_a_role_started_nicer_runs_at_that_priority(tmp_path, monkeypatch) -> None:
-    # the runner starts its agents AGENT_NICENESS nicer than the services (a real child process)
-    monkeypatch.setattr(
-        "swarm.mission.role_processes.swarm_argv",
-        lambda *a: [sys.executable, "-c", "import time; time.sleep(5)"],
-    )
-    child = start_role(["agent"], tmp_path / "agent.log", niceness=AGENT_NICENESS)
-    try:
-        assert (
-            os.getpriority(os.PRIO_PROCESS, child.pid) == os.getpriority(os.PRIO_PROCESS, 0) + AGENT_NICENESS
-        )
-    finally:
-        child.kill()
-        child.wait(timeout=10)
