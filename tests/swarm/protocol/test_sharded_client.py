@@ -17,7 +17,7 @@ from swarm.protocol.map_client import MapClient, missions_answering
 from swarm.protocol.sharded_client import ShardedMapClient, discover_layout
 from swarm.protocol.team_replica import TeamReplica
 from swarm.protocol.wire import DeltaMessage
-from tests.support.map_server_mission import robot_batches, wait_until
+from tests.support.map_server_mission import assert_maps_equal, robot_batches, wait_until
 from tests.support.shard_servers import shard_servers
 
 
@@ -61,8 +61,7 @@ def test_sharded_clients_see_the_central_map(tmp_path) -> None:
         assert stats["entropy_bits"] == pytest.approx(central_bits, rel=1e-6)
         assert stats["robots"]["r1"]["deltas"] == sum(len(layout.split(d)) for d in batches["r1"])
         snap = client.team_snapshot()
-        np.testing.assert_array_equal(snap.lam, central.lam)
-        np.testing.assert_array_equal(snap.eta, central.eta)
+        assert_maps_equal(snap.lam, snap.eta, central)  # the servers sum in arrival order
         # a box across the cut: both shards' voxels, in the team grid's indices
         cut_x = layout.grid_of(1).lo[0]
         lo, hi = np.array([cut_x - 0.25, 0.1, 0.1]), np.array([cut_x + 0.25, 0.4, 0.3])
@@ -86,7 +85,6 @@ def test_sharded_clients_see_the_central_map(tmp_path) -> None:
             lambda: replica.drain() >= 0 and replica.counts["applied"] >= sum(sent), 20, "the follower"
         )
         assert replica.counts["applied"] == sum(sent)
-        np.testing.assert_array_equal(replica.map.lam, central.lam)
-        np.testing.assert_array_equal(replica.map.eta, central.eta)
+        assert_maps_equal(replica.map.lam, replica.map.eta, central)
         for sub in subs:
             sub.undeclare()
