@@ -16,6 +16,7 @@ Linux only (``/proc``). Figures are MB (10^6 bytes)."""
 from __future__ import annotations
 
 import gc
+import hashlib
 import math
 import os
 import re
@@ -201,6 +202,7 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
     rng = np.random.default_rng([mission.sim.seed, 0])
     sim = mission.sim
     tilt = 0.0
+    commands = hashlib.sha256()
     try:
         for seq in range(1, frames + 1):
             x, y, yaw = world.pose(rid)
@@ -214,12 +216,19 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
             payload = frame.encode()
             cmd = steps.run(f"frame {seq:3d} ({state})", lambda p=payload: agent.handle(p))
             if cmd is not None:
+                commands.update(np.array([cmd.v, cmd.omega, cmd.tilt or 0.0]).tobytes())
                 world.command(rid, cmd.v, cmd.omega)
                 if cmd.tilt is not None:
                     tilt = cmd.tilt
             n = max(1, round(sim.frame_period_s / sim.dt))
             for _ in range(n):
                 world.step(sim.frame_period_s / n)
+        cmap = agent.explorer.map
+        maps = hashlib.sha256(cmap.lam.tobytes() + cmap.eta.tobytes()).hexdigest()[:16]
+        print(
+            f"\nresults: map sha256 {maps}, commands sha256 {commands.hexdigest()[:16]}, "
+            f"entropy {agent.explorer.map_entropy:,.3f} bits"
+        )
         if arrays:
             from swarm.map import fusion
 
