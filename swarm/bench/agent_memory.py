@@ -169,9 +169,49 @@ class Steps:
         return result
 
 
+def world_process(conn, config: Path, rid: str) -> None:
+    """The simulator's side, in a process of its own (so that its memory is not the agent's):
+    sends robot ``rid``'s encoded frame, then for each (v, omega, tilt) received drives the
+    pymunk world one frame period and sends the next frame; None ends it."""
+    from sim2d.render import Renderer, camera_pose
+    from sim2d.world import World
+    from swarm.config import load_mission
+    from swarm.protocol.wire import Frame
+
+    mission = load_mission(config)
+    rig, body, sim = mission.rig_for(rid), mission.robot, mission.sim
+    world = World(mission.load_floor_plan(), body.radius, body.max_speed, body.max_turn_rate)
+    start = mission.start_of(rid)
+    world.add_robot(rid, start.x, start.y, start.yaw)
+    renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=sim.seed)
+    rng = np.random.default_rng([sim.seed, mission.robot_ids.index(rid)])
+    tilt, seq = 0.0, 0
+    while True:
+        seq += 1
+        x, y, yaw = world.pose(rid)
+        pose = camera_pose(x, y, yaw, rig.camera_height, math.radians(rig.pitch_deg) + tilt)
+        frame = Frame(rid, seq, world.time, pose, renderer.camera, "raw8")
+        if rig.mode == "range":
+            frame.depth = renderer.depth_image(pose, rig.range_noise, rig.max_range, rng)
+        else:
+            frame.left, frame.right = renderer.stereo_pair(pose, rig.noise_std, rng)
+        conn.send_bytes(frame.encode())
+        command = conn.recv()
+        if command is None:
+            return
+        v, omega, new_tilt = command
+        world.command(rid, v, omega)
+        tilt = tilt if new_tilt is None else new_tilt
+        n = max(1, round(sim.frame_period_s / sim.dt))
+        for _ in range(n):
+            world.step(sim.frame_period_s / n)
+
+
 def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool, top: int = 12) -> list[dict]:
     """Build one agent of ``config`` (``robot``: its id; default the first) and drive it ``frames``
-    frames; prints as it goes and returns the steps' rows (MB, s)."""
+    frames rendered by a world process; prints as it goes and returns the steps' rows (MB, s)."""
+    import multiprocessing
+
     steps = Steps(trace)
     if trace:
         tracemalloc.start(8)
@@ -179,50 +219,29 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
 
     def imports():
         import robot_agent.agent  # noqa: F401
-        import sim2d.simulator  # noqa: F401
 
-    steps.run("import agent + sim", imports)
+    steps.run("import robot_agent.agent", imports)
     from robot_agent.agent import Agent
-    from sim2d.render import Renderer, camera_pose
-    from sim2d.world import World
     from swarm.config import load_mission
     from swarm.protocol import bus
-    from swarm.protocol.wire import Frame
 
     mission = load_mission(config)
     rid = robot or mission.robot_ids[0]
+    ours, theirs = multiprocessing.Pipe()
+    world = multiprocessing.get_context("spawn").Process(target=world_process, args=(theirs, config, rid))
+    world.start()
     session = steps.run("zenoh router session", lambda: bus.open_session([bus.tcp_endpoint(bus.free_port())]))
     agent = steps.run("Agent()", lambda: Agent(mission, rid, session, seed=0, coordination=False))
-    rig = mission.rig_for(rid)
-    body = mission.robot
-    world = World(mission.load_floor_plan(), body.radius, body.max_speed, body.max_turn_rate)
-    start = mission.start_of(rid)
-    world.add_robot(rid, start.x, start.y, start.yaw)
-    renderer = Renderer(mission.load_floor_plan(), rig.camera(), seed=mission.sim.seed)
-    rng = np.random.default_rng([mission.sim.seed, 0])
-    sim = mission.sim
-    tilt = 0.0
     commands = hashlib.sha256()
     try:
         for seq in range(1, frames + 1):
-            x, y, yaw = world.pose(rid)
-            pose = camera_pose(x, y, yaw, rig.camera_height, math.radians(rig.pitch_deg) + tilt)
-            frame = Frame(rid, seq, world.time, pose, renderer.camera, "raw8")
-            if rig.mode == "range":
-                frame.depth = renderer.depth_image(pose, rig.range_noise, rig.max_range, rng)
-            else:
-                frame.left, frame.right = renderer.stereo_pair(pose, rig.noise_std, rng)
+            payload = ours.recv_bytes()
             state = agent.explorer.state.value
-            payload = frame.encode()
             cmd = steps.run(f"frame {seq:3d} ({state})", lambda p=payload: agent.handle(p))
-            if cmd is not None:
-                commands.update(np.array([cmd.v, cmd.omega, cmd.tilt or 0.0]).tobytes())
-                world.command(rid, cmd.v, cmd.omega)
-                if cmd.tilt is not None:
-                    tilt = cmd.tilt
-            n = max(1, round(sim.frame_period_s / sim.dt))
-            for _ in range(n):
-                world.step(sim.frame_period_s / n)
+            if cmd is None:
+                raise RuntimeError(f"the agent did not answer frame {seq}")
+            commands.update(np.array([cmd.v, cmd.omega, cmd.tilt or 0.0]).tobytes())
+            ours.send((cmd.v, cmd.omega, cmd.tilt))
         cmap = agent.explorer.map
         maps = hashlib.sha256(cmap.lam.tobytes() + cmap.eta.tobytes()).hexdigest()[:16]
         print(
@@ -245,6 +264,9 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
                 where = " < ".join(_site(f) for f in reversed(stat.traceback[-4:]))
                 print(f"  {stat.size / MB:8.1f} MB  {where}")
     finally:
+        if world.is_alive():
+            ours.send(None)
+        world.join(timeout=30)
         agent.shutdown(ack_wait_s=0.0)
         session.close()
     return steps.rows
