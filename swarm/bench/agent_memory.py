@@ -224,6 +224,7 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
     from robot_agent.agent import Agent
     from swarm.config import load_mission
     from swarm.protocol import bus
+    from swarm.protocol.wire import Snapshot
 
     mission = load_mission(config)
     rid = robot or mission.robot_ids[0]
@@ -243,6 +244,10 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
             commands.update(np.array([cmd.v, cmd.omega, cmd.tilt or 0.0]).tobytes())
             ours.send((cmd.v, cmd.omega, cmd.tilt))
         cmap = agent.explorer.map
+        # what a catch-up or a resync from the map server does: this map's own state as a snapshot
+        snap = Snapshot(agent.explorer.grid, cmap.lam.copy(), cmap.eta.copy())
+        steps.run("team.load_snapshot (of this map)", lambda: agent.team.load_snapshot(snap))
+        del snap
         maps = hashlib.sha256(cmap.lam.tobytes() + cmap.eta.tobytes()).hexdigest()[:16]
         print(
             f"\nresults: map sha256 {maps}, commands sha256 {commands.hexdigest()[:16]}, "

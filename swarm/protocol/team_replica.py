@@ -39,6 +39,7 @@ import zenoh
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy_fill import entropy_cache, refill_entropy
 from swarm.map.entropy_table import EntropyTable, default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -100,7 +101,7 @@ class TeamReplica:
         self.map = cmap if cmap is not None else CoverageMap(grid, sensor)
         self.table = table or default_table()
         if entropy is None:
-            entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
+            entropy = entropy_cache(self.map.lam, self.map.eta, table=self.table)
         self.entropy = entropy
         self.on_applied = on_applied
         self.counts: Counter[str] = Counter()
@@ -288,7 +289,7 @@ class TeamReplica:
                 slab = np.arange(start, stop, dtype=np.int64)
                 self.entropy.update_information(slab, self.map.lam[start:stop], self.map.eta[start:stop])
             else:
-                self.entropy.refill_information(self.map.lam, self.map.eta)
+                refill_entropy(self.entropy, self.map.lam, self.map.eta)  # no whole-map temporaries
             feed.applied = AppliedDeltas()
             feed.applied.cover(snap.acks, snap.above)
             self.loaded_hook(snap)
