@@ -207,10 +207,32 @@ def world_process(conn, config: Path, rid: str) -> None:
             world.step(sim.frame_period_s / n)
 
 
-def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool, top: int = 12) -> list[dict]:
+def start_server(config: Path, store: Path, endpoint: str):
+    """``swarm server`` of ``config`` on ``endpoint`` (a process of its own, its log discarded)."""
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "swarm.cli", "server", "--config", str(config), "--store", str(store)]
+    return subprocess.Popen(
+        [*command, "--listen", endpoint], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+
+
+def run(
+    config: Path,
+    robot: str | None,
+    frames: int,
+    arrays: bool,
+    trace: bool,
+    top: int = 12,
+    server: bool = False,
+) -> list[dict]:
     """Build one agent of ``config`` (``robot``: its id; default the first) and drive it ``frames``
-    frames rendered by a world process; prints as it goes and returns the steps' rows (MB, s)."""
+    frames rendered by a world process; prints as it goes and returns the steps' rows (MB, s).
+    ``server``: against a map server (``swarm server`` in a process of its own, a fresh store):
+    the agent starts from its snapshot, shares its deltas, and resyncs from it at the end."""
     import multiprocessing
+    import tempfile
 
     steps = Steps(trace)
     if trace:
@@ -231,8 +253,17 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
     ours, theirs = multiprocessing.Pipe()
     world = multiprocessing.get_context("spawn").Process(target=world_process, args=(theirs, config, rid))
     world.start()
-    session = steps.run("zenoh router session", lambda: bus.open_session([bus.tcp_endpoint(bus.free_port())]))
+    endpoint = bus.tcp_endpoint(bus.free_port())
+    store = tempfile.TemporaryDirectory(prefix="agent-memory-")
+    serving = start_server(config, Path(store.name), endpoint) if server else None
+    if serving is None:
+        session = steps.run("zenoh router session", lambda: bus.open_session([endpoint]))
+    else:
+        session = steps.run("zenoh session to the map server", lambda: bus.open_session(connect=[endpoint]))
     agent = steps.run("Agent()", lambda: Agent(mission, rid, session, seed=0, coordination=False))
+    if serving is not None:
+        steps.run("catch_up (map/snapshot)", lambda: agent.catch_up(timeout=30.0))
+        agent.sharing.start()
     commands = hashlib.sha256()
     try:
         for seq in range(1, frames + 1):
@@ -248,6 +279,8 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
         snap = Snapshot(agent.explorer.grid, cmap.lam.copy(), cmap.eta.copy())
         steps.run("team.load_snapshot (of this map)", lambda: agent.team.load_snapshot(snap))
         del snap
+        if serving is not None:
+            steps.run("team.resync (map/snapshot)", lambda: agent.team.resync(force=True))
         maps = hashlib.sha256(cmap.lam.tobytes() + cmap.eta.tobytes()).hexdigest()[:16]
         print(
             f"\nresults: map sha256 {maps}, commands sha256 {commands.hexdigest()[:16]}, "
@@ -272,6 +305,10 @@ def run(config: Path, robot: str | None, frames: int, arrays: bool, trace: bool,
         if world.is_alive():
             ours.send(None)
         world.join(timeout=30)
-        agent.shutdown(ack_wait_s=0.0)
+        agent.shutdown(ack_wait_s=0.0 if serving is None else 5.0)
         session.close()
+        if serving is not None:
+            serving.terminate()
+            serving.wait(timeout=60)
+        store.cleanup()
     return steps.rows

@@ -120,6 +120,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     memory.add_argument("--frames", type=at_least(1), default=30, help="frames to feed (default 30)")
     memory.add_argument("--arrays", action="store_true", help="list the largest arrays held at the end")
     memory.add_argument("--trace", action="store_true", help="also run tracemalloc (slow)")
+    memory.add_argument(
+        "--server",
+        action="store_true",
+        help="against a map server of the mission (its own process, a fresh store): catch-up, "
+        "sharing, a resync at the end",
+    )
     memory.set_defaults(run=_run_bench_agent_memory)
     sparse = bsub.add_parser(
         "sparse",
@@ -259,7 +265,7 @@ def _run_bench_agent_memory(args: argparse.Namespace) -> int:
         return fail(f"{args.config}: no such mission file")
     if not Path("/proc/self/smaps_rollup").exists():
         return fail("swarm bench agent-memory reads /proc/self/smaps_rollup: Linux only")
-    agent_memory.run(args.config, args.robot, args.frames, args.arrays, args.trace)
+    agent_memory.run(args.config, args.robot, args.frames, args.arrays, args.trace, server=args.server)
     return 0
 
 
