@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 import zenoh
 
-from swarm import heap
+from swarm.map import heap
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
@@ -294,7 +294,7 @@ class TeamReplica:
             feed.applied = AppliedDeltas()
             feed.applied.cover(snap.acks, snap.above)
             self.loaded_hook(snap)
-        heap.trim()  # the snapshot's chunks, freed: tens of MB of heap pages (swarm.heap)
+        heap.trim()  # the pages the snapshot's chunks held (swarm.map.heap)
 
     def loaded_hook(self, snap: Snapshot) -> None:
         """Called under ``lock`` after :meth:`load_snapshot` (a subclass resets what it derives)."""

@@ -1,4 +1,4 @@
-"""swarm.heap.trim: returns the C heap's free pages (glibc), a no-op elsewhere."""
+"""swarm.map.heap.trim: returns the C heap's free pages (glibc), a no-op elsewhere."""
 
 import ctypes.util
 import sys
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from swarm import heap
+from swarm.map import heap
 
 
 def _rss_kb() -> int:
