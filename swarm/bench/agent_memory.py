@@ -274,6 +274,10 @@ def run(
                 raise RuntimeError(f"the agent did not answer frame {seq}")
             commands.update(np.array([cmd.v, cmd.omega, cmd.tilt or 0.0]).tobytes())
             ours.send((cmd.v, cmd.omega, cmd.tilt))
+        from swarm.map import heap
+
+        # not what the agent does: how much of RSS is free heap pages the frames left behind
+        steps.run("heap.trim (diagnostic)", heap.trim)
         cmap = agent.explorer.map
         # what a catch-up or a resync from the map server does: this map's own state as a snapshot
         snap = Snapshot(agent.explorer.grid, cmap.lam.copy(), cmap.eta.copy())
