@@ -101,6 +101,32 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--repeat", type=at_least(1), default=5, help="time N runs of each stage: best and median (default 5)"
     )
     agent.set_defaults(run=_run_bench_agent)
+    memory = bsub.add_parser(
+        "agent-memory",
+        help="one agent's RSS and PSS step by step on a mission's grid, and the arrays it holds",
+        description="Build one robot agent of a mission (default configs/campus_floor.yaml) on a "
+        "loopback Zenoh session of its own, feed it --frames frames rendered by sim2d while a pymunk "
+        "world drives its robot, and print after each step the process's RSS, peak RSS within the step "
+        "(VmHWM), PSS, private and shared pages (MB); --arrays: the largest numpy arrays the agent "
+        "holds; --trace: tracemalloc's peak per step and top allocation sites (slow). Linux only.",
+    )
+    memory.add_argument(
+        "--config",
+        type=Path,
+        default=Path("configs/campus_floor.yaml"),
+        help="mission (default configs/campus_floor.yaml)",
+    )
+    memory.add_argument("--robot", default=None, help="robot id (default: the mission's first)")
+    memory.add_argument("--frames", type=at_least(1), default=30, help="frames to feed (default 30)")
+    memory.add_argument("--arrays", action="store_true", help="list the largest arrays held at the end")
+    memory.add_argument("--trace", action="store_true", help="also run tracemalloc (slow)")
+    memory.add_argument(
+        "--server",
+        action="store_true",
+        help="against a map server of the mission (its own process, a fresh store): catch-up, "
+        "sharing, a resync at the end",
+    )
+    memory.set_defaults(run=_run_bench_agent_memory)
     sparse = bsub.add_parser(
         "sparse",
         help="the block-sparse map beside the dense one: same map, fusion time, memory",
@@ -230,6 +256,17 @@ def _run_bench_entropy(args: argparse.Namespace) -> int:
     from swarm.bench import entropy
 
     print(entropy.format_figures(entropy.run(args.voxels, args.repeat)))
+    return 0
+
+
+def _run_bench_agent_memory(args: argparse.Namespace) -> int:
+    from swarm.bench import agent_memory
+
+    if not args.config.exists():
+        return fail(f"{args.config}: no such mission file")
+    if not Path("/proc/self/smaps_rollup").exists():
+        return fail("swarm bench agent-memory reads /proc/self/smaps_rollup: Linux only")
+    agent_memory.run(args.config, args.robot, args.frames, args.arrays, args.trace, server=args.server)
     return 0
 
 
