@@ -11,7 +11,7 @@ import numpy as np
 from robot_agent.stereo import StereoMatcher, points_from_depth
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
-from swarm.map.entropy_fill import entropy_cache, refill_entropy
+from swarm.map.entropy_cache import EntropyCache
 from swarm.map.entropy_table import EntropyTable
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -37,8 +37,9 @@ class LocalMap:
         #: every change goes through the entropy cache), and the eq. 35 fields kept per tile
         self.changes = ChangedTiles(grid.shape)
         self.targets = TargetCache(grid, self.changes)
-        # from_information's values, without its whole-map temporaries (swarm.map.entropy_fill)
-        self.entropy = entropy_cache(self.map.lam, self.map.eta, table=table, on_change=self.changes.note)
+        self.entropy = EntropyCache.from_information(
+            self.map.lam, self.map.eta, table=table, on_change=self.changes.note
+        )
 
     def points(self, frame: Frame) -> np.ndarray:
         """World points of a frame's valid pixels within max range (stereo is matched first)."""
@@ -67,7 +68,7 @@ class LocalMap:
     def recompute_entropy(self) -> None:
         """The entropy of every voxel from the map again, in place (after the map's arrays were
         set whole; the team replica holds the same cache)."""
-        refill_entropy(self.entropy, self.map.lam, self.map.eta)
+        self.entropy.refill_information(self.map.lam, self.map.eta)
 
     @property
     def entropy_bits(self) -> float:

@@ -41,7 +41,6 @@ from swarm.map import heap
 from swarm.map.coverage_map import CoverageMap
 from swarm.map.delta import Delta
 from swarm.map.entropy_cache import EntropyCache
-from swarm.map.entropy_fill import entropy_cache, refill_entropy
 from swarm.map.entropy_table import EntropyTable, default_table
 from swarm.map.grid import Grid
 from swarm.map.sensor_model import SensorModel
@@ -109,7 +108,7 @@ class TeamReplica:
         self.map = cmap if cmap is not None else CoverageMap(grid, sensor)
         self.table = table or default_table()
         if entropy is None:
-            entropy = entropy_cache(self.map.lam, self.map.eta, table=self.table)
+            entropy = EntropyCache.from_information(self.map.lam, self.map.eta, table=self.table)
         self.entropy = entropy
         self.on_applied = on_applied
         self.counts: Counter[str] = Counter()
@@ -321,7 +320,7 @@ class TeamReplica:
                 slab = np.arange(start, stop, dtype=np.int64)
                 self.entropy.update_information(slab, self.map.lam[start:stop], self.map.eta[start:stop])
             else:
-                refill_entropy(self.entropy, self.map.lam, self.map.eta)  # no whole-map temporaries
+                self.entropy.refill_information(self.map.lam, self.map.eta)
             feed.applied = AppliedDeltas()
             feed.applied.cover(snap.acks, snap.above)
             self.loaded_hook(snap)

@@ -1,48 +1,54 @@
-"""swarm.map.entropy_fill: the chunked fill gives EntropyCache's own values and totals, bit for bit."""
+"""EntropyCache fills a whole map a chunk at a time: the values and total of one whole-map pass."""
 
 import numpy as np
 import pytest
 
-from swarm.map import entropy_fill
-from swarm.map.entropy_cache import EntropyCache
+from swarm.map.entropy import moments
+from swarm.map.entropy_cache import FILL_CHUNK, EntropyCache
 from swarm.map.entropy_table import default_table
 
 
 def _map(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """lam, eta float32 (n,): prior-like voxels, observed ones, near-certain ones."""
     rng = np.random.default_rng(seed)
-    lam = rng.choice([4.0, 0.5, 30.0, 2000.0], n).astype(np.float32) * rng.uniform(0.5, 2.0, n).astype(
-        np.float32
-    )
+    scale = rng.uniform(0.5, 2.0, n).astype(np.float32)
+    lam = rng.choice([4.0, 0.5, 30.0, 2000.0], n).astype(np.float32) * scale
     mu = rng.uniform(-0.5, 1.5, n).astype(np.float32)
     return lam, (mu * lam).astype(np.float32)
 
 
-@pytest.mark.parametrize("n", [1, entropy_fill.CHUNK - 1, 2 * entropy_fill.CHUNK + 17])
-def test_entropy_cache_equals_from_information(n):
+def whole_map_pass(lam: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """The oracle: the table over the whole map's moments at once."""
+    return default_table()(*moments(lam, eta))
+
+
+@pytest.mark.parametrize("n", [1, FILL_CHUNK - 1, 2 * FILL_CHUNK + 17])
+def test_from_information_equals_one_whole_map_pass(n):
     lam, eta = _map(n)
-    ours = entropy_fill.entropy_cache(lam, eta, table=default_table())
-    theirs = EntropyCache.from_information(lam, eta, table=default_table())
-    assert ours.values.dtype == np.float32
-    np.testing.assert_array_equal(ours.values, theirs.values)
-    assert ours.total == theirs.total
-    assert ours.table is theirs.table
+    cache = EntropyCache.from_information(lam, eta)
+    expected = whole_map_pass(lam, eta)
+    assert cache.values.dtype == np.float32
+    np.testing.assert_array_equal(cache.values, expected)
+    assert cache.total == float(np.sum(expected, dtype=np.float64))
+    assert cache.table is default_table()
 
 
-def test_refill_equals_refill_information_and_tells_every_voxel():
-    n = 3 * entropy_fill.CHUNK + 5
+def test_refill_equals_one_whole_map_pass_and_tells_every_voxel():
+    n = 3 * FILL_CHUNK + 5
     lam, eta = _map(n, 1)
-    told_ours, told_theirs = [], []
-    ours = entropy_fill.entropy_cache(lam, eta, on_change=told_ours.append)
-    theirs = EntropyCache.from_information(lam, eta, on_change=told_theirs.append)
+    told = []
+    cache = EntropyCache.from_information(lam, eta, on_change=told.append)
+    assert told == []  # building the cache is not a change
     lam2, eta2 = _map(n, 2)
-    total = entropy_fill.refill_entropy(ours, lam2, eta2)
-    assert total == theirs.refill_information(lam2, eta2)
-    np.testing.assert_array_equal(ours.values, theirs.values)
-    assert told_ours == told_theirs == [None]
+    total = cache.refill_information(lam2.reshape(1, -1), eta2)  # any shape of the map's size
+    expected = whole_map_pass(lam2, eta2)
+    np.testing.assert_array_equal(cache.values, expected)
+    assert total == cache.total == float(np.sum(expected, dtype=np.float64))
+    assert told == [None]
 
 
 def test_sizes_must_match():
-    lam, eta = _map(10)
+    cache = EntropyCache.from_information(*_map(10))
+    lam, eta = _map(9)
     with pytest.raises(ValueError, match="sizes differ"):
-        entropy_fill.fill_entropy(np.zeros(9, np.float32), lam, eta, default_table())
+        cache.refill_information(lam, eta)
