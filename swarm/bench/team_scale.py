@@ -28,13 +28,14 @@ _STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 
 @dataclass
 class ProcessSample:
-    """The last sample of one process: CPU s, RSS and peak RSS (MB), peak PSS (MB)."""
+    """The samples of one process: CPU s at the last; peak RSS and PSS (MB); PSS at the last (MB)."""
 
     role: str
     cpu_user_s: float = 0.0
     cpu_sys_s: float = 0.0
     rss_peak_mb: float = 0.0
     pss_peak_mb: float = 0.0
+    pss_last_mb: float = 0.0
 
 
 @dataclass
@@ -91,7 +92,8 @@ def _sample(pid: int, into: dict[int, ProcessSample]) -> None:
     if hwm:
         s.rss_peak_mb = max(s.rss_peak_mb, int(hwm.group(1)) / 1024)
     if pss:
-        s.pss_peak_mb = max(s.pss_peak_mb, int(pss.group(1)) / 1024)
+        s.pss_last_mb = int(pss.group(1)) / 1024
+        s.pss_peak_mb = max(s.pss_peak_mb, s.pss_last_mb)
 
 
 def world_run_seconds(log: Path) -> float | None:
@@ -148,7 +150,8 @@ def run_team(config: Path, robots: int, max_time: float, out: Path, progress=pri
 
 
 def role_figures(run: TeamRun) -> dict[str, dict[str, float]]:
-    """Per role: process count, CPU s in all (user + system), the largest peak RSS and PSS (MB)."""
+    """Per role: process count, CPU s in all (user + system), the largest peak RSS and PSS, and
+    the largest PSS at a process's last sample (MB: after its start-up, near the run's end)."""
     out: dict[str, dict[str, float]] = {}
     for s in run.processes.values():
         r = out.setdefault(s.role, {"processes": 0, "cpu_s": 0.0, "rss_peak_mb": 0.0, "pss_peak_mb": 0.0})
@@ -156,6 +159,7 @@ def role_figures(run: TeamRun) -> dict[str, dict[str, float]]:
         r["cpu_s"] += s.cpu_user_s + s.cpu_sys_s
         r["rss_peak_mb"] = max(r["rss_peak_mb"], s.rss_peak_mb)
         r["pss_peak_mb"] = max(r["pss_peak_mb"], s.pss_peak_mb)
+        r["pss_last_mb"] = max(r.get("pss_last_mb", 0.0), s.pss_last_mb)
     return out
 
 
@@ -184,7 +188,8 @@ def format_run(run: TeamRun) -> str:
     for role, r in sorted(role_figures(run).items()):
         lines.append(
             f"  {role:<11} x{int(r['processes']):<2} CPU {r['cpu_s']:7.1f} s  "
-            f"peak RSS {r['rss_peak_mb']:6.0f} MB  peak PSS {r['pss_peak_mb']:6.0f} MB (its largest process)"
+            f"peak RSS {r['rss_peak_mb']:5.0f} MB  PSS peak {r['pss_peak_mb']:5.0f} MB, "
+            f"last {r['pss_last_mb']:5.0f} MB (its largest process)"
         )
     return "\n".join(lines)
 
