@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import sys
 from pathlib import Path
 
 import pytest
@@ -37,6 +35,7 @@ def test_a_terminated_mission_stops_every_role_and_says_where_its_run_folder_is(
     folder is written from the map server's map with ``interrupted: true`` (a resumed study
     runs it again), the command says where and exits 130."""
     import json
+    import os
     import signal
     import subprocess
     import sys
@@ -122,6 +121,7 @@ walls:
 def test_a_mission_that_runs_out_of_time_says_so(tmp_path: Path) -> None:
     import json
     import subprocess
+    import sys
 
     (tmp_path / "plan.yaml").write_text(BOX)
     (tmp_path / "m.yaml").write_text(TINY)
