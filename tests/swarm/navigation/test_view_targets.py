@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from swarm.map.coverage_map import CoverageMap
+from swarm.map.entropy import expected_coverage
 from swarm.map.entropy_cache import EntropyCache
 from swarm.map.grid import Grid
-from swarm.navigation import planner
+from swarm.navigation import planner, view_targets
 from swarm.navigation.exploration import SearchOptions, choose_target, last_look_target
 from swarm.navigation.planner import GridPlanner
-from swarm.navigation.search_context import SearchContext
+from swarm.navigation.search_context import OPAQUE_COVERAGE, SearchContext
 from swarm.navigation.traversability import build_traversability
 from swarm.navigation.view_kernels import stand_for
 from swarm.navigation.view_targets import RESTAND_RADIUS, CameraReach, uncertain_voxels, view_target
@@ -205,3 +206,25 @@ def test_the_planners_warm_up_compiles_the_stand_search_a_real_view_choice_runs(
     camera = CameraReach(-HALF_V, HALF_V + math.radians(35.0), 5.0)
     assert _choose("entropy", _known_below(1.0), camera).kind == "view"
     assert list(stand_for.signatures) == warmed
+
+
+@pytest.mark.parametrize("chunk", [1, 7 * GRID.shape[1] * GRID.shape[2] + 5, GRID.size])
+def test_free_voxels_slab_by_slab_equal_the_whole_map_formula(monkeypatch, chunk):
+    rng = np.random.default_rng(chunk)
+    cmap = CoverageMap(GRID)
+    seen = rng.random(GRID.size) < 0.6
+    cmap.lam[seen] = rng.uniform(10.0, 3000.0, seen.sum()).astype(np.float32)
+    cmap.eta[seen] = cmap.lam[seen] * rng.uniform(0.0, 1.0, seen.sum()).astype(np.float32)
+    monkeypatch.setattr(view_targets, "FREE_CHUNK", chunk)
+    known, near_free = view_targets._known_and_near_free(type("Ctx", (), {"cmap": cmap})())
+    whole = cmap.known_mask() & (expected_coverage(cmap.mean(), cmap.sigma()) < OPAQUE_COVERAGE)
+    free = whole.reshape(GRID.shape)
+    expected = np.zeros(GRID.shape, dtype=bool)
+    expected[1:] |= free[:-1]
+    expected[:-1] |= free[1:]
+    expected[:, 1:] |= free[:, :-1]
+    expected[:, :-1] |= free[:, 1:]
+    expected[:, :, 1:] |= free[:, :, :-1]
+    expected[:, :, :-1] |= free[:, :, 1:]
+    assert np.array_equal(known, cmap.known_mask().reshape(GRID.shape))
+    assert np.array_equal(near_free, expected) and 0 < near_free.sum() < near_free.size
