@@ -19,7 +19,6 @@ import gc
 import hashlib
 import math
 import os
-import re
 import time
 import tracemalloc
 from collections.abc import Callable, Iterator
@@ -27,30 +26,22 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.bench.proc_memory import memory_kb
+
 KB = 1024
 MB = 1e6
 PAGE = os.sysconf("SC_PAGE_SIZE")
-#: the fields of /proc/self/smaps_rollup read (kB); PSS is Pss_Anon + Pss_File + Pss_Shmem
-ROLLUP_FIELDS = ("Rss", "Pss", "Shared_Clean", "Shared_Dirty", "Private_Clean", "Private_Dirty", "Pss_Anon")
 
 
 def memory() -> dict[str, float]:
     """This process's memory (MB): ``rss``, ``hwm`` (peak RSS), ``pss``, ``private``, ``shared``,
     ``pss_anon`` (the heap's and arrays' share of PSS). Raises OSError off Linux."""
-    status = Path("/proc/self/status").read_text()
-    out = {}
-    for name, key in (("VmRSS", "rss"), ("VmHWM", "hwm")):
-        match = re.search(rf"^{name}:\s+(\d+) kB", status, re.M)
-        out[key] = int(match.group(1)) * KB / MB if match else math.nan
-    rollup = {}
-    for line in Path("/proc/self/smaps_rollup").read_text().splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0].rstrip(":") in ROLLUP_FIELDS:
-            rollup[parts[0].rstrip(":")] = int(parts[1]) * KB / MB
-    out["pss"] = rollup.get("Pss", math.nan)
-    out["private"] = rollup.get("Private_Clean", 0.0) + rollup.get("Private_Dirty", 0.0)
-    out["shared"] = rollup.get("Shared_Clean", 0.0) + rollup.get("Shared_Dirty", 0.0)
-    out["pss_anon"] = rollup.get("Pss_Anon", math.nan)
+    mb = {name: kb * KB / MB for name, kb in memory_kb().items()}  # swarm.bench.proc_memory
+    out = {"rss": mb.get("VmRSS", math.nan), "hwm": mb.get("VmHWM", math.nan)}
+    out["pss"] = mb.get("Pss", math.nan)
+    out["private"] = mb.get("Private_Clean", 0.0) + mb.get("Private_Dirty", 0.0)
+    out["shared"] = mb.get("Shared_Clean", 0.0) + mb.get("Shared_Dirty", 0.0)
+    out["pss_anon"] = mb.get("Pss_Anon", math.nan)
     return out
 
 

@@ -13,6 +13,7 @@ simulated time took once every agent was there). Linux only (``/proc``).
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import time
@@ -20,9 +21,10 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
+from swarm.bench.proc_memory import memory_kb
 from swarm.child_command import child_environment, swarm_argv
 
-PAGE_TICKS = 100.0  # clock ticks a second (USER_HZ, Linux)
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")  # the unit of /proc/<pid>/stat's CPU times, a second
 _STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 
 
@@ -81,18 +83,15 @@ def _sample(pid: int, into: dict[int, ProcessSample]) -> None:
     try:
         cmdline = (proc / "cmdline").read_bytes().decode(errors="replace").split("\0")[:-1]
         stat = (proc / "stat").read_text().rsplit(")", 1)[1].split()
-        status = (proc / "status").read_text()
-        rollup = (proc / "smaps_rollup").read_text()
+        kb = memory_kb(pid)
     except (OSError, IndexError):
         return  # exited between the listing and the reads
     s = into.setdefault(pid, ProcessSample(role_of(cmdline)))
-    s.cpu_user_s, s.cpu_sys_s = int(stat[11]) / PAGE_TICKS, int(stat[12]) / PAGE_TICKS
-    hwm = re.search(r"VmHWM:\s+(\d+) kB", status)
-    pss = re.search(r"^Pss:\s+(\d+) kB", rollup, re.M)
-    if hwm:
-        s.rss_peak_mb = max(s.rss_peak_mb, int(hwm.group(1)) / 1024)
-    if pss:
-        s.pss_last_mb = int(pss.group(1)) / 1024
+    s.cpu_user_s, s.cpu_sys_s = int(stat[11]) / CLOCK_TICKS, int(stat[12]) / CLOCK_TICKS
+    if "VmHWM" in kb:
+        s.rss_peak_mb = max(s.rss_peak_mb, kb["VmHWM"] / 1024)
+    if "Pss" in kb:
+        s.pss_last_mb = kb["Pss"] / 1024
         s.pss_peak_mb = max(s.pss_peak_mb, s.pss_last_mb)
 
 
@@ -106,8 +105,11 @@ def world_run_seconds(log: Path) -> float | None:
     start = next((t for t, line in stamps if "agent is there" in line), None)
     if start is None or not stamps:
         return None
-    parse = lambda t: datetime.strptime(t, "%Y-%m-%d %H:%M:%S,%f")  # noqa: E731
-    return (parse(stamps[-1][0]) - parse(start)).total_seconds()
+    return (_stamp_time(stamps[-1][0]) - _stamp_time(start)).total_seconds()
+
+
+def _stamp_time(stamp: str) -> datetime:
+    return datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S,%f")
 
 
 def run_team(config: Path, robots: int, max_time: float, out: Path, progress=print) -> TeamRun:
@@ -167,7 +169,7 @@ def format_run(run: TeamRun) -> str:
     """The figures of one run, as printed lines."""
     m = run.metrics
     sim_s = float(m.get("sim_time_s") or 0.0)
-    removed = float(m["initial_entropy_bits"]) - float(m["final_entropy_bits"])
+    removed = removed_bits(run)
     lines = [f"{run.robots} robots, {sim_s:.1f} s simulated:"]
     if run.world_run_s:
         factor = sim_s / run.world_run_s
@@ -196,5 +198,9 @@ def format_run(run: TeamRun) -> str:
 
 def speed_up(big: TeamRun, small: TeamRun) -> float:
     """Entropy removed by ``big`` over that removed by ``small`` in the same simulated time."""
-    gain = lambda r: float(r.metrics["initial_entropy_bits"]) - float(r.metrics["final_entropy_bits"])  # noqa: E731
-    return gain(big) / gain(small) if gain(small) > 0 else float("inf")
+    return removed_bits(big) / removed_bits(small) if removed_bits(small) > 0 else float("inf")
+
+
+def removed_bits(run: TeamRun) -> float:
+    """The entropy a run removed (bits): its metrics' initial minus final."""
+    return float(run.metrics["initial_entropy_bits"]) - float(run.metrics["final_entropy_bits"])

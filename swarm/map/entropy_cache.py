@@ -42,11 +42,6 @@ class EntropyCache:
         self.total = self.resum()
 
     @classmethod
-    def from_beliefs(cls, mu, sigma, table: EntropyTable | None = None, **kw) -> EntropyCache:
-        tab = table or default_table()
-        return cls(tab(mu, sigma), table=tab, **kw)
-
-    @classmethod
     def from_information(cls, lam, eta, table=None, **kw) -> EntropyCache:
         """The cache of a map given in information form (flat or not; lam > 0), filled a chunk
         of FILL_CHUNK voxels at a time (:meth:`refill_information`)."""

@@ -48,10 +48,10 @@ class BatchResult:
 _local = threading.local()
 
 
-def reserve(grid: Grid, discretize: bool = True) -> None:
+def reserve(grid: Grid) -> None:
     """Allocate this thread's brick table for ``grid`` now (kept between batches on one grid).
-    ``discretize``: unused; the slot map spans each batch's end voxels only (:func:`ends_box`),
-    so it is small and allocated by the first batch."""
+    The discretize slot map spans each batch's end voxels only (:func:`ends_box`), so it is
+    small and allocated by the first batch."""
     _table(grid)
 
 

@@ -84,9 +84,9 @@ def ingest_cloud(
     initial = prior_entropy_bits(grid, sensor)
 
     # Set-up, not fusion (as in ``swarm bench fusion``): load the compiled kernels and
-    # allocate the grid's brick table (and slot map) and each fresh map before its clock starts.
+    # allocate the grid's brick table and each fresh map before its clock starts.
     fusion.warm_up()
-    fusion.reserve(grid, sensor.discretize)
+    fusion.reserve(grid)
     times = []
     for _ in range(repeat):
         cmap = None  # the previous repeat's map is freed before the next one is allocated

@@ -14,18 +14,27 @@ from tests.support.missions import MISSION, PLAN
 pytestmark = pytest.mark.slow  # whole missions: every role a process
 
 
-def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
+def run_tiny_mission(
+    tmp_path: Path, mission: str, *flags: str
+) -> tuple[subprocess.CompletedProcess, Path, str]:
+    """``swarm sim`` of ``mission`` (on PLAN) into tmp_path/run, asserted to exit 0: (the process,
+    the run folder, the tail of every role's log)."""
     (tmp_path / "plan.yaml").write_text(PLAN)
-    (tmp_path / "tiny.yaml").write_text(MISSION)
+    (tmp_path / "tiny.yaml").write_text(mission)
     out = tmp_path / "run"
     proc = subprocess.run(
-        [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "tiny.yaml"), "--out", str(out), "--quiet"],
+        [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "tiny.yaml"), "--out", str(out), *flags],
         capture_output=True,
         text=True,
         timeout=240,
     )
     logs = "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(out.glob("*.log")))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    return proc, out, logs
+
+
+def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
+    proc, out, logs = run_tiny_mission(tmp_path, MISSION, "--quiet")
     metrics = json.loads((out / "metrics.json").read_text())
     summary = {k: v for k, v in metrics.items() if k != "entropy_curve"}
     assert metrics["reached_threshold"] is True, f"{summary}\n{proc.stdout}\n{logs}"
@@ -68,17 +77,7 @@ def test_single_robot_mission_reaches_its_threshold(tmp_path: Path):
 def test_a_mission_on_a_two_shard_map_service_ends_with_the_monitors_map(tmp_path: Path):
     """``map_service: {shards: 2}``: swarm sim starts a server per shard, the robot shares with
     both, and the team map read from the two shards is the map the monitor fused (docs/sharding.md)."""
-    (tmp_path / "plan.yaml").write_text(PLAN)
-    (tmp_path / "tiny.yaml").write_text(MISSION + "map_service: {shards: 2}\n")
-    out = tmp_path / "run"
-    proc = subprocess.run(
-        [sys.executable, "-m", "swarm.cli", "sim", str(tmp_path / "tiny.yaml"), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    logs = "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(out.glob("*.log")))
-    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    proc, out, logs = run_tiny_mission(tmp_path, MISSION + "map_service: {shards: 2}\n")
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["reached_threshold"] is True, proc.stdout + logs
     for k in (0, 1):
